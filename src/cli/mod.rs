@@ -1,0 +1,45 @@
+//! The `dpr-gpu` command line. Each subcommand lives in its own module with an `Args` struct and `run`.
+
+use clap::{Parser, Subcommand};
+
+pub mod eval;
+pub mod synth;
+
+/// dpr-gpu: learned pairwise registration of 3D scans on any GPU (and the CPU).
+#[derive(Parser, Debug)]
+#[command(name = "dpr-gpu", version, about)]
+pub struct Cli {
+    /// The subcommand.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// Subcommands.
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Generate synthetic indoor scans in the 3DMatch layout.
+    Synth(synth::Args),
+    /// Evaluate registration on a dataset (3DMatch protocol) or score a result log.
+    Eval(eval::Args),
+}
+
+/// Runs the CLI; returns the process exit code. Errors are printed as one line.
+pub fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let outcome = match cli.command {
+        Command::Synth(args) => synth::run(args),
+        Command::Eval(args) => eval::run(args),
+    };
+    match outcome {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {}", one_line(&e));
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+/// The error and its causes on one line.
+pub fn one_line(e: &anyhow::Error) -> String {
+    e.chain().map(|c| c.to_string()).collect::<Vec<_>>().join(": ")
+}

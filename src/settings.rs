@@ -1,0 +1,186 @@
+//! Registration settings and results: the library's public vocabulary.
+
+use nalgebra::Matrix4;
+use serde::Serialize;
+use std::path::PathBuf;
+
+/// How keypoints are chosen on each scan.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum KeypointMode {
+    /// Uniformly random points of the (downsampled) cloud, seeded: the 3DMatch convention.
+    Random,
+    /// Spatially uniform: farthest-point sampling from a seeded start point.
+    Uniform,
+}
+
+/// How correspondences are formed from the invariant (PPF) codewords.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum MatchMode {
+    /// a is among b's K nearest and b among a's K nearest (K = 1..4; K = 1 is mutual nearest neighbours).
+    Mutual(usize),
+    /// Every source keypoint with its nearest target keypoint (the paper's "Closest" ablation).
+    Closest,
+}
+
+/// Which pose estimator turns correspondences into a transform.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum Estimator {
+    /// One hypothesis per correspondence from RelativeNet's rotation, exhaustive verification.
+    RelativeNet,
+    /// The baseline: 3-point RANSAC on the same correspondences.
+    Ransac,
+}
+
+/// Which compute backend runs the learned stages.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum BackendKind {
+    /// The plain-Rust reference path.
+    Cpu,
+    /// The WGSL kernels through wgpu; fails when no adapter exists.
+    Gpu,
+    /// A GPU when one exists, else the CPU with a warning.
+    Auto,
+}
+
+/// RANSAC stopping criteria.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct RansacSettings {
+    /// Upper bound on sampled 3-point hypotheses.
+    pub max_iterations: usize,
+    /// Stop once the probability of having drawn an all-inlier sample exceeds this.
+    pub confidence: f64,
+}
+
+impl Default for RansacSettings {
+    fn default() -> Self {
+        RansacSettings { max_iterations: 100_000, confidence: 0.999 }
+    }
+}
+
+/// Point-to-plane ICP settings (used only when enabled).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct IcpSettings {
+    /// Pairs further apart than this (in cloud units) are ignored.
+    pub max_correspondence_distance: f32,
+    /// Iteration limit.
+    pub max_iterations: usize,
+}
+
+/// Everything `register` needs to know besides the two clouds. Distances are in the clouds' units (metres by
+/// default); scale `radius`, `voxel` and the thresholds together to work in other units.
+#[derive(Clone, Debug, Serialize)]
+pub struct RegistrationSettings {
+    /// Weights file; `None` uses the shipped `weights/default.safetensors`.
+    pub weights: Option<PathBuf>,
+    /// Patch radius r. `None` takes the radius the weights were trained with (0.30 m by default).
+    pub radius: Option<f32>,
+    /// Voxel size for downsampling before normals and keypoints; `None` keeps every point.
+    pub voxel: Option<f32>,
+    /// Keypoints per scan.
+    pub keypoints: usize,
+    /// How keypoints are chosen.
+    pub keypoint_mode: KeypointMode,
+    /// Neighbours used for PCA normals (ignored when the file has normals).
+    pub normal_neighbors: usize,
+    /// Normals are flipped to face this point, in each scan's own frame.
+    pub viewpoint: [f32; 3],
+    /// Correspondence rule.
+    pub matching: MatchMode,
+    /// Pose estimator.
+    pub estimator: Estimator,
+    /// A correspondence is an inlier of a pose when |p_target - T p_source| is below this. `None`: radius / 3
+    /// (0.10 m at r = 0.30 m, the 3DMatch feature-match distance tau1).
+    pub inlier_threshold: Option<f32>,
+    /// RANSAC criteria (for `Estimator::Ransac`).
+    pub ransac: RansacSettings,
+    /// Optional point-to-plane ICP on the full clouds after the estimator.
+    pub icp: Option<IcpSettings>,
+    /// Drop exact (0, 0, 0) points (invalid LiDAR returns) when loading.
+    pub drop_zero_points: bool,
+    /// Seed for every random choice.
+    pub seed: u64,
+    /// Compute backend.
+    pub backend: BackendKind,
+}
+
+impl Default for RegistrationSettings {
+    fn default() -> Self {
+        RegistrationSettings {
+            weights: None,
+            radius: None,
+            voxel: None,
+            keypoints: 1000,
+            keypoint_mode: KeypointMode::Random,
+            normal_neighbors: 30,
+            viewpoint: [0.0; 3],
+            matching: MatchMode::Mutual(1),
+            estimator: Estimator::RelativeNet,
+            inlier_threshold: None,
+            ransac: RansacSettings::default(),
+            icp: None,
+            drop_zero_points: false,
+            seed: 0,
+            backend: BackendKind::Cpu,
+        }
+    }
+}
+
+/// One correspondence between a source keypoint and a target keypoint.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Correspondence {
+    /// Index into the source scan's keypoints.
+    pub source_index: u32,
+    /// Index into the target scan's keypoints.
+    pub target_index: u32,
+    /// Source keypoint position (source frame).
+    pub source_point: [f32; 3],
+    /// Target keypoint position (target frame).
+    pub target_point: [f32; 3],
+    /// Euclidean distance between the two PPF codewords.
+    pub feature_distance: f32,
+}
+
+/// Wall time of one pipeline stage.
+#[derive(Clone, Debug, Serialize)]
+pub struct StageTime {
+    /// Stage name ("load", "normals", "ppf_encoder"...).
+    pub stage: String,
+    /// Seconds.
+    pub seconds: f64,
+}
+
+/// A pose estimate and its support.
+#[derive(Clone, Debug, Serialize)]
+pub struct PoseEstimate {
+    /// p_target = T p_source (row-major when serialised).
+    #[serde(serialize_with = "serialize_matrix")]
+    pub target_from_source: Matrix4<f64>,
+    /// Correspondences within the inlier threshold under the final pose.
+    pub inliers: usize,
+    /// RMS residual of those inliers.
+    pub inlier_rmse: f64,
+    /// inliers / correspondences.
+    pub fitness: f64,
+    /// Pose hypotheses scored.
+    pub hypotheses_scored: usize,
+}
+
+/// What `register` returns.
+#[derive(Clone, Debug, Serialize)]
+pub struct RegistrationResult {
+    /// The final pose and its support.
+    #[serde(flatten)]
+    pub estimate: PoseEstimate,
+    /// Number of correspondences fed to the estimator.
+    pub correspondences: usize,
+    /// Wall time per stage, in pipeline order.
+    pub timings: Vec<StageTime>,
+    /// The backend (and adapter) that ran the learned stages.
+    pub backend: String,
+}
+
+/// Serialises a 4x4 matrix as four rows.
+pub fn serialize_matrix<S: serde::Serializer>(m: &Matrix4<f64>, s: S) -> Result<S::Ok, S::Error> {
+    let rows: Vec<[f64; 4]> = (0..4).map(|r| [m[(r, 0)], m[(r, 1)], m[(r, 2)], m[(r, 3)]]).collect();
+    rows.serialize(s)
+}
