@@ -10,6 +10,7 @@ pub mod cli;
 pub mod cloud;
 pub mod error;
 pub mod io;
+pub mod pipeline;
 pub mod rng;
 pub mod settings;
 

@@ -3,6 +3,7 @@
 use clap::{Parser, Subcommand};
 
 pub mod eval;
+pub mod register;
 pub mod synth;
 
 /// dpr-gpu: learned pairwise registration of 3D scans on any GPU (and the CPU).
