@@ -8,8 +8,10 @@
 
 pub mod cli;
 pub mod cloud;
+pub mod cpu;
 pub mod error;
 pub mod io;
+pub mod model;
 pub mod pipeline;
 pub mod rng;
 pub mod settings;

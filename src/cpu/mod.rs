@@ -1,0 +1,5 @@
+//! The CPU twins of the WGSL kernels: readable, shaped like the shaders, f32. They are the oracle every
+//! GPU kernel is checked against, and the fallback on machines without a GPU.
+
+pub mod dense;
+pub mod max_pool;

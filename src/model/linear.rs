@@ -1,0 +1,40 @@
+//! A linear layer's parameters in the layout the CPU twin wants (transposed weight).
+
+use super::params::LayerSpec;
+use super::weights::Weights;
+use crate::error::Result;
+
+/// Weight stored transposed (`in_dim x out_dim`) so the CPU dense kernel streams rows of it.
+#[derive(Clone, Debug)]
+pub struct Linear {
+    /// Input width.
+    pub in_dim: usize,
+    /// Output width.
+    pub out_dim: usize,
+    /// `weight_t[k * out_dim + o] = weight[o][k]`.
+    pub weight_t: Vec<f32>,
+    /// Bias, `out_dim`.
+    pub bias: Vec<f32>,
+}
+
+impl Linear {
+    /// Reads `{spec.name}.weight` and `.bias` from `weights`.
+    pub fn from_weights(weights: &Weights, spec: &LayerSpec) -> Result<Linear> {
+        let w = weights.get(&format!("{}.weight", spec.name))?;
+        let b = weights.get(&format!("{}.bias", spec.name))?;
+        let (i_n, o_n) = (spec.in_dim, spec.out_dim);
+        let mut weight_t = vec![0.0; i_n * o_n];
+        for o in 0..o_n {
+            for k in 0..i_n {
+                weight_t[k * o_n + o] = w[o * i_n + k];
+            }
+        }
+        Ok(Linear { in_dim: i_n, out_dim: o_n, weight_t, bias: b.to_vec() })
+    }
+
+    /// Rows `from..from + count` of the transposed weight: the block that multiplies one slice of a
+    /// concatenated input.
+    pub fn weight_t_rows(&self, from: usize, count: usize) -> &[f32] {
+        &self.weight_t[from * self.out_dim..(from + count) * self.out_dim]
+    }
+}

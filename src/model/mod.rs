@@ -1,0 +1,41 @@
+//! The networks: configuration, parameter table, weights files, and the CPU reference forward passes.
+
+pub mod config;
+pub mod foldnet;
+pub mod linear;
+pub mod params;
+pub mod relativenet;
+pub mod weights;
+
+pub use config::ModelConfig;
+pub use foldnet::FoldNet;
+pub use params::Net;
+pub use relativenet::RelativeNet;
+pub use weights::Weights;
+
+use crate::error::Result;
+
+/// Both auto-encoders and RelativeNet, ready for the CPU forward pass.
+#[derive(Clone, Debug)]
+pub struct Model {
+    /// The sizes.
+    pub config: ModelConfig,
+    /// PPF-FoldNet (rotation-invariant codewords).
+    pub ppf: FoldNet,
+    /// PC-FoldNet (pose-variant codewords).
+    pub pc: FoldNet,
+    /// The relative-pose regressor.
+    pub relative: RelativeNet,
+}
+
+impl Model {
+    /// Builds the model from checked weights.
+    pub fn from_weights(weights: &Weights) -> Result<Model> {
+        Ok(Model {
+            config: weights.config.clone(),
+            ppf: FoldNet::from_weights(weights, Net::Ppf)?,
+            pc: FoldNet::from_weights(weights, Net::Pc)?,
+            relative: RelativeNet::from_weights(weights)?,
+        })
+    }
+}

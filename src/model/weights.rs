@@ -1,0 +1,148 @@
+//! Weights files: safetensors with the `ModelConfig` (JSON) in the metadata under `dpr_gpu.config`.
+//! Loading checks every tensor's name, dtype and shape and reports all mismatches at once.
+
+use super::config::ModelConfig;
+use super::params::{all_layers, tensor_specs};
+use crate::error::{Error, Result};
+use crate::rng::Rng;
+use safetensors::{Dtype, SafeTensors, tensor::TensorView};
+use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
+
+/// Metadata key holding the model configuration as JSON.
+pub const CONFIG_KEY: &str = "dpr_gpu.config";
+/// Metadata key holding the format version.
+pub const FORMAT_KEY: &str = "dpr_gpu.format";
+/// Current format version.
+pub const FORMAT_VERSION: &str = "1";
+
+/// All parameters of a model, by tensor name, f32, row-major.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Weights {
+    /// The configuration the tensors were made for.
+    pub config: ModelConfig,
+    /// Tensor data by name; shapes follow `params::tensor_specs(&config)`.
+    pub tensors: BTreeMap<String, Vec<f32>>,
+    /// Free-form metadata carried with the file (training command, steps...), besides the config.
+    pub notes: BTreeMap<String, String>,
+}
+
+impl Weights {
+    /// A seeded random initialisation: Xavier-normal weights, zero biases (as the reference implementation).
+    pub fn init(config: &ModelConfig, seed: u64) -> Result<Weights> {
+        config.validate()?;
+        let mut tensors = BTreeMap::new();
+        for (index, layer) in all_layers(config).into_iter().enumerate() {
+            let mut rng = Rng::derived(seed, index as u64);
+            let std = (2.0 / (layer.in_dim + layer.out_dim) as f64).sqrt();
+            let w: Vec<f32> = (0..layer.in_dim * layer.out_dim).map(|_| (rng.normal() * std) as f32).collect();
+            tensors.insert(format!("{}.weight", layer.name), w);
+            tensors.insert(format!("{}.bias", layer.name), vec![0.0; layer.out_dim]);
+        }
+        Ok(Weights { config: config.clone(), tensors, notes: BTreeMap::new() })
+    }
+
+    /// Total number of scalar parameters.
+    pub fn parameter_count(&self) -> usize {
+        self.tensors.values().map(Vec::len).sum()
+    }
+
+    /// Parameter count per tensor-name prefix ("ppf", "pc", "relative").
+    pub fn parameter_counts_by_net(&self) -> BTreeMap<String, usize> {
+        let mut out = BTreeMap::new();
+        for (name, t) in &self.tensors {
+            let net = name.split('.').next().unwrap_or("").to_string();
+            *out.entry(net).or_insert(0) += t.len();
+        }
+        out
+    }
+
+    /// A tensor by name (panics never: missing names are caught when loading or building).
+    pub fn get(&self, name: &str) -> Result<&[f32]> {
+        self.tensors.get(name).map(Vec::as_slice).ok_or_else(|| Error::Weights {
+            path: "<memory>".into(),
+            problems: vec![format!("missing tensor '{name}'")],
+        })
+    }
+
+    /// Serialises to safetensors bytes.
+    pub fn to_bytes(&self) -> Result<Vec<u8>> {
+        let mut metadata: HashMap<String, String> =
+            self.notes.iter().map(|(k, v)| (k.clone(), v.clone())).collect();
+        metadata.insert(CONFIG_KEY.into(), serde_json::to_string(&self.config).expect("config serialises"));
+        metadata.insert(FORMAT_KEY.into(), FORMAT_VERSION.into());
+        let specs: BTreeMap<String, Vec<usize>> = tensor_specs(&self.config).into_iter().collect();
+        let mut views = Vec::new();
+        for (name, data) in &self.tensors {
+            let shape = specs.get(name).cloned().unwrap_or_else(|| vec![data.len()]);
+            let view = TensorView::new(Dtype::F32, shape, bytemuck::cast_slice(data))
+                .map_err(|e| Error::invalid(format!("tensor '{name}': {e}")))?;
+            views.push((name.clone(), view));
+        }
+        safetensors::serialize(views, Some(metadata)).map_err(|e| Error::invalid(format!("serialising weights: {e}")))
+    }
+
+    /// Writes a safetensors file atomically.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        crate::io::write_atomic(path, &self.to_bytes()?)
+    }
+
+    /// Reads and checks a weights file.
+    pub fn load(path: &Path) -> Result<Weights> {
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        Weights::from_bytes(&bytes, &path.display().to_string())
+    }
+
+    /// Parses and checks safetensors bytes; `origin` names them in errors.
+    pub fn from_bytes(bytes: &[u8], origin: &str) -> Result<Weights> {
+        let fail = |problems: Vec<String>| Error::Weights { path: origin.to_string(), problems };
+        let (_, meta) = SafeTensors::read_metadata(bytes).map_err(|e| fail(vec![format!("not a safetensors file: {e}")]))?;
+        let mut notes: BTreeMap<String, String> =
+            meta.metadata().clone().unwrap_or_default().into_iter().collect();
+        let config_json = notes
+            .remove(CONFIG_KEY)
+            .ok_or_else(|| fail(vec![format!("metadata has no '{CONFIG_KEY}' (not a dpr-gpu weights file)")]))?;
+        notes.remove(FORMAT_KEY);
+        let config: ModelConfig = serde_json::from_str(&config_json)
+            .map_err(|e| fail(vec![format!("metadata '{CONFIG_KEY}' is not a valid model config: {e}")]))?;
+        config.validate().map_err(|e| fail(vec![e.to_string()]))?;
+        let st = SafeTensors::deserialize(bytes).map_err(|e| fail(vec![format!("corrupt safetensors: {e}")]))?;
+
+        let expected: BTreeMap<String, Vec<usize>> = tensor_specs(&config).into_iter().collect();
+        let mut problems = Vec::new();
+        let mut tensors = BTreeMap::new();
+        let mut present: Vec<String> = st.names().into_iter().map(str::to_string).collect();
+        present.sort();
+        for name in &present {
+            let view = st.tensor(name).map_err(|e| fail(vec![format!("tensor '{name}': {e}")]))?;
+            let Some(shape) = expected.get(name) else {
+                problems.push(format!("unexpected tensor '{name}'"));
+                continue;
+            };
+            if view.dtype() != Dtype::F32 {
+                problems.push(format!("tensor '{name}' has dtype {:?}, expected F32", view.dtype()));
+                continue;
+            }
+            if view.shape() != shape.as_slice() {
+                problems.push(format!("tensor '{name}' has shape {:?}, expected {:?}", view.shape(), shape));
+                continue;
+            }
+            let data: Vec<f32> =
+                view.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+            if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+                problems.push(format!("tensor '{name}' element {i} is not finite"));
+                continue;
+            }
+            tensors.insert(name.clone(), data);
+        }
+        for name in expected.keys() {
+            if !present.contains(name) {
+                problems.push(format!("missing tensor '{name}'"));
+            }
+        }
+        if !problems.is_empty() {
+            return Err(fail(problems));
+        }
+        Ok(Weights { config, tensors, notes })
+    }
+}
