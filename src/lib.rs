@@ -6,15 +6,20 @@
 //! hypothesis is refined on its inliers.
 #![warn(missing_docs)]
 
+pub mod backend;
 pub mod cli;
 pub mod cloud;
 pub mod cpu;
 pub mod error;
+pub mod estimate;
 pub mod io;
 pub mod model;
 pub mod pipeline;
+pub mod pose;
+pub mod preprocess;
 pub mod rng;
 pub mod settings;
+pub mod spatial;
 
 pub use cloud::PointCloud;
 pub use error::{Error, Result};

@@ -1,18 +1,36 @@
 //! The registration pipeline: load weights, describe each scan (keypoints, patches, codewords), correspond,
-//! estimate the pose. `register` runs it all; `Registrar` exposes the steps for evaluation tools.
+//! estimate the pose. `register` runs it all; `Registrar` exposes the steps for evaluation tools and keeps the
+//! model and backend loaded across pairs.
 
+use crate::backend::{Backend, CpuBackend};
 use crate::cloud::PointCloud;
-use crate::error::Result;
+use crate::error::{Error, Result};
+use crate::estimate::{icp_point_to_plane, ransac, verify};
+use crate::model::{Model, Net, Weights};
+use crate::preprocess::{estimate_normals, extract_patches, gather, select_keypoints, voxel_downsample};
+use crate::rng::Rng;
 use crate::settings::*;
+use crate::spatial::PointIndex;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Fewest points a scan may have after preprocessing.
+pub const MIN_POINTS: usize = 10;
+/// Fewest correspondences an estimator accepts.
+pub const MIN_CORRESPONDENCES: usize = 3;
+/// Environment variable that overrides the default weights path.
+pub const WEIGHTS_ENV: &str = "DPR_GPU_WEIGHTS";
 
 /// Per-scan output of the description stages.
 #[derive(Clone, Debug)]
 pub struct ScanFeatures {
-    /// The scan after preprocessing (downsampled, with normals).
+    /// The scan after preprocessing (downsampled, with unit normals).
     pub cloud: PointCloud,
-    /// Keypoint positions (scan frame).
+    /// Keypoint positions (scan frame), only keypoints with a non-empty patch.
     pub keypoints: Vec<[f32; 3]>,
-    /// Rotation-invariant PPF-FoldNet codewords, `keypoints.len() x codeword_size`, row-major.
+    /// Keypoints dropped because their patch was empty.
+    pub empty_patches: usize,
+    /// Rotation-invariant PPF-FoldNet codewords, `keypoints.len() x codeword`, row-major.
     pub ppf_codewords: Vec<f32>,
     /// Pose-variant features (PC codeword minus PPF codeword), same layout.
     pub pose_features: Vec<f32>,
@@ -20,32 +38,198 @@ pub struct ScanFeatures {
     pub timings: Vec<StageTime>,
 }
 
+/// The shipped default weights file.
+pub fn default_weights_path() -> PathBuf {
+    if let Some(p) = std::env::var_os(WEIGHTS_ENV) {
+        return PathBuf::from(p);
+    }
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("weights").join("default.safetensors")
+}
+
+/// Loads the weights named by the settings (or the default ones).
+pub fn load_weights(settings: &RegistrationSettings) -> Result<Weights> {
+    let path = settings.weights.clone().unwrap_or_else(default_weights_path);
+    if settings.weights.is_none() && !path.exists() {
+        return Err(Error::invalid(format!(
+            "no default weights at {} (set --weights FILE, or {WEIGHTS_ENV})",
+            path.display()
+        )));
+    }
+    Weights::load(&path)
+}
+
+/// Creates the backend `kind` for `model`.
+pub fn create_backend(kind: BackendKind, model: Model) -> Result<Box<dyn Backend>> {
+    match kind {
+        BackendKind::Cpu => Ok(Box::new(CpuBackend::new(model))),
+        BackendKind::Gpu | BackendKind::Auto => {
+            let _ = &model;
+            if kind == BackendKind::Auto {
+                eprintln!("warning: no GPU backend available; using the CPU reference path");
+                return Ok(Box::new(CpuBackend::new(model)));
+            }
+            Err(Error::Gpu("the GPU backend is not available in this build".into()))
+        }
+    }
+}
+
+struct Stopwatch {
+    start: Instant,
+    timings: Vec<StageTime>,
+}
+
+impl Stopwatch {
+    fn new() -> Self {
+        Stopwatch { start: Instant::now(), timings: Vec::new() }
+    }
+    fn lap(&mut self, stage: &str) {
+        let now = Instant::now();
+        self.timings.push(StageTime { stage: stage.to_string(), seconds: (now - self.start).as_secs_f64() });
+        self.start = now;
+    }
+}
+
 /// A configured pipeline: model and backend loaded once, reused across pairs.
 pub struct Registrar {
     /// The settings it was built with.
     pub settings: RegistrationSettings,
+    backend: Box<dyn Backend>,
 }
 
 impl Registrar {
     /// Loads the weights and prepares the backend.
     pub fn new(settings: &RegistrationSettings) -> Result<Registrar> {
-        Ok(Registrar { settings: settings.clone() })
+        let weights = load_weights(settings)?;
+        Registrar::with_weights(settings, &weights)
+    }
+
+    /// Builds the pipeline from weights already in memory.
+    pub fn with_weights(settings: &RegistrationSettings, weights: &Weights) -> Result<Registrar> {
+        if let Some(r) = settings.radius {
+            if !(r.is_finite() && r > 0.0) {
+                return Err(Error::invalid(format!("radius must be positive, got {r}")));
+            }
+        }
+        if settings.keypoints == 0 {
+            return Err(Error::invalid("keypoints must be at least 1"));
+        }
+        if let MatchMode::Mutual(k) = settings.matching {
+            if !(1..=4).contains(&k) {
+                return Err(Error::invalid(format!("mutual K must be 1..4, got {k}")));
+            }
+        }
+        if let Some(t) = settings.inlier_threshold {
+            if !(t.is_finite() && t > 0.0) {
+                return Err(Error::invalid(format!("inlier threshold must be positive, got {t}")));
+            }
+        }
+        let model = Model::from_weights(weights)?;
+        let backend = create_backend(settings.backend, model)?;
+        Ok(Registrar { settings: settings.clone(), backend })
+    }
+
+    /// The backend's name.
+    pub fn backend_name(&self) -> String {
+        self.backend.name()
+    }
+
+    /// The backend.
+    pub fn backend(&self) -> &dyn Backend {
+        self.backend.as_ref()
+    }
+
+    /// Patch radius in use.
+    pub fn radius(&self) -> f32 {
+        self.settings.radius.unwrap_or(self.backend.model().config.radius)
+    }
+
+    /// Inlier threshold in use.
+    pub fn inlier_threshold(&self) -> f32 {
+        self.settings.inlier_threshold.unwrap_or(self.radius() / 3.0)
     }
 
     /// Preprocesses `cloud` and computes keypoints and codewords. `stream` separates the random choices of
-    /// different scans under one seed (use 0 for the source, 1 for the target).
+    /// different scans under one seed (0 for the source, 1 for the target in `register`).
     pub fn describe(&self, cloud: &PointCloud, stream: u64) -> Result<ScanFeatures> {
-        let _ = (cloud, stream);
-        todo!("pipeline")
+        let s = &self.settings;
+        let mut clock = Stopwatch::new();
+        cloud.validate("cloud")?;
+        let mut cloud = match s.voxel {
+            Some(v) => voxel_downsample(cloud, v)?,
+            None => cloud.clone(),
+        };
+        if cloud.len() < MIN_POINTS {
+            return Err(Error::invalid(format!(
+                "cloud has {} points after preprocessing; at least {MIN_POINTS} are needed",
+                cloud.len()
+            )));
+        }
+        clock.lap("downsample");
+        let index = PointIndex::new(&cloud.points)?;
+        let usable_normals = cloud
+            .normals
+            .as_ref()
+            .is_some_and(|ns| ns.iter().all(|n| n[0] * n[0] + n[1] * n[1] + n[2] * n[2] > 1e-12));
+        if usable_normals {
+            for n in cloud.normals.as_mut().expect("checked") {
+                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                *n = n.map(|c| c / len);
+            }
+        } else {
+            cloud.normals = Some(estimate_normals(&cloud.points, &index, s.normal_neighbors, s.viewpoint));
+        }
+        clock.lap("normals");
+        let mut rng = Rng::derived(s.seed, 2 * stream);
+        let keypoint_ids = select_keypoints(&cloud.points, s.keypoints, s.keypoint_mode, &mut rng);
+        clock.lap("keypoints");
+        let config = &self.backend.model().config;
+        let radius = self.radius();
+        let patches = extract_patches(&cloud.points, &index, &keypoint_ids, radius, config.points_per_patch, {
+            Rng::derived(s.seed, 2 * stream + 1).next_u64()
+        });
+        if patches.keypoints.is_empty() {
+            return Err(Error::invalid(format!(
+                "no keypoint has a neighbour within radius {radius}: is the radius right for the cloud's units?"
+            )));
+        }
+        let normals = cloud.normals.as_ref().expect("normals set above");
+        let gathered = gather(&cloud.points, normals, &patches);
+        clock.lap("patches");
+        let (ppf_input, pc_input) = self.backend.patch_features(&gathered, radius)?;
+        clock.lap("patch_features");
+        let count = patches.keypoints.len();
+        let ppf_codewords = self.backend.encode(Net::Ppf, &ppf_input, count)?;
+        clock.lap("ppf_encoder");
+        let pc_codewords = self.backend.encode(Net::Pc, &pc_input, count)?;
+        let pose_features = pc_codewords.iter().zip(&ppf_codewords).map(|(pc, ppf)| pc - ppf).collect();
+        clock.lap("pc_encoder");
+        Ok(ScanFeatures {
+            keypoints: gathered.centers,
+            empty_patches: patches.empty.len(),
+            cloud,
+            ppf_codewords,
+            pose_features,
+            timings: clock.timings,
+        })
     }
 
     /// Correspondences between two described scans (matching rule from the settings).
     pub fn correspond(&self, source: &ScanFeatures, target: &ScanFeatures) -> Result<Vec<Correspondence>> {
-        let _ = (source, target);
-        todo!("pipeline")
+        let dim = self.backend.model().config.codeword();
+        let matches = self.backend.match_codewords(&source.ppf_codewords, &target.ppf_codewords, dim, self.settings.matching)?;
+        Ok(matches
+            .into_iter()
+            .map(|m| Correspondence {
+                source_index: m.source,
+                target_index: m.target,
+                source_point: source.keypoints[m.source as usize],
+                target_point: target.keypoints[m.target as usize],
+                feature_distance: m.distance,
+            })
+            .collect())
     }
 
-    /// Estimates target_from_source from the correspondences with the given estimator.
+    /// Estimates target_from_source from the correspondences with `estimator`, then ICP when enabled.
     pub fn estimate(
         &self,
         source: &ScanFeatures,
@@ -53,14 +237,59 @@ impl Registrar {
         correspondences: &[Correspondence],
         estimator: Estimator,
     ) -> Result<PoseEstimate> {
-        let _ = (source, target, correspondences, estimator);
-        todo!("pipeline")
+        if correspondences.len() < MIN_CORRESPONDENCES {
+            return Err(Error::invalid(format!(
+                "only {} correspondences; at least {MIN_CORRESPONDENCES} are needed to estimate a pose",
+                correspondences.len()
+            )));
+        }
+        let src: Vec<[f32; 3]> = correspondences.iter().map(|c| c.source_point).collect();
+        let tgt: Vec<[f32; 3]> = correspondences.iter().map(|c| c.target_point).collect();
+        let threshold = self.inlier_threshold();
+        let mut estimate = match estimator {
+            Estimator::RelativeNet => {
+                let dim = self.backend.model().config.codeword();
+                let rows = |f: &ScanFeatures, idx: &mut dyn Iterator<Item = usize>| -> Vec<f32> {
+                    idx.flat_map(|i| f.pose_features[i * dim..(i + 1) * dim].iter().copied()).collect()
+                };
+                let fs = rows(source, &mut correspondences.iter().map(|c| c.source_index as usize));
+                let ft = rows(target, &mut correspondences.iter().map(|c| c.target_index as usize));
+                let quaternions = self.backend.predict_rotations(&fs, &ft, correspondences.len())?;
+                verify(self.backend.as_ref(), &quaternions, &src, &tgt, threshold)?
+            }
+            Estimator::Ransac => ransac(&src, &tgt, threshold, &self.settings.ransac, self.settings.seed)?,
+        };
+        if let Some(icp) = &self.settings.icp {
+            let index = PointIndex::new(&target.cloud.points)?;
+            let refined = icp_point_to_plane(&source.cloud, &target.cloud, &index, estimate.target_from_source, icp)?;
+            let scored = estimate.hypotheses_scored;
+            estimate = crate::estimate::evaluate(refined, &src, &tgt, threshold, scored);
+        }
+        Ok(estimate)
     }
 
     /// The whole pipeline on two clouds.
     pub fn register(&self, source: &PointCloud, target: &PointCloud) -> Result<RegistrationResult> {
-        let _ = (source, target);
-        todo!("pipeline")
+        let described_source = self.describe(source, 0).map_err(|e| prefix("source", e))?;
+        let described_target = self.describe(target, 1).map_err(|e| prefix("target", e))?;
+        let mut clock = Stopwatch::new();
+        let correspondences = self.correspond(&described_source, &described_target)?;
+        clock.lap("matching");
+        let estimate = self.estimate(&described_source, &described_target, &correspondences, self.settings.estimator)?;
+        clock.lap("estimation");
+        let mut timings = Vec::new();
+        for (scan, f) in [("source", &described_source), ("target", &described_target)] {
+            timings.extend(f.timings.iter().map(|t| StageTime { stage: format!("{scan}.{}", t.stage), seconds: t.seconds }));
+        }
+        timings.extend(clock.timings);
+        Ok(RegistrationResult { estimate, correspondences: correspondences.len(), timings, backend: self.backend.name() })
+    }
+}
+
+fn prefix(what: &str, e: Error) -> Error {
+    match e {
+        Error::InvalidInput(m) => Error::InvalidInput(format!("{what}: {m}")),
+        other => other,
     }
 }
 

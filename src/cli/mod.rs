@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 pub mod eval;
 pub mod register;
 pub mod synth;
+pub mod weights;
 
 /// dpr-gpu: learned pairwise registration of 3D scans on any GPU (and the CPU).
 #[derive(Parser, Debug)]
@@ -18,6 +19,12 @@ pub struct Cli {
 /// Subcommands.
 #[derive(Subcommand, Debug)]
 pub enum Command {
+    /// Register SOURCE onto TARGET and print target_from_source.
+    Register(register::Args),
+    /// Write a seeded random initialisation of the model.
+    InitWeights(weights::InitArgs),
+    /// Print a weights file's config and parameter counts.
+    Info(weights::InfoArgs),
     /// Generate synthetic indoor scans in the 3DMatch layout.
     Synth(synth::Args),
     /// Evaluate registration on a dataset (3DMatch protocol) or score a result log.
@@ -28,6 +35,9 @@ pub enum Command {
 pub fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let outcome = match cli.command {
+        Command::Register(args) => register::run(args),
+        Command::InitWeights(args) => weights::run_init(args),
+        Command::Info(args) => weights::run_info(args),
         Command::Synth(args) => synth::run(args),
         Command::Eval(args) => eval::run(args),
     };

@@ -2,4 +2,8 @@
 //! GPU kernel is checked against, and the fallback on machines without a GPU.
 
 pub mod dense;
+pub mod hypotheses;
 pub mod max_pool;
+pub mod mutual_knn;
+pub mod patch_features;
+pub mod score_hypotheses;

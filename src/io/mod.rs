@@ -1,9 +1,22 @@
 //! Point-cloud files: PLY (ascii, binary little/big endian), PCD (ascii, binary) and XYZ text in; binary PLY out.
 //! Outputs are written atomically (temp file + rename).
+//!
+//! Readers load the whole file into memory and never trust a count from a header: binary bodies are checked
+//! against the bytes that are actually there before anything is read, and preallocation is capped. Every
+//! malformed file gives [`Error::Parse`] with a location: `line N` for headers and text bodies, `byte N` for
+//! binary bodies (the offset of the value that is missing or bad).
+
+mod atomic;
+mod pcd;
+mod ply;
+mod xyz;
 
 use crate::cloud::PointCloud;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use std::path::Path;
+
+/// File extensions [`read_cloud`] understands (lower case, without the dot).
+pub const SUPPORTED_EXTENSIONS: &[&str] = &["ply", "pcd", "xyz", "txt", "pts"];
 
 /// Options applied while loading.
 #[derive(Clone, Copy, Debug, Default)]
@@ -22,20 +35,350 @@ pub struct LoadReport {
 }
 
 /// Reads a cloud, choosing the format from the extension (.ply, .pcd, .xyz/.txt/.pts).
+///
+/// Filtering, applied point by point:
+/// - a point with a NaN or infinite coordinate (after conversion to `f32`, so values beyond the `f32` range
+///   count too) is dropped and counted in [`LoadReport::dropped_non_finite`];
+/// - a point with finite coordinates but a NaN or infinite normal component is dropped as well and also
+///   counted as non-finite, so the returned cloud always passes [`PointCloud::validate`];
+/// - with [`LoadOptions::drop_zero_points`], a point exactly at (0, 0, 0) is dropped and counted in
+///   [`LoadReport::dropped_zero`].
+///
+/// Normals are taken from the file when it has all three components (PLY `nx ny nz`, PCD
+/// `normal_x normal_y normal_z`, XYZ columns 4 to 6) and are returned as stored: not normalised, and zero-length
+/// normals are kept. A file with no points gives an empty cloud (callers decide whether that is an error).
+///
+/// Errors: [`Error::InvalidInput`] for an unknown extension, [`Error::Io`] when the file cannot be read,
+/// [`Error::Parse`] for malformed contents.
 pub fn read_cloud(path: &Path, options: &LoadOptions) -> Result<(PointCloud, LoadReport)> {
-    let _ = (path, options);
-    todo!("io helper")
+    let format = Format::from_path(path)?;
+    let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    match format {
+        Format::Ply => ply::parse(path, &data, options),
+        Format::Pcd => pcd::parse(path, &data, options),
+        Format::Xyz => xyz::parse(path, &data, options),
+    }
 }
 
 /// Writes `cloud` as binary little-endian PLY (normals included when present), atomically.
+///
+/// The vertex element has `float x y z`, plus `float nx ny nz` when the cloud has normals. Fails with
+/// [`Error::InvalidInput`] when the normals do not match the points one to one, and [`Error::Io`] when the file
+/// cannot be written.
 pub fn write_ply(path: &Path, cloud: &PointCloud) -> Result<()> {
-    let _ = (path, cloud);
-    todo!("io helper")
+    let bytes =
+        ply::encode_binary_le(cloud).map_err(|message| Error::invalid(format!("{}: {message}", path.display())))?;
+    write_atomic(path, &bytes)
 }
 
-/// Writes `bytes` to `path` atomically: a temp file beside it, then a rename. Refuses to replace `protect`
-/// paths (inputs).
+/// Writes `bytes` to `path` atomically: a temp file beside it (`.<name>.tmp-<pid>-<n>`), flushed to disk, then
+/// renamed over `path`, so readers see either the old contents or the new ones, never a partial file. The temp
+/// file is removed when anything fails. Refusing to overwrite inputs is the caller's job.
+///
+/// Errors: [`Error::Io`] naming `path`.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let _ = (path, bytes);
-    todo!("io helper")
+    atomic::write_atomic(path, bytes)
+}
+
+/// The file formats [`read_cloud`] knows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Format {
+    /// Stanford PLY.
+    Ply,
+    /// Point Cloud Library PCD.
+    Pcd,
+    /// Whitespace or comma separated text.
+    Xyz,
+}
+
+impl Format {
+    /// The format for `path`'s extension (case-insensitive).
+    fn from_path(path: &Path) -> Result<Format> {
+        let supported = SUPPORTED_EXTENSIONS.iter().map(|e| format!(".{e}")).collect::<Vec<_>>().join(", ");
+        let Some(ext) = path.extension() else {
+            return Err(Error::invalid(format!("{}: no file extension; supported: {supported}", path.display())));
+        };
+        let ext = ext.to_string_lossy().to_ascii_lowercase();
+        match ext.as_str() {
+            "ply" => Ok(Format::Ply),
+            "pcd" => Ok(Format::Pcd),
+            "xyz" | "txt" | "pts" => Ok(Format::Xyz),
+            _ => Err(Error::invalid(format!(
+                "{}: unsupported extension '.{ext}'; supported: {supported}",
+                path.display()
+            ))),
+        }
+    }
+}
+
+/// Most points preallocated up front, whatever a header claims; vectors grow past this as points arrive.
+const MAX_PREALLOC: usize = 1 << 22;
+
+/// A safe `Vec::with_capacity` for `count` items when each item needs at least `min_item_bytes` of the
+/// `remaining_bytes`: never more than could possibly be in the file, and never more than [`MAX_PREALLOC`].
+fn capped_capacity(count: u64, remaining_bytes: usize, min_item_bytes: usize) -> usize {
+    let fits = remaining_bytes / min_item_bytes.max(1);
+    usize::try_from(count).unwrap_or(usize::MAX).min(fits).min(MAX_PREALLOC)
+}
+
+/// An [`Error::Parse`] at a (1-based) line of a text file or header.
+fn at_line(path: &Path, line: usize, message: impl Into<String>) -> Error {
+    Error::parse(path, format!("line {line}"), message)
+}
+
+/// An [`Error::Parse`] at a byte offset of a binary body.
+fn at_byte(path: &Path, offset: usize, message: impl Into<String>) -> Error {
+    Error::parse(path, format!("byte {offset}"), message)
+}
+
+/// "vertices", "points", "'face' elements"...: how error messages count items of the element `name`.
+fn items_noun(name: &str) -> String {
+    match name {
+        "vertex" => "vertices".to_string(),
+        "point" => "points".to_string(),
+        "face" => "faces".to_string(),
+        other => format!("'{other}' elements"),
+    }
+}
+
+/// The message for a body that ends after `done` of `total` items.
+fn ends_after(done: u64, total: u64, name: &str) -> String {
+    format!("file ends after {done} of {total} {}", items_noun(name))
+}
+
+/// Parses a text token as a number; `what` names the value in the error ("property 'x'", "column 2") and is
+/// only called on failure.
+fn parse_number(path: &Path, line: usize, token: &str, what: impl FnOnce() -> String) -> Result<f64> {
+    token.parse::<f64>().map_err(|_| at_line(path, line, format!("'{token}' is not a number ({})", what())))
+}
+
+/// A binary scalar type shared by PLY and PCD.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Scalar {
+    /// Signed 8-bit integer.
+    I8,
+    /// Unsigned 8-bit integer.
+    U8,
+    /// Signed 16-bit integer.
+    I16,
+    /// Unsigned 16-bit integer.
+    U16,
+    /// Signed 32-bit integer.
+    I32,
+    /// Unsigned 32-bit integer.
+    U32,
+    /// Signed 64-bit integer (PCD only).
+    I64,
+    /// Unsigned 64-bit integer (PCD only).
+    U64,
+    /// 32-bit float.
+    F32,
+    /// 64-bit float.
+    F64,
+}
+
+impl Scalar {
+    /// Size in bytes.
+    fn size(self) -> usize {
+        match self {
+            Scalar::I8 | Scalar::U8 => 1,
+            Scalar::I16 | Scalar::U16 => 2,
+            Scalar::I32 | Scalar::U32 | Scalar::F32 => 4,
+            Scalar::I64 | Scalar::U64 | Scalar::F64 => 8,
+        }
+    }
+
+    /// True for the integer types.
+    fn is_integer(self) -> bool {
+        !matches!(self, Scalar::F32 | Scalar::F64)
+    }
+
+    /// Decodes the value at the start of `bytes`; `None` when `bytes` is shorter than [`Scalar::size`].
+    fn decode(self, bytes: &[u8], big_endian: bool) -> Option<f64> {
+        macro_rules! get {
+            ($t:ty) => {{
+                let raw = *bytes.first_chunk::<{ std::mem::size_of::<$t>() }>()?;
+                (if big_endian { <$t>::from_be_bytes(raw) } else { <$t>::from_le_bytes(raw) }) as f64
+            }};
+        }
+        Some(match self {
+            Scalar::I8 => get!(i8),
+            Scalar::U8 => get!(u8),
+            Scalar::I16 => get!(i16),
+            Scalar::U16 => get!(u16),
+            Scalar::I32 => get!(i32),
+            Scalar::U32 => get!(u32),
+            Scalar::I64 => get!(i64),
+            Scalar::U64 => get!(u64),
+            Scalar::F32 => get!(f32),
+            Scalar::F64 => get!(f64),
+        })
+    }
+}
+
+/// Iterates a byte buffer line by line, tracking 1-based line numbers and the offset of the next line.
+struct TextLines<'a> {
+    /// The whole file.
+    data: &'a [u8],
+    /// Offset of the next line.
+    pos: usize,
+    /// Number of the line returned last (0 before the first).
+    line: usize,
+}
+
+impl<'a> TextLines<'a> {
+    /// Lines of `data` starting at offset `pos`, where the line before `pos` is numbered `line`.
+    fn new(data: &'a [u8], pos: usize, line: usize) -> Self {
+        TextLines { data, pos, line }
+    }
+
+    /// The next line without its `\n` (a trailing `\r` is kept), or `None` at the end of the data.
+    fn next_raw(&mut self) -> Option<(usize, &'a [u8])> {
+        let rest = self.data.get(self.pos..).filter(|r| !r.is_empty())?;
+        let len = rest.iter().position(|&b| b == b'\n').unwrap_or(rest.len());
+        self.pos += (len + 1).min(rest.len());
+        self.line += 1;
+        Some((self.line, &rest[..len]))
+    }
+
+    /// The next line that is not blank, or `None` at the end of the data.
+    fn next_nonblank(&mut self) -> Option<(usize, &'a [u8])> {
+        std::iter::from_fn(|| self.next_raw()).find(|(_, l)| !l.iter().all(u8::is_ascii_whitespace))
+    }
+
+    /// Offset of the first byte after the lines returned so far.
+    fn pos(&self) -> usize {
+        self.pos
+    }
+
+    /// The line where the data ended (one past the last line returned), for "file ends" errors.
+    fn eof_line(&self) -> usize {
+        self.line + 1
+    }
+}
+
+/// A line as text, without a trailing `\r`; a parse error when it is not UTF-8.
+fn line_str<'a>(path: &Path, line: usize, raw: &'a [u8]) -> Result<&'a str> {
+    let text = std::str::from_utf8(raw).map_err(|_| at_line(path, line, "line is not valid UTF-8 text"))?;
+    Ok(text.strip_suffix('\r').unwrap_or(text))
+}
+
+/// Collects points while loading, applying [`LoadOptions`] and counting what was dropped.
+struct CloudBuilder {
+    /// Points kept so far.
+    points: Vec<[f32; 3]>,
+    /// Normals kept so far, when the file has them.
+    normals: Option<Vec<[f32; 3]>>,
+    /// Drop counts.
+    report: LoadReport,
+    /// [`LoadOptions::drop_zero_points`].
+    drop_zero: bool,
+}
+
+impl CloudBuilder {
+    /// An empty builder; `with_normals` when the file provides normals; `capacity` must already be capped.
+    fn new(options: &LoadOptions, with_normals: bool, capacity: usize) -> Self {
+        CloudBuilder {
+            points: Vec::with_capacity(capacity),
+            normals: with_normals.then(|| Vec::with_capacity(capacity)),
+            report: LoadReport::default(),
+            drop_zero: options.drop_zero_points,
+        }
+    }
+
+    /// Adds one point from `values` = x, y, z, nx, ny, nz (the normal part is ignored without normals), or
+    /// drops and counts it (see [`read_cloud`] for the rules).
+    fn push(&mut self, values: &[f64; 6]) {
+        let p = [values[0] as f32, values[1] as f32, values[2] as f32];
+        let n = [values[3] as f32, values[4] as f32, values[5] as f32];
+        let finite = |v: &[f32; 3]| v.iter().all(|c| c.is_finite());
+        if !finite(&p) || (self.normals.is_some() && !finite(&n)) {
+            self.report.dropped_non_finite += 1;
+            return;
+        }
+        if self.drop_zero && p == [0.0; 3] {
+            self.report.dropped_zero += 1;
+            return;
+        }
+        self.points.push(p);
+        if let Some(normals) = &mut self.normals {
+            normals.push(n);
+        }
+    }
+
+    /// The cloud and the drop counts.
+    fn finish(self) -> (PointCloud, LoadReport) {
+        (PointCloud { points: self.points, normals: self.normals }, self.report)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scalar_decodes_both_endians() {
+        assert_eq!(Scalar::I16.decode(&[0xff, 0xfe], false), Some(-257.0));
+        assert_eq!(Scalar::I16.decode(&[0xff, 0xfe], true), Some(-2.0));
+        assert_eq!(Scalar::U32.decode(&[1, 0, 0, 0], false), Some(1.0));
+        assert_eq!(Scalar::F32.decode(&1.5f32.to_be_bytes(), true), Some(1.5));
+        assert_eq!(Scalar::F64.decode(&[0; 7], false), None);
+        assert!(Scalar::U8.is_integer() && !Scalar::F64.is_integer());
+    }
+
+    #[test]
+    fn capacity_is_capped_by_bytes_and_constant() {
+        assert_eq!(capped_capacity(1_000_000_000_000, 200, 12), 16);
+        assert_eq!(capped_capacity(10, 1 << 30, 12), 10);
+        assert_eq!(capped_capacity(u64::MAX, usize::MAX, 1), MAX_PREALLOC);
+        assert_eq!(capped_capacity(5, 100, 0), 5);
+    }
+
+    #[test]
+    fn text_lines_number_lines_and_track_offsets() {
+        let data = b"a\r\n\n  \nb";
+        let mut lines = TextLines::new(data, 0, 0);
+        assert_eq!(lines.next_raw(), Some((1, &b"a\r"[..])));
+        assert_eq!(lines.pos(), 3);
+        assert_eq!(lines.next_nonblank(), Some((4, &b"b"[..])));
+        assert_eq!(lines.next_raw(), None);
+        assert_eq!(lines.eof_line(), 5);
+    }
+
+    #[test]
+    fn builder_drops_and_counts() {
+        let options = LoadOptions { drop_zero_points: true };
+        let mut b = CloudBuilder::new(&options, true, 4);
+        b.push(&[1.0, 2.0, 3.0, 0.0, 0.0, 1.0]);
+        b.push(&[f64::NAN, 2.0, 3.0, 0.0, 0.0, 1.0]);
+        b.push(&[1.0, 2.0, 3.0, f64::INFINITY, 0.0, 1.0]);
+        b.push(&[1e300, 2.0, 3.0, 0.0, 0.0, 1.0]);
+        b.push(&[0.0, -0.0, 0.0, 0.0, 0.0, 1.0]);
+        b.push(&[4.0, 5.0, 6.0, 0.0, 0.0, 0.0]);
+        let (cloud, report) = b.finish();
+        assert_eq!(cloud.points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
+        assert_eq!(cloud.normals, Some(vec![[0.0, 0.0, 1.0], [0.0, 0.0, 0.0]]));
+        assert_eq!(report, LoadReport { dropped_non_finite: 3, dropped_zero: 1 });
+    }
+
+    #[test]
+    fn builder_ignores_normal_values_without_normals() {
+        let mut b = CloudBuilder::new(&LoadOptions::default(), false, 0);
+        b.push(&[0.0, 0.0, 0.0, f64::NAN, 0.0, 0.0]);
+        let (cloud, report) = b.finish();
+        assert_eq!(cloud.points, vec![[0.0; 3]]);
+        assert_eq!(cloud.normals, None);
+        assert_eq!(report, LoadReport::default());
+    }
+
+    #[test]
+    fn extensions_pick_formats() {
+        assert_eq!(Format::from_path(Path::new("a/b.PLY")).ok(), Some(Format::Ply));
+        assert_eq!(Format::from_path(Path::new("b.pcd")).ok(), Some(Format::Pcd));
+        assert_eq!(Format::from_path(Path::new("b.Pts")).ok(), Some(Format::Xyz));
+        let err = Format::from_path(Path::new("b.obj")).unwrap_err().to_string();
+        assert!(err.contains("'.obj'") && err.contains(".ply") && err.contains(".pts"), "{err}");
+        let err = Format::from_path(Path::new("noext")).unwrap_err().to_string();
+        assert!(err.contains("no file extension"), "{err}");
+    }
 }

@@ -1,0 +1,88 @@
+//! `dpr-gpu init-weights` and `dpr-gpu info`.
+
+use crate::model::{ModelConfig, Weights};
+use std::path::PathBuf;
+
+/// Model-size options.
+#[derive(clap::Args, Debug, Clone)]
+pub struct ConfigOptions {
+    /// Start from a preset: compact (256 points, 16x16 grid) or paper (2048 points, 45x45 grid).
+    #[arg(long, default_value = "compact")]
+    pub config: String,
+    /// Points per patch.
+    #[arg(long)]
+    pub points: Option<usize>,
+    /// Folding grid side (grid x grid points).
+    #[arg(long)]
+    pub grid: Option<usize>,
+    /// Patch radius the model is trained for.
+    #[arg(long)]
+    pub model_radius: Option<f32>,
+}
+
+impl ConfigOptions {
+    /// The config described.
+    pub fn to_config(&self) -> anyhow::Result<ModelConfig> {
+        let mut c = match self.config.as_str() {
+            "compact" => ModelConfig::default(),
+            "paper" => ModelConfig::paper(),
+            other => anyhow::bail!("unknown config preset '{other}' (expected compact or paper)"),
+        };
+        if let Some(p) = self.points {
+            c.points_per_patch = p;
+        }
+        if let Some(g) = self.grid {
+            c.grid = [g, g];
+        }
+        if let Some(r) = self.model_radius {
+            c.radius = r;
+        }
+        c.validate()?;
+        Ok(c)
+    }
+}
+
+/// Arguments of `dpr-gpu init-weights`.
+#[derive(clap::Args, Debug)]
+pub struct InitArgs {
+    /// Output safetensors file.
+    pub out: PathBuf,
+    /// Seed of the initialisation.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Model sizes.
+    #[command(flatten)]
+    pub config: ConfigOptions,
+}
+
+/// Runs `dpr-gpu init-weights`.
+pub fn run_init(args: InitArgs) -> anyhow::Result<()> {
+    let config = args.config.to_config()?;
+    let mut weights = Weights::init(&config, args.seed)?;
+    weights.notes.insert("dpr_gpu.origin".into(), format!("random initialisation, seed {}", args.seed));
+    weights.save(&args.out)?;
+    println!("wrote {} ({} parameters)", args.out.display(), weights.parameter_count());
+    Ok(())
+}
+
+/// Arguments of `dpr-gpu info`.
+#[derive(clap::Args, Debug)]
+pub struct InfoArgs {
+    /// A weights file.
+    pub weights: PathBuf,
+}
+
+/// Runs `dpr-gpu info`.
+pub fn run_info(args: InfoArgs) -> anyhow::Result<()> {
+    let w = Weights::load(&args.weights)?;
+    println!("{}", args.weights.display());
+    println!("config: {}", serde_json::to_string_pretty(&w.config)?);
+    for (net, count) in w.parameter_counts_by_net() {
+        println!("parameters {net:<10} {count:>10}");
+    }
+    println!("parameters total      {:>10}", w.parameter_count());
+    for (k, v) in &w.notes {
+        println!("{k}: {v}");
+    }
+    Ok(())
+}

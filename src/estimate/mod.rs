@@ -1,0 +1,12 @@
+//! Pose estimation from correspondences: RelativeNet hypothesize-and-verify, the RANSAC baseline, the shared
+//! inlier refinement, and optional point-to-plane ICP.
+
+pub mod icp;
+pub mod ransac;
+pub mod refine;
+pub mod verify;
+
+pub use icp::icp_point_to_plane;
+pub use ransac::ransac;
+pub use refine::{evaluate, inlier_set, refine};
+pub use verify::{best_hypothesis, verify};

@@ -1,0 +1,131 @@
+//! Rigid-transform helpers: least-squares rigid fit (Kabsch/Umeyama without scale), conversions between
+//! 4x4 matrices, hypotheses and quaternions, and error measures. Matrices are `target_from_source`
+//! (p_target = T p_source) unless a name says otherwise.
+
+use crate::cpu::hypotheses::Hypothesis;
+use nalgebra::{Matrix3, Matrix4, Rotation3, UnitQuaternion, Vector3};
+
+/// f32 point to f64 vector.
+pub fn v3(p: [f32; 3]) -> Vector3<f64> {
+    Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+}
+
+/// Applies a 4x4 rigid transform to a point.
+pub fn transform_point(t: &Matrix4<f64>, p: [f32; 3]) -> [f32; 3] {
+    let q = t.fixed_view::<3, 3>(0, 0) * v3(p) + t.fixed_view::<3, 1>(0, 3);
+    [q.x as f32, q.y as f32, q.z as f32]
+}
+
+/// 4x4 matrix from rotation and translation.
+pub fn matrix_from_parts(r: &Matrix3<f64>, t: &Vector3<f64>) -> Matrix4<f64> {
+    let mut m = Matrix4::identity();
+    m.fixed_view_mut::<3, 3>(0, 0).copy_from(r);
+    m.fixed_view_mut::<3, 1>(0, 3).copy_from(t);
+    m
+}
+
+/// 4x4 matrix of a hypothesis.
+pub fn matrix_from_hypothesis(h: &Hypothesis) -> Matrix4<f64> {
+    let r = Matrix3::from_row_slice(&h.rotation.map(|v| v as f64));
+    matrix_from_parts(&r, &v3(h.translation))
+}
+
+/// Hypothesis of a 4x4 matrix.
+pub fn hypothesis_from_matrix(m: &Matrix4<f64>) -> Hypothesis {
+    let mut rotation = [0f32; 9];
+    for r in 0..3 {
+        for c in 0..3 {
+            rotation[r * 3 + c] = m[(r, c)] as f32;
+        }
+    }
+    Hypothesis { rotation, translation: [m[(0, 3)] as f32, m[(1, 3)] as f32, m[(2, 3)] as f32] }
+}
+
+/// Unit quaternion `[w, x, y, z]` (w >= 0) of a rotation matrix.
+pub fn quaternion_from_matrix(r: &Matrix3<f64>) -> [f64; 4] {
+    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(*r));
+    let s = if q.w < 0.0 { -1.0 } else { 1.0 };
+    [s * q.w, s * q.i, s * q.j, s * q.k]
+}
+
+/// Rotation matrix of a unit quaternion `[w, x, y, z]`.
+pub fn matrix_from_quaternion(q: [f64; 4]) -> Matrix3<f64> {
+    UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3])).to_rotation_matrix().into_inner()
+}
+
+/// Angle of the relative rotation between two transforms, in degrees.
+pub fn rotation_error_deg(a: &Matrix4<f64>, b: &Matrix4<f64>) -> f64 {
+    let ra = a.fixed_view::<3, 3>(0, 0);
+    let rb = b.fixed_view::<3, 3>(0, 0);
+    let c = (((ra.transpose() * rb).trace() - 1.0) / 2.0).clamp(-1.0, 1.0);
+    c.acos().to_degrees()
+}
+
+/// Distance between the translations of two transforms.
+pub fn translation_error(a: &Matrix4<f64>, b: &Matrix4<f64>) -> f64 {
+    (a.fixed_view::<3, 1>(0, 3) - b.fixed_view::<3, 1>(0, 3)).norm()
+}
+
+/// Least-squares rigid transform mapping `source[i]` onto `target[i]` (SVD, reflection-corrected).
+/// `None` with fewer than 3 pairs or a degenerate (collinear) configuration.
+pub fn rigid_fit(source: &[[f32; 3]], target: &[[f32; 3]]) -> Option<Matrix4<f64>> {
+    let n = source.len().min(target.len());
+    if n < 3 {
+        return None;
+    }
+    let cs = source[..n].iter().map(|&p| v3(p)).sum::<Vector3<f64>>() / n as f64;
+    let ct = target[..n].iter().map(|&p| v3(p)).sum::<Vector3<f64>>() / n as f64;
+    let mut h = Matrix3::zeros();
+    for i in 0..n {
+        h += (v3(source[i]) - cs) * (v3(target[i]) - ct).transpose();
+    }
+    let svd = h.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let sv = svd.singular_values;
+    // Collinear or coincident points leave the rotation about the line undetermined.
+    if !(sv[1] > 1e-12 * sv[0].max(1e-300)) {
+        return None;
+    }
+    let mut d = Matrix3::identity();
+    if (v_t.transpose() * u.transpose()).determinant() < 0.0 {
+        d[(2, 2)] = -1.0;
+    }
+    let r = v_t.transpose() * d * u.transpose();
+    let t = ct - r * cs;
+    Some(matrix_from_parts(&r, &t))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+
+    #[test]
+    fn rigid_fit_recovers_a_known_transform() {
+        let mut rng = Rng::new(11);
+        for _ in 0..20 {
+            let r = matrix_from_quaternion(rng.unit_quaternion());
+            let t = Vector3::new(rng.uniform(-5.0, 5.0), rng.uniform(-5.0, 5.0), rng.uniform(-5.0, 5.0));
+            let truth = matrix_from_parts(&r, &t);
+            let src: Vec<[f32; 3]> = (0..30).map(|_| [0; 3].map(|_: i32| rng.uniform(-1.0, 1.0) as f32)).collect();
+            let tgt: Vec<[f32; 3]> = src.iter().map(|&p| transform_point(&truth, p)).collect();
+            let est = rigid_fit(&src, &tgt).unwrap();
+            assert!(rotation_error_deg(&est, &truth) < 1e-3);
+            assert!(translation_error(&est, &truth) < 1e-4);
+        }
+        let line: Vec<[f32; 3]> = (0..5).map(|i| [i as f32, 0.0, 0.0]).collect();
+        assert!(rigid_fit(&line, &line).is_none());
+        assert!(rigid_fit(&line[..2], &line[..2]).is_none());
+    }
+
+    #[test]
+    fn quaternion_round_trip_keeps_w_non_negative() {
+        let mut rng = Rng::new(3);
+        for _ in 0..50 {
+            let r = matrix_from_quaternion(rng.unit_quaternion());
+            let q = quaternion_from_matrix(&r);
+            assert!(q[0] >= 0.0);
+            assert!((matrix_from_quaternion(q) - r).norm() < 1e-9);
+        }
+    }
+}

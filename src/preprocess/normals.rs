@@ -1,0 +1,75 @@
+//! Normals by PCA over the k nearest neighbours, oriented towards a viewpoint.
+
+use crate::spatial::PointIndex;
+use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+use rayon::prelude::*;
+
+/// The unit normal of each point: the eigenvector of the smallest eigenvalue of the covariance of its `k`
+/// nearest neighbours (itself included), flipped to face `viewpoint`. Points with fewer than 3 neighbours or a
+/// degenerate neighbourhood get the direction to the viewpoint (or +z when they sit on it).
+pub fn estimate_normals(points: &[[f32; 3]], index: &PointIndex, k: usize, viewpoint: [f32; 3]) -> Vec<[f32; 3]> {
+    let k = k.max(3);
+    points
+        .par_iter()
+        .map(|p| {
+            let neighbors = index.nearest_n(p, k);
+            let to_view = Vector3::new(viewpoint[0] - p[0], viewpoint[1] - p[1], viewpoint[2] - p[2]);
+            let fallback = || {
+                let n = to_view.norm();
+                if n > 0.0 { (to_view / n).into() } else { [0.0, 0.0, 1.0] }
+            };
+            if neighbors.len() < 3 {
+                return fallback();
+            }
+            let pts: Vec<Vector3<f64>> = neighbors
+                .iter()
+                .map(|n| {
+                    let q = points[n.index];
+                    Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64)
+                })
+                .collect();
+            let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
+            let cov = pts.iter().fold(Matrix3::zeros(), |acc, q| {
+                let d = q - mean;
+                acc + d * d.transpose()
+            });
+            if cov.norm() == 0.0 {
+                return fallback();
+            }
+            let eig = SymmetricEigen::new(cov);
+            let (imin, _) = eig.eigenvalues.iter().enumerate().fold((0, f64::INFINITY), |best, (i, &v)| {
+                if v < best.1 { (i, v) } else { best }
+            });
+            let mut n: Vector3<f64> = eig.eigenvectors.column(imin).into_owned();
+            let len = n.norm();
+            if !(len > 0.0) || !len.is_finite() {
+                return fallback();
+            }
+            n /= len;
+            if n.dot(&to_view.cast::<f64>()) < 0.0 {
+                n = -n;
+            }
+            [n.x as f32, n.y as f32, n.z as f32]
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+
+    #[test]
+    fn plane_normals_point_to_viewpoint() {
+        let mut rng = Rng::new(2);
+        let pts: Vec<[f32; 3]> =
+            (0..400).map(|_| [rng.uniform(-1.0, 1.0) as f32, rng.uniform(-1.0, 1.0) as f32, 2.0]).collect();
+        let index = PointIndex::new(&pts).unwrap();
+        for n in estimate_normals(&pts, &index, 10, [0.0; 3]) {
+            assert!((n[2] + 1.0).abs() < 1e-4, "{n:?}");
+        }
+        for n in estimate_normals(&pts, &index, 10, [0.0, 0.0, 5.0]) {
+            assert!((n[2] - 1.0).abs() < 1e-4, "{n:?}");
+        }
+    }
+}

@@ -1,0 +1,494 @@
+//! Procedural rooms: a rectangular or L-shaped shell (floor, walls, ceiling, baseboards, doors, windows,
+//! radiators, pictures, a ceiling light, sometimes a pillar) furnished with random pieces from
+//! [`super::furniture`], placed against the walls or free-standing with random yaw, without overlaps.
+//!
+//! World frame: z up, the floor is z = 0, the floor plan is a counter-clockwise rectilinear polygon.
+
+use super::furniture::{self, Furniture};
+use super::geometry::{Object, Primitive, rot_y, rot_z};
+use crate::rng::Rng;
+use nalgebra::Vector3;
+use std::f64::consts::{FRAC_PI_2, PI};
+
+/// A 2D oriented rectangle on the floor plan, with the height of what stands on it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Footprint {
+    /// Centre (x, y).
+    pub center: [f64; 2],
+    /// Half extents along the rectangle's own axes.
+    pub half: [f64; 2],
+    /// Rotation of the rectangle about z (radians).
+    pub yaw: f64,
+    /// Height of the object standing on it (metres).
+    pub height: f64,
+}
+
+impl Footprint {
+    fn axes(&self) -> [[f64; 2]; 2] {
+        let (s, c) = self.yaw.sin_cos();
+        [[c, s], [-s, c]]
+    }
+
+    fn corners(&self) -> [[f64; 2]; 4] {
+        let [a, b] = self.axes();
+        let [hx, hy] = self.half;
+        let [cx, cy] = self.center;
+        let p = |sx: f64, sy: f64| [cx + sx * hx * a[0] + sy * hy * b[0], cy + sx * hx * a[1] + sy * hy * b[1]];
+        [p(-1.0, -1.0), p(1.0, -1.0), p(1.0, 1.0), p(-1.0, 1.0)]
+    }
+
+    /// Distance from `p` to the rectangle (0 inside).
+    pub fn distance_to(&self, p: [f64; 2]) -> f64 {
+        let [a, b] = self.axes();
+        let d = [p[0] - self.center[0], p[1] - self.center[1]];
+        let u = (d[0] * a[0] + d[1] * a[1]).abs() - self.half[0];
+        let w = (d[0] * b[0] + d[1] * b[1]).abs() - self.half[1];
+        u.max(0.0).hypot(w.max(0.0))
+    }
+
+    /// True when the two rectangles, each grown by `clearance`, overlap (separating axis test).
+    pub fn overlaps(&self, other: &Footprint, clearance: f64) -> bool {
+        let (ca, cb) = (self.corners(), other.corners());
+        for axis in self.axes().into_iter().chain(other.axes()) {
+            let proj = |cs: &[[f64; 2]; 4]| {
+                cs.iter().map(|c| c[0] * axis[0] + c[1] * axis[1]).fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| (lo.min(x), hi.max(x)))
+            };
+            let ((a0, a1), (b0, b1)) = (proj(&ca), proj(&cb));
+            if a1 + clearance < b0 || b1 + clearance < a0 {
+                return false;
+            }
+        }
+        true
+    }
+}
+
+/// A furnished room.
+#[derive(Clone, Debug)]
+pub struct Room {
+    /// Floor plan, counter-clockwise, axis-aligned edges.
+    pub polygon: Vec<[f64; 2]>,
+    /// Floor-to-ceiling height.
+    pub height: f64,
+    /// A point from which the whole floor plan is visible (the polygon is star-shaped around it).
+    pub kernel_center: [f64; 2],
+    /// Every solid in the room (shell first).
+    pub objects: Vec<Object>,
+    /// Floor-plan footprints of the furniture (for camera keep-out and placement).
+    pub footprints: Vec<Footprint>,
+}
+
+impl Room {
+    /// True when `p` is strictly inside the floor plan.
+    pub fn contains(&self, p: [f64; 2]) -> bool {
+        let mut inside = false;
+        let n = self.polygon.len();
+        for k in 0..n {
+            let (a, b) = (self.polygon[k], self.polygon[(k + 1) % n]);
+            if (a[1] > p[1]) != (b[1] > p[1]) {
+                let x = a[0] + (p[1] - a[1]) / (b[1] - a[1]) * (b[0] - a[0]);
+                if p[0] < x {
+                    inside = !inside;
+                }
+            }
+        }
+        inside
+    }
+
+    /// Distance from `p` to the nearest wall line segment.
+    pub fn distance_to_walls(&self, p: [f64; 2]) -> f64 {
+        self.edges()
+            .map(|(a, b)| {
+                let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+                let t = (((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / (dx * dx + dy * dy)).clamp(0.0, 1.0);
+                (p[0] - a[0] - t * dx).hypot(p[1] - a[1] - t * dy)
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// Distance from `p` along the unit direction `dir` to the first wall.
+    pub fn distance_along(&self, p: [f64; 2], dir: [f64; 2]) -> f64 {
+        let mut best = f64::INFINITY;
+        for (a, b) in self.edges() {
+            let e = [b[0] - a[0], b[1] - a[1]];
+            let denom = dir[0] * e[1] - dir[1] * e[0];
+            if denom.abs() < 1e-12 {
+                continue;
+            }
+            let w = [a[0] - p[0], a[1] - p[1]];
+            let t = (w[0] * e[1] - w[1] * e[0]) / denom;
+            let s = (w[0] * dir[1] - w[1] * dir[0]) / denom;
+            if t > 0.0 && (0.0..=1.0).contains(&s) {
+                best = best.min(t);
+            }
+        }
+        best
+    }
+
+    /// The wall segments (a, b) in polygon order; the room interior is on the left.
+    pub fn edges(&self) -> impl Iterator<Item = ([f64; 2], [f64; 2])> + '_ {
+        let n = self.polygon.len();
+        (0..n).map(move |k| (self.polygon[k], self.polygon[(k + 1) % n]))
+    }
+
+    /// True when the camera may stand at `p` (height `z`): inside with `margin` from the walls and away from
+    /// furniture it could hit.
+    pub fn camera_allowed(&self, p: [f64; 2], z: f64, margin: f64) -> bool {
+        self.contains(p)
+            && self.distance_to_walls(p) >= margin
+            && self.footprints.iter().all(|f| f.height < z - 0.25 || f.distance_to(p) > 0.3)
+    }
+
+    /// A footprint is valid when its corners are inside, no wall corner pokes into it, and it keeps
+    /// `clearance` from the others.
+    fn fits(&self, f: &Footprint, clearance: f64, ignore: Option<usize>) -> bool {
+        f.corners().iter().all(|&c| self.contains(c) && self.distance_to_walls(c) > 0.005)
+            && self.polygon.iter().all(|&v| f.distance_to(v) > 0.01)
+            && self.footprints.iter().enumerate().all(|(k, o)| Some(k) == ignore || !f.overlaps(o, clearance))
+    }
+
+    /// Places `f` at (x, y) with `yaw` when it fits; returns its footprint index.
+    fn place(&mut self, f: &Furniture, x: f64, y: f64, yaw: f64, clearance: f64, ignore: Option<usize>) -> Option<usize> {
+        let fp = Footprint { center: [x, y], half: f.half, yaw, height: f.height };
+        if !self.fits(&fp, clearance, ignore) {
+            return None;
+        }
+        let r = rot_z(yaw);
+        let t = Vector3::new(x, y, 0.0);
+        self.objects.push(Object::new(f.kind, f.parts.iter().map(|p| p.placed(&r, &t)).collect()));
+        self.footprints.push(fp);
+        Some(self.footprints.len() - 1)
+    }
+
+    /// Places `f` with its back against a random wall (edges chosen by length); tries a few positions.
+    fn place_against_wall(&mut self, rng: &mut Rng, f: &Furniture) -> Option<usize> {
+        let edges: Vec<_> = self.edges().collect();
+        let total: f64 = edges.iter().map(|(a, b)| (b[0] - a[0]).hypot(b[1] - a[1])).sum();
+        for _ in 0..30 {
+            let mut pick = rng.uniform(0.0, total);
+            let &(a, b) = edges
+                .iter()
+                .find(|(a, b)| {
+                    let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+                    pick -= len;
+                    pick <= 0.0
+                })
+                .unwrap_or(&edges[0]);
+            let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+            if len < 2.0 * f.half[0] + 0.1 {
+                continue;
+            }
+            let e = [(b[0] - a[0]) / len, (b[1] - a[1]) / len];
+            let n = [-e[1], e[0]];
+            let t = rng.uniform(f.half[0] + 0.05, len - f.half[0] - 0.05);
+            let off = f.half[1] + rng.uniform(0.01, 0.06);
+            let (x, y) = (a[0] + e[0] * t + n[0] * off, a[1] + e[1] * t + n[1] * off);
+            let yaw = n[0].atan2(-n[1]) + rng.uniform(-0.05, 0.05);
+            if let Some(k) = self.place(f, x, y, yaw, 0.1, None) {
+                return Some(k);
+            }
+        }
+        None
+    }
+
+    /// Places `f` at a random free spot with random yaw.
+    fn place_free(&mut self, rng: &mut Rng, f: &Furniture, wall_margin: f64) -> Option<usize> {
+        let (lo, hi) = self.bounds();
+        for _ in 0..40 {
+            let p = [rng.uniform(lo[0], hi[0]), rng.uniform(lo[1], hi[1])];
+            if !self.contains(p) || self.distance_to_walls(p) < wall_margin {
+                continue;
+            }
+            if let Some(k) = self.place(f, p[0], p[1], rng.uniform(-PI, PI), 0.15, None) {
+                return Some(k);
+            }
+        }
+        None
+    }
+
+    fn bounds(&self) -> ([f64; 2], [f64; 2]) {
+        let lo = self.polygon.iter().fold([f64::INFINITY; 2], |m, p| [m[0].min(p[0]), m[1].min(p[1])]);
+        let hi = self.polygon.iter().fold([f64::NEG_INFINITY; 2], |m, p| [m[0].max(p[0]), m[1].max(p[1])]);
+        (lo, hi)
+    }
+}
+
+/// A random furnished room.
+pub fn generate_room(rng: &mut Rng) -> Room {
+    let (w, d) = (rng.uniform(3.5, 7.0), rng.uniform(3.0, 6.0));
+    let height = rng.uniform(2.4, 3.0);
+    let (polygon, kernel_center) = if rng.below(2) == 0 {
+        (vec![[0.0, 0.0], [w, 0.0], [w, d], [0.0, d]], [w / 2.0, d / 2.0])
+    } else {
+        let (a, b) = (w * rng.uniform(0.3, 0.5), d * rng.uniform(0.3, 0.5));
+        (
+            vec![[0.0, 0.0], [w, 0.0], [w, d - b], [w - a, d - b], [w - a, d], [0.0, d]],
+            [(w - a) / 2.0, (d - b) / 2.0],
+        )
+    };
+    let mut room = Room { polygon, height, kernel_center, objects: Vec::new(), footprints: Vec::new() };
+    build_shell(&mut room, rng);
+    furnish(&mut room, rng);
+    room
+}
+
+/// Floor, ceiling, walls and the things fixed to them.
+fn build_shell(room: &mut Room, rng: &mut Rng) {
+    let (lo, hi) = room.bounds();
+    let h = room.height;
+    let t = 0.15;
+    let v = Vector3::new;
+    let slab = |x0: f64, x1: f64, y0: f64, y1: f64, z0: f64, z1: f64| {
+        Primitive::cuboid(
+            v((x0 + x1) / 2.0, (y0 + y1) / 2.0, (z0 + z1) / 2.0),
+            v((x1 - x0) / 2.0, (y1 - y0) / 2.0, (z1 - z0) / 2.0),
+            0.0,
+        )
+    };
+    room.objects.push(Object::new("floor", vec![slab(lo[0] - t, hi[0] + t, lo[1] - t, hi[1] + t, -t, 0.0)]));
+    room.objects.push(Object::new("ceiling", vec![slab(lo[0] - t, hi[0] + t, lo[1] - t, hi[1] + t, h, h + t)]));
+    let edges: Vec<_> = room.edges().collect();
+    // Wall-local placement: position s along the edge, offset o into the room, height z.
+    let on_wall = |a: [f64; 2], b: [f64; 2], s: f64, o: f64, z: f64| {
+        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let e = [(b[0] - a[0]) / len, (b[1] - a[1]) / len];
+        v(a[0] + e[0] * s - e[1] * o, a[1] + e[1] * s + e[0] * o, z)
+    };
+    // Box on a wall: centred at s along the edge, `depth` into the room, between heights z0 and z1.
+    let wall_box = |a: [f64; 2], b: [f64; 2], s: f64, half_w: f64, o0: f64, o1: f64, z0: f64, z1: f64| {
+        let yaw = (b[1] - a[1]).atan2(b[0] - a[0]);
+        Primitive::cuboid(
+            on_wall(a, b, s, (o0 + o1) / 2.0, (z0 + z1) / 2.0),
+            v(half_w, (o1 - o0) / 2.0, (z1 - z0) / 2.0),
+            yaw,
+        )
+    };
+    let base_h = rng.uniform(0.06, 0.12);
+    let base_t = rng.uniform(0.01, 0.02);
+    let mut fixtures: Vec<Vec<(f64, f64)>> = vec![Vec::new(); edges.len()];
+    for (k, &(a, b)) in edges.iter().enumerate() {
+        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let mut parts = vec![wall_box(a, b, len / 2.0, len / 2.0 + t, -t, 0.0, -t, h + t)];
+        parts.push(wall_box(a, b, len / 2.0, len / 2.0, 0.0, base_t, 0.0, base_h));
+        room.objects.push(Object::new("wall", parts));
+        fixtures[k].push((-1.0, 0.05));
+        fixtures[k].push((len - 0.05, len + 1.0));
+    }
+    let free = |fixtures: &Vec<(f64, f64)>, s0: f64, s1: f64| fixtures.iter().all(|&(a, b)| s1 < a || s0 > b);
+    let pick_edge = |rng: &mut Rng, min_len: f64| {
+        let k = rng.below(edges.len());
+        let (a, b) = edges[k];
+        ((b[0] - a[0]).hypot(b[1] - a[1]) >= min_len).then_some(k)
+    };
+    // Doors: panel, frame and handle; keep the floor in front free.
+    for _ in 0..1 + rng.below(2) {
+        let Some(k) = pick_edge(rng, 1.4) else { continue };
+        let (a, b) = edges[k];
+        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let (dw, dh) = (rng.uniform(0.8, 0.95), rng.uniform(2.0, 2.1).min(h - 0.15));
+        let s = rng.uniform(dw / 2.0 + 0.15, len - dw / 2.0 - 0.15);
+        if !free(&fixtures[k], s - dw / 2.0 - 0.1, s + dw / 2.0 + 0.1) {
+            continue;
+        }
+        fixtures[k].push((s - dw / 2.0 - 0.1, s + dw / 2.0 + 0.1));
+        let p = rng.uniform(0.01, 0.04);
+        let fw = rng.uniform(0.05, 0.08);
+        let parts = vec![
+            wall_box(a, b, s, dw / 2.0, 0.0, p, 0.0, dh),
+            wall_box(a, b, s - dw / 2.0 - fw / 2.0, fw / 2.0, 0.0, p + 0.015, 0.0, dh + fw),
+            wall_box(a, b, s + dw / 2.0 + fw / 2.0, fw / 2.0, 0.0, p + 0.015, 0.0, dh + fw),
+            wall_box(a, b, s, dw / 2.0 + fw, 0.0, p + 0.015, dh, dh + fw),
+            Primitive::cylinder(
+                on_wall(a, b, s + dw / 2.0 - 0.08, p + 0.03, 1.0),
+                0.01,
+                0.06,
+                rot_z((b[1] - a[1]).atan2(b[0] - a[0])) * rot_y(FRAC_PI_2),
+            ),
+        ];
+        room.objects.push(Object::new("door", parts));
+        let c = on_wall(a, b, s, 0.45, 0.0);
+        let yaw = (b[1] - a[1]).atan2(b[0] - a[0]);
+        room.footprints.push(Footprint { center: [c.x, c.y], half: [dw / 2.0 + 0.1, 0.45], yaw, height: 0.0 });
+    }
+    // Windows (sill and frame), sometimes a radiator underneath.
+    for _ in 0..rng.below(3) {
+        let Some(k) = pick_edge(rng, 1.5) else { continue };
+        let (a, b) = edges[k];
+        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let ww = rng.uniform(0.8, 1.6).min(len - 0.4);
+        let s = rng.uniform(ww / 2.0 + 0.15, len - ww / 2.0 - 0.15);
+        if !free(&fixtures[k], s - ww / 2.0 - 0.1, s + ww / 2.0 + 0.1) {
+            continue;
+        }
+        fixtures[k].push((s - ww / 2.0 - 0.1, s + ww / 2.0 + 0.1));
+        let z0 = rng.uniform(0.8, 1.0);
+        let z1 = (z0 + rng.uniform(1.0, 1.4)).min(h - 0.2);
+        let f = 0.05;
+        let mut parts = vec![
+            wall_box(a, b, s, ww / 2.0 + 0.05, 0.0, rng.uniform(0.1, 0.2), z0 - 0.03, z0),
+            wall_box(a, b, s - ww / 2.0, f / 2.0, 0.0, 0.03, z0, z1),
+            wall_box(a, b, s + ww / 2.0, f / 2.0, 0.0, 0.03, z0, z1),
+            wall_box(a, b, s, ww / 2.0, 0.0, 0.03, z1 - f, z1),
+            wall_box(a, b, s, f / 4.0, 0.0, 0.02, z0, z1),
+        ];
+        let yaw = (b[1] - a[1]).atan2(b[0] - a[0]);
+        if rng.below(2) == 0 {
+            let rw = ww / 2.0 * rng.uniform(0.6, 0.9);
+            let (r0, r1) = (0.15, (z0 - 0.15).max(0.4));
+            let depth = rng.uniform(0.06, 0.1);
+            parts.push(wall_box(a, b, s, rw, 0.03, depth - 0.02, r0, r1));
+            let fins = (rw * 2.0 / 0.06) as usize;
+            for i in 0..fins {
+                let fs = s - rw + (i as f64 + 0.5) * (2.0 * rw / fins as f64);
+                parts.push(wall_box(a, b, fs, 0.012, depth - 0.02, depth, r0, r1));
+            }
+            let c = on_wall(a, b, s, depth / 2.0, 0.0);
+            room.footprints.push(Footprint { center: [c.x, c.y], half: [rw, depth / 2.0 + 0.05], yaw, height: r1 });
+        }
+        room.objects.push(Object::new("window", parts));
+    }
+    // Pictures: thin boards on the walls.
+    for _ in 0..rng.below(4) {
+        let Some(k) = pick_edge(rng, 1.0) else { continue };
+        let (a, b) = edges[k];
+        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let pw = rng.uniform(0.3, 1.0).min(len - 0.3);
+        let s = rng.uniform(pw / 2.0 + 0.1, len - pw / 2.0 - 0.1);
+        if !free(&fixtures[k], s - pw / 2.0, s + pw / 2.0) {
+            continue;
+        }
+        fixtures[k].push((s - pw / 2.0, s + pw / 2.0));
+        let ph = pw * rng.uniform(0.5, 1.2);
+        let z = rng.uniform(1.3, 1.8).min(h - ph / 2.0 - 0.15);
+        let depth = rng.uniform(0.01, 0.04);
+        room.objects.push(Object::new("picture", vec![wall_box(a, b, s, pw / 2.0, 0.0, depth, z - ph / 2.0, z + ph / 2.0)]));
+    }
+    // Sometimes a pillar in a wall.
+    if rng.below(4) == 0
+        && let Some(k) = pick_edge(rng, 2.5)
+    {
+        let (a, b) = edges[k];
+        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let (pw, pd) = (rng.uniform(0.25, 0.5), rng.uniform(0.15, 0.4));
+        let s = rng.uniform(pw + 0.3, len - pw - 0.3);
+        if free(&fixtures[k], s - pw, s + pw) {
+            fixtures[k].push((s - pw, s + pw));
+            room.objects.push(Object::new("pillar", vec![wall_box(a, b, s, pw / 2.0, 0.0, pd, 0.0, h)]));
+            let c = on_wall(a, b, s, pd / 2.0, 0.0);
+            let yaw = (b[1] - a[1]).atan2(b[0] - a[0]);
+            room.footprints.push(Footprint { center: [c.x, c.y], half: [pw / 2.0, pd / 2.0], yaw, height: h });
+        }
+    }
+    // A ceiling light: a flat disc or a pendant sphere on a cord.
+    let c = room.kernel_center;
+    let light = if rng.below(2) == 0 {
+        let r = rng.uniform(0.15, 0.3);
+        vec![Primitive::upright_cylinder(v(c[0], c[1], h - 0.04), r, 0.04)]
+    } else {
+        let r = rng.uniform(0.1, 0.2);
+        let drop = rng.uniform(0.4, 0.7);
+        vec![
+            Primitive::upright_cylinder(v(c[0], c[1], h - drop / 2.0), 0.005, drop / 2.0),
+            Primitive::sphere(v(c[0], c[1], h - drop - r), r),
+        ]
+    };
+    room.objects.push(Object::new("light", light));
+}
+
+/// Furniture against the walls, then table groups and small free-standing things.
+fn furnish(room: &mut Room, rng: &mut Rng) {
+    let perimeter: f64 = room.edges().map(|(a, b)| (b[0] - a[0]).hypot(b[1] - a[1])).sum();
+    let wall_items = (perimeter / 2.5) as usize + rng.below(3);
+    for _ in 0..wall_items {
+        let f = match rng.below(10) {
+            0..=2 => furniture::shelf(rng),
+            3..=4 => furniture::cabinet(rng),
+            5 => furniture::sofa(rng),
+            6 => furniture::desk(rng),
+            7 => furniture::bed(rng),
+            8 => furniture::plant(rng),
+            _ => furniture::box_stack(rng),
+        };
+        room.place_against_wall(rng, &f);
+    }
+    // One or two table groups with chairs around.
+    for _ in 0..1 + rng.below(2) {
+        let table = if rng.below(3) == 0 { furniture::round_table(rng) } else { furniture::table(rng) };
+        let Some(ti) = room.place_free(rng, &table, 1.0) else { continue };
+        let fp = room.footprints[ti];
+        let r = rot_z(fp.yaw);
+        let n_chairs = rng.below(5);
+        for k in 0..n_chairs {
+            let chair = furniture::chair(rng);
+            let angle = k as f64 * FRAC_PI_2 + rng.uniform(-0.15, 0.15);
+            let dir = r * Vector3::new(angle.cos(), angle.sin(), 0.0);
+            let reach = (fp.half[0] * angle.cos().abs() + fp.half[1] * angle.sin().abs()).max(0.2);
+            let dist = reach + chair.half[1] * rng.uniform(0.3, 1.2) + rng.uniform(0.0, 0.2);
+            let (x, y) = (fp.center[0] + dir.x * dist, fp.center[1] + dir.y * dist);
+            let yaw = (-dir.x).atan2(dir.y) + rng.uniform(-0.35, 0.35);
+            // A chair may tuck under its own table.
+            room.place(&chair, x, y, yaw, 0.05, Some(ti));
+        }
+    }
+    let (lo, hi) = room.bounds();
+    let area = (hi[0] - lo[0]) * (hi[1] - lo[1]);
+    for _ in 0..(area / 5.0) as usize + rng.below(4) {
+        let f = match rng.below(7) {
+            0 | 1 => furniture::box_stack(rng),
+            2 => furniture::bin(rng),
+            3 => furniture::ball(rng),
+            4 => furniture::floor_lamp(rng),
+            5 => furniture::plant(rng),
+            _ => furniture::chair(rng),
+        };
+        if rng.below(2) == 0 {
+            room.place_against_wall(rng, &f);
+        } else {
+            room.place_free(rng, &f, 0.3);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn polygon_queries_on_an_l_shape() {
+        let room = Room {
+            polygon: vec![[0.0, 0.0], [4.0, 0.0], [4.0, 2.0], [2.0, 2.0], [2.0, 4.0], [0.0, 4.0]],
+            height: 2.5,
+            kernel_center: [1.0, 1.0],
+            objects: Vec::new(),
+            footprints: Vec::new(),
+        };
+        assert!(room.contains([1.0, 3.0]) && room.contains([3.0, 1.0]) && !room.contains([3.0, 3.0]));
+        assert!((room.distance_to_walls([1.0, 1.0]) - 1.0).abs() < 1e-12);
+        assert!((room.distance_along([1.0, 1.0], [1.0, 0.0]) - 3.0).abs() < 1e-12);
+        assert!((room.distance_along([1.0, 1.0], [0.0, 1.0]) - 3.0).abs() < 1e-12);
+        let diag = std::f64::consts::FRAC_1_SQRT_2;
+        assert!((room.distance_along([1.0, 1.0], [diag, diag]) - 2.0f64.sqrt()).abs() < 1e-9);
+    }
+
+    #[test]
+    fn footprint_overlap_is_symmetric_and_respects_rotation() {
+        let a = Footprint { center: [0.0, 0.0], half: [1.0, 0.2], yaw: 0.0, height: 1.0 };
+        let b = Footprint { center: [0.0, 0.5], half: [1.0, 0.2], yaw: 0.0, height: 1.0 };
+        let c = Footprint { center: [0.0, 0.5], half: [1.0, 0.2], yaw: FRAC_PI_2, height: 1.0 };
+        assert!(!a.overlaps(&b, 0.0) && !b.overlaps(&a, 0.0));
+        assert!(a.overlaps(&b, 0.2));
+        assert!(a.overlaps(&c, 0.0) && c.overlaps(&a, 0.0));
+        assert!((a.distance_to([2.0, 0.0]) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn generated_rooms_have_furniture_inside_the_walls() {
+        for seed in 0..10 {
+            let room = generate_room(&mut Rng::new(seed));
+            assert!(room.objects.len() > 8, "seed {seed}: {} objects", room.objects.len());
+            assert!(room.contains(room.kernel_center));
+            for f in &room.footprints {
+                assert!(room.contains(f.center), "seed {seed}: {f:?}");
+            }
+        }
+    }
+}
