@@ -28,7 +28,8 @@ pub struct LoadOptions {
 /// What loading did besides returning the cloud.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct LoadReport {
-    /// Points dropped because a coordinate was NaN or infinite.
+    /// Points dropped because a coordinate was NaN or infinite, or because the file gave them a normal with a
+    /// NaN or infinite component.
     pub dropped_non_finite: usize,
     /// Points dropped because they were exactly (0, 0, 0) and `drop_zero_points` was set.
     pub dropped_zero: usize,

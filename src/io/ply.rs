@@ -272,6 +272,9 @@ fn read_ascii_body(
     let mut lines = TextLines::new(data, header.body_start, header.end_line);
     let mut values = [0.0f64; 6];
     for (e, element) in header.elements.iter().enumerate() {
+        if element.properties.is_empty() {
+            continue;
+        }
         let slots = (e == layout.element).then_some(layout.slots.as_slice());
         for done in 0..element.count {
             let Some((n, raw)) = lines.next_nonblank() else {

@@ -74,7 +74,13 @@ impl Weights {
         let specs: BTreeMap<String, Vec<usize>> = tensor_specs(&self.config).into_iter().collect();
         let mut views = Vec::new();
         for (name, data) in &self.tensors {
-            let shape = specs.get(name).cloned().unwrap_or_else(|| vec![data.len()]);
+            // Tensors keep their table shape; anything else (only possible through direct edits of `tensors`) is
+            // written flat so that loading reports it.
+            let shape = specs
+                .get(name)
+                .filter(|s| s.iter().product::<usize>() == data.len())
+                .cloned()
+                .unwrap_or_else(|| vec![data.len()]);
             let view = TensorView::new(Dtype::F32, shape, bytemuck::cast_slice(data))
                 .map_err(|e| Error::invalid(format!("tensor '{name}': {e}")))?;
             views.push((name.clone(), view));

@@ -1,0 +1,56 @@
+// SPDX-License-Identifier: MIT OR Apache-2.0
+// hypotheses: one rigid pose per correspondence from its unit quaternion [w, x, y, z]:
+// R = R(q) (target_from_source), t = p_target - R p_source. One invocation per correspondence.
+// Bindings: 0 params (uniform) | 1 quaternions (4 per row), 2 source, 3 target (xyz per row) (read) |
+//           4 out (12 per row: R row-major, then t; written).
+// CPU twin: src/cpu/hypotheses.rs
+
+struct HypothesesParams {
+    rows: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+const WG_SIZE: u32 = 64u;
+
+@group(0) @binding(0) var<uniform> params: HypothesesParams;
+@group(0) @binding(1) var<storage, read> quaternions: array<f32>;
+@group(0) @binding(2) var<storage, read> source: array<f32>;
+@group(0) @binding(3) var<storage, read> target: array<f32>;
+@group(0) @binding(4) var<storage, read_write> out: array<f32>;
+
+@compute @workgroup_size(WG_SIZE)
+fn main(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let i = (wid.x + wid.y * nwg.x) * WG_SIZE + lid;
+    if i >= params.rows {
+        return;
+    }
+    let w = quaternions[i * 4u];
+    let x = quaternions[i * 4u + 1u];
+    let y = quaternions[i * 4u + 2u];
+    let z = quaternions[i * 4u + 3u];
+    var r: array<f32, 9>;
+    r[0] = 1.0 - 2.0 * (y * y + z * z);
+    r[1] = 2.0 * (x * y - w * z);
+    r[2] = 2.0 * (x * z + w * y);
+    r[3] = 2.0 * (x * y + w * z);
+    r[4] = 1.0 - 2.0 * (x * x + z * z);
+    r[5] = 2.0 * (y * z - w * x);
+    r[6] = 2.0 * (x * z - w * y);
+    r[7] = 2.0 * (y * z + w * x);
+    r[8] = 1.0 - 2.0 * (x * x + y * y);
+    let ps = vec3<f32>(source[i * 3u], source[i * 3u + 1u], source[i * 3u + 2u]);
+    let pt = vec3<f32>(target[i * 3u], target[i * 3u + 1u], target[i * 3u + 2u]);
+    for (var e = 0u; e < 9u; e++) {
+        out[i * 12u + e] = r[e];
+    }
+    for (var a = 0u; a < 3u; a++) {
+        let rp = r[a * 3u] * ps.x + r[a * 3u + 1u] * ps.y + r[a * 3u + 2u] * ps.z;
+        out[i * 12u + 9u + a] = pt[a] - rp;
+    }
+}

@@ -1,0 +1,189 @@
+//! Making 3DMatch ground truth from fragments with known poses (spec 3.3, `getGtInfoLog.m`): which pairs
+//! overlap enough to enter gt.log, and their gt.info information matrices.
+
+use super::metrics::information_matrix;
+use crate::cloud::PointCloud;
+use crate::rng::Rng;
+use crate::synth::fuse::grid_average;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::{Matrix4, Matrix6, Vector3};
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// The constants of the ground-truth rule; the defaults are the official ones.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GroundTruthRule {
+    /// Grid-average downsampling cell before everything else (0.01 m).
+    pub grid: f64,
+    /// A fragment-i point overlaps when its nearest transformed fragment-j point is closer than this (0.03 m).
+    pub overlap_distance: f64,
+    /// Pairs with at least this overlap fraction enter gt.log (0.30).
+    pub min_overlap: f64,
+    /// Transformed fragment-j points closer than this to fragment i form the correspondence set (0.006 m).
+    pub info_distance: f64,
+    /// The correspondence set is randomly subsampled to at most this many points (5000).
+    pub max_info_points: usize,
+}
+
+impl Default for GroundTruthRule {
+    fn default() -> Self {
+        GroundTruthRule { grid: 0.01, overlap_distance: 0.03, min_overlap: 0.30, info_distance: 0.006, max_info_points: 5000 }
+    }
+}
+
+/// One ground-truth pair.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GtPair {
+    /// Fragment i (the target frame).
+    pub i: usize,
+    /// Fragment j > i (the source).
+    pub j: usize,
+    /// x_i = transform x_j.
+    pub transform: Matrix4<f64>,
+    /// Fraction of (downsampled) fragment-i points within `overlap_distance` of transformed fragment j.
+    pub overlap: f64,
+    /// Σ Gᵀ G over the (subsampled) correspondence set, in fragment i's frame.
+    pub information: Matrix6<f64>,
+}
+
+/// A fragment downsampled on the ground-truth grid, with a k-d tree over its points (own frame).
+pub struct PreparedFragment {
+    /// Grid-averaged points.
+    pub points: Vec<[f64; 3]>,
+    tree: Option<ImmutableKdTree<f64, 3>>,
+}
+
+impl PreparedFragment {
+    /// Downsamples `cloud` on a `grid` and indexes it.
+    pub fn new(cloud: &PointCloud, grid: f64) -> PreparedFragment {
+        let points = grid_average(&cloud.points, grid);
+        let tree = (!points.is_empty()).then(|| ImmutableKdTree::new_from_slice(&points).ok()).flatten();
+        PreparedFragment { points, tree }
+    }
+
+    /// Squared distance from `p` (this fragment's frame) to the nearest point (infinite when empty).
+    pub fn nearest_sq(&self, p: &[f64; 3]) -> f64 {
+        match &self.tree {
+            Some(t) => t.query(p).nearest_one::<SquaredEuclidean<f64>>().execute().distance,
+            None => f64::INFINITY,
+        }
+    }
+}
+
+fn apply(t: &Matrix4<f64>, p: &[f64; 3]) -> [f64; 3] {
+    let q = t.fixed_view::<3, 3>(0, 0) * Vector3::new(p[0], p[1], p[2]) + t.fixed_view::<3, 1>(0, 3);
+    [q.x, q.y, q.z]
+}
+
+/// Fraction of fragment-i points whose nearest point of fragment j mapped by `transform` (x_i = T x_j) is
+/// closer than `distance` (strict). Distances are computed in fragment j's frame via T⁻¹, which is equivalent.
+pub fn overlap_fraction(frag_i: &PreparedFragment, frag_j: &PreparedFragment, transform: &Matrix4<f64>, distance: f64) -> f64 {
+    if frag_i.points.is_empty() {
+        return 0.0;
+    }
+    let inv = super::metrics::inverse(transform);
+    let d2 = distance * distance;
+    let hits = frag_i.points.iter().filter(|p| frag_j.nearest_sq(&apply(&inv, p)) < d2).count();
+    hits as f64 / frag_i.points.len() as f64
+}
+
+/// The correspondence set Q of spec 3.3 step 5: fragment-j points mapped into fragment i's frame that lie closer
+/// than `distance` to fragment i, subsampled to at most `max_points` with `rng` (in drawn order).
+pub fn correspondence_points(
+    frag_i: &PreparedFragment,
+    frag_j: &PreparedFragment,
+    transform: &Matrix4<f64>,
+    distance: f64,
+    max_points: usize,
+    rng: &mut Rng,
+) -> Vec<[f64; 3]> {
+    let d2 = distance * distance;
+    let q: Vec<[f64; 3]> =
+        frag_j.points.iter().map(|p| apply(transform, p)).filter(|q| frag_i.nearest_sq(q) < d2).collect();
+    if q.len() <= max_points {
+        return q;
+    }
+    rng.sample_without_replacement(q.len(), max_points).into_iter().map(|k| q[k]).collect()
+}
+
+/// The information matrix of one pair (steps 5-6), given the transform x_i = T x_j.
+pub fn pair_information(
+    frag_i: &PreparedFragment,
+    frag_j: &PreparedFragment,
+    transform: &Matrix4<f64>,
+    rule: &GroundTruthRule,
+    rng: &mut Rng,
+) -> Matrix6<f64> {
+    information_matrix(&correspondence_points(frag_i, frag_j, transform, rule.info_distance, rule.max_info_points, rng))
+}
+
+/// Every pair i < j whose overlap passes the rule, with T_ij = E_i⁻¹ E_j (E = `world_from_fragment`) and its
+/// information matrix. Pair k (in i-major order over all i < j) subsamples with `Rng::derived(seed, k)`, so the
+/// result does not depend on thread scheduling.
+pub fn ground_truth_pairs(
+    fragments: &[PointCloud],
+    world_from_fragment: &[Matrix4<f64>],
+    rule: &GroundTruthRule,
+    seed: u64,
+) -> Vec<GtPair> {
+    let prepared: Vec<PreparedFragment> = fragments.par_iter().map(|c| PreparedFragment::new(c, rule.grid)).collect();
+    let n = fragments.len().min(world_from_fragment.len());
+    let pairs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
+    pairs
+        .par_iter()
+        .enumerate()
+        .filter_map(|(k, &(i, j))| {
+            let transform = super::metrics::inverse(&world_from_fragment[i]) * world_from_fragment[j];
+            let overlap = overlap_fraction(&prepared[i], &prepared[j], &transform, rule.overlap_distance);
+            if overlap < rule.min_overlap {
+                return None;
+            }
+            let mut rng = Rng::derived(seed, k as u64);
+            let information = pair_information(&prepared[i], &prepared[j], &transform, rule, &mut rng);
+            Some(GtPair { i, j, transform, overlap, information })
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid_cloud(n: usize, step: f32, z: f32) -> PointCloud {
+        PointCloud::from_points((0..n * n).map(|k| [(k % n) as f32 * step, (k / n) as f32 * step, z]).collect())
+    }
+
+    #[test]
+    fn overlap_counts_fragment_i_points_near_transformed_j() {
+        // Fragment i: a 1 m x 1 m plane (2 cm grid); fragment j: the same plane shifted by -0.5 m in x in its
+        // own frame, so T_ij = translate(+0.5, 0, 0) maps it back over the right half of i.
+        let i = grid_cloud(50, 0.02, 0.0);
+        let mut j = grid_cloud(50, 0.02, 0.0);
+        j.points.iter_mut().for_each(|p| p[0] -= 0.5);
+        let mut t = Matrix4::identity();
+        t[(0, 3)] = 0.5;
+        let rule = GroundTruthRule::default();
+        let (pi, pj) = (PreparedFragment::new(&i, rule.grid), PreparedFragment::new(&j, rule.grid));
+        let overlap = overlap_fraction(&pi, &pj, &t, rule.overlap_distance);
+        // Columns x >= 0.5 - 0.03 overlap: 25 of 50 columns plus the one within 3 cm (x = 0.48).
+        assert!((overlap - 27.0 / 50.0).abs() < 1e-9, "{overlap}");
+        let pairs = ground_truth_pairs(&[i.clone(), j.clone()], &[Matrix4::identity(), t.try_inverse().unwrap().try_inverse().unwrap()], &rule, 1);
+        assert_eq!(pairs.len(), 1);
+        // Q: the 25 x 50 coincident points, all within 6 mm; information (0,0) counts them.
+        assert!((pairs[0].information[(0, 0)] - 1250.0).abs() < 1e-9);
+        // Far apart: no pair.
+        let mut far = t;
+        far[(0, 3)] = 5.0;
+        assert!(ground_truth_pairs(&[i, j], &[Matrix4::identity(), far], &rule, 1).is_empty());
+    }
+
+    #[test]
+    fn correspondence_set_is_capped_and_seeded() {
+        let c = grid_cloud(100, 0.01, 1.0);
+        let p = PreparedFragment::new(&c, 0.01);
+        let a = correspondence_points(&p, &p, &Matrix4::identity(), 0.006, 5000, &mut Rng::new(3));
+        let b = correspondence_points(&p, &p, &Matrix4::identity(), 0.006, 5000, &mut Rng::new(3));
+        assert_eq!(a.len(), 5000);
+        assert_eq!(a, b);
+    }
+}

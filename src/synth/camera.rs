@@ -1,0 +1,243 @@
+//! A simulated Kinect-like depth camera and the smooth hand-held trajectory it follows through a room.
+//!
+//! Camera frame: x right, y down, z forward (the optical axis); depth is the z coordinate.
+
+use super::geometry::{Object, cast_ray};
+use super::room::Room;
+use crate::rng::Rng;
+use nalgebra::{Matrix3, Matrix4, Vector3};
+use serde::Serialize;
+
+/// Depth camera intrinsics and error model.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct CameraModel {
+    /// Rays per row.
+    pub width: usize,
+    /// Rays per column.
+    pub height: usize,
+    /// Horizontal field of view (degrees).
+    pub hfov_deg: f64,
+    /// Vertical field of view (degrees).
+    pub vfov_deg: f64,
+    /// Returns closer than this depth are missing (metres).
+    pub min_depth: f64,
+    /// Returns farther than this depth are missing (metres).
+    pub max_depth: f64,
+    /// Probability that a return is randomly missing.
+    pub dropout: f64,
+    /// Returns whose incidence angle (between the ray and the surface normal) exceeds this are missing
+    /// (degrees).
+    pub max_incidence_deg: f64,
+    /// Depth noise sigma(z) = `noise[0] + noise[1] (z - noise[2])^2` metres, along the ray (Kinect-like).
+    pub noise: [f64; 3],
+}
+
+impl Default for CameraModel {
+    fn default() -> Self {
+        CameraModel {
+            width: 160,
+            height: 120,
+            hfov_deg: 57.0,
+            vfov_deg: 43.0,
+            min_depth: 0.5,
+            max_depth: 4.5,
+            dropout: 0.03,
+            max_incidence_deg: 75.0,
+            noise: [0.0012, 0.0019, 0.4],
+        }
+    }
+}
+
+impl CameraModel {
+    /// Depth noise standard deviation at depth `z`.
+    pub fn sigma(&self, z: f64) -> f64 {
+        self.noise[0] + self.noise[1] * (z - self.noise[2]).powi(2)
+    }
+
+    /// Scans the scene from `world_from_camera` and returns (point, normal) pairs mapped by
+    /// `out_from_camera` (e.g. into a fragment's frame). Normals come from the primitive that was hit and face
+    /// the camera. Each ray is jittered inside its pixel.
+    pub fn scan(
+        &self,
+        objects: &[Object],
+        world_from_camera: &Matrix4<f64>,
+        out_from_camera: &Matrix4<f64>,
+        rng: &mut Rng,
+    ) -> Vec<([f64; 3], [f64; 3])> {
+        let r = world_from_camera.fixed_view::<3, 3>(0, 0).into_owned();
+        let origin = world_from_camera.fixed_view::<3, 1>(0, 3).into_owned();
+        let r_out = out_from_camera.fixed_view::<3, 3>(0, 0).into_owned();
+        let t_out = out_from_camera.fixed_view::<3, 1>(0, 3).into_owned();
+        let fx = self.width as f64 / 2.0 / (self.hfov_deg.to_radians() / 2.0).tan();
+        let fy = self.height as f64 / 2.0 / (self.vfov_deg.to_radians() / 2.0).tan();
+        let (cx, cy) = (self.width as f64 / 2.0, self.height as f64 / 2.0);
+        let cos_max = self.max_incidence_deg.to_radians().cos();
+        let mut out = Vec::with_capacity(self.width * self.height);
+        for v in 0..self.height {
+            for u in 0..self.width {
+                let (ju, jv) = (rng.unit_f64(), rng.unit_f64());
+                let ray = Vector3::new((u as f64 + ju - cx) / fx, (v as f64 + jv - cy) / fy, 1.0);
+                let len = ray.norm();
+                let dir = r * (ray / len);
+                let Some(hit) = cast_ray(objects, &origin, &dir, self.max_depth * len) else { continue };
+                let z = hit.t / len;
+                let cos_inc = -hit.normal.dot(&dir);
+                if z < self.min_depth || cos_inc < cos_max || rng.unit_f64() < self.dropout {
+                    continue;
+                }
+                let zn = z + self.sigma(z) * rng.normal();
+                let p = r_out * (ray * zn) + t_out;
+                let n = r_out * (r.transpose() * hit.normal);
+                out.push(([p.x, p.y, p.z], [n.x, n.y, n.z]));
+            }
+        }
+        out
+    }
+}
+
+/// A camera pose as a 4x4 world_from_camera matrix whose optical axis looks along `forward` with image "up"
+/// near world +z, rolled by `roll` radians.
+pub fn look_pose(position: Vector3<f64>, yaw: f64, pitch: f64, roll: f64) -> Matrix4<f64> {
+    let f = Vector3::new(pitch.cos() * yaw.cos(), pitch.cos() * yaw.sin(), pitch.sin());
+    let right = f.cross(&Vector3::z()).normalize();
+    let down = f.cross(&right);
+    let (s, c) = roll.sin_cos();
+    let (x, y) = (right * c + down * s, down * c - right * s);
+    let r = Matrix3::from_columns(&[x, y, f]);
+    let mut m = Matrix4::identity();
+    m.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    m.fixed_view_mut::<3, 1>(0, 3).copy_from(&position);
+    m
+}
+
+/// Uniform Catmull-Rom interpolation between `p1` and `p2` at `t` in [0, 1].
+fn catmull_rom(p0: f64, p1: f64, p2: f64, p3: f64, t: f64) -> f64 {
+    let (t2, t3) = (t * t, t * t * t);
+    0.5 * (2.0 * p1 + (p2 - p0) * t + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * t2 + (3.0 * p1 - p0 - 3.0 * p2 + p3) * t3)
+}
+
+/// How the camera moves: per fragment the view direction turns by a random amount in this range (degrees),
+/// so consecutive fragments overlap strongly and fragments a few steps apart sometimes do.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct MotionModel {
+    /// Range of the yaw change per fragment (degrees).
+    pub yaw_per_fragment_deg: [f64; 2],
+    /// Range of the camera pitch (degrees, negative looks down).
+    pub pitch_deg: [f64; 2],
+    /// Range of the camera height (metres).
+    pub height: [f64; 2],
+    /// The camera keeps at least this distance from walls (metres).
+    pub wall_margin: f64,
+}
+
+impl Default for MotionModel {
+    fn default() -> Self {
+        MotionModel { yaw_per_fragment_deg: [15.0, 40.0], pitch_deg: [-35.0, -5.0], height: [1.2, 1.8], wall_margin: 0.4 }
+    }
+}
+
+/// Plans `frames` world_from_camera poses (`frames_per_fragment` per fragment) along a smooth path: the
+/// camera pans around the room, backing away from the wall it looks at, with a smoothly varying height,
+/// pitch and roll. Knots are placed twice per fragment and interpolated with Catmull-Rom splines. The path
+/// avoids walls and tall furniture; up to 200 random paths are tried.
+pub fn plan_trajectory(
+    room: &Room,
+    motion: &MotionModel,
+    fragments: usize,
+    frames_per_fragment: usize,
+    rng: &mut Rng,
+) -> Vec<Matrix4<f64>> {
+    let knots = 2 * fragments + 3;
+    let mut fallback = Vec::new();
+    for attempt in 0..200 {
+        // Later attempts stay closer to the kernel centre.
+        let shrink = 1.0 - attempt as f64 / 200.0;
+        let mut yaw = rng.uniform(-std::f64::consts::PI, std::f64::consts::PI);
+        let sense = if rng.below(2) == 0 { 1.0 } else { -1.0 };
+        let mut k = Vec::with_capacity(knots);
+        for _ in 0..knots {
+            let u = [yaw.cos(), yaw.sin()];
+            let perp = [-u[1], u[0]];
+            let back = (room.distance_along(room.kernel_center, [-u[0], -u[1]]) - motion.wall_margin - 0.2).max(0.0);
+            let f = rng.uniform(0.15, 0.75) * shrink;
+            let lat = rng.uniform(-0.4, 0.4) * shrink;
+            let x = room.kernel_center[0] - f * back * u[0] + lat * perp[0];
+            let y = room.kernel_center[1] - f * back * u[1] + lat * perp[1];
+            let z = rng.uniform(motion.height[0], motion.height[1]);
+            let pitch = rng.uniform(motion.pitch_deg[0], motion.pitch_deg[1]).to_radians();
+            let roll = rng.uniform(-5.0f64, 5.0).to_radians();
+            k.push([x, y, z, yaw, pitch, roll]);
+            let [lo, hi] = motion.yaw_per_fragment_deg;
+            yaw += sense * rng.uniform(lo, hi).to_radians() / 2.0;
+        }
+        let total = fragments * frames_per_fragment;
+        let mut poses = Vec::with_capacity(total);
+        let mut ok = true;
+        for n in 0..total {
+            let s = n as f64 / frames_per_fragment as f64 * 2.0;
+            let i = (s.floor() as usize).min(knots - 4);
+            let t = s - i as f64;
+            let c: [f64; 6] = std::array::from_fn(|d| catmull_rom(k[i][d], k[i + 1][d], k[i + 2][d], k[i + 3][d], t));
+            ok &= room.camera_allowed([c[0], c[1]], c[2], motion.wall_margin);
+            poses.push(look_pose(Vector3::new(c[0], c[1], c[2]), c[3], c[4], c[5]));
+        }
+        if ok {
+            return poses;
+        }
+        if attempt == 0 {
+            fallback = poses;
+        }
+    }
+    fallback
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::geometry::Primitive;
+
+    #[test]
+    fn look_pose_is_a_right_handed_rotation_looking_forward() {
+        let m = look_pose(Vector3::new(1.0, 2.0, 1.5), 0.3, -0.4, 0.05);
+        let r = m.fixed_view::<3, 3>(0, 0).into_owned();
+        assert!((r.transpose() * r - Matrix3::identity()).norm() < 1e-12);
+        assert!((r.determinant() - 1.0).abs() < 1e-12);
+        let f = r.column(2);
+        assert!((f.z - (-0.4f64).sin()).abs() < 1e-12);
+        // Image "down" points roughly to world -z.
+        assert!(r.column(1).z < -0.8);
+    }
+
+    #[test]
+    fn a_wall_in_front_is_seen_at_its_depth_with_noise_and_facing_normals() {
+        // A big wall 2 m in front of a camera at the origin looking along +x.
+        let wall = Object::new("wall", vec![Primitive::cuboid(Vector3::new(2.5, 0.0, 0.0), Vector3::new(0.5, 5.0, 5.0), 0.0)]);
+        let cam = CameraModel { width: 40, height: 30, ..CameraModel::default() };
+        let pose = look_pose(Vector3::zeros(), 0.0, 0.0, 0.0);
+        let pts = cam.scan(&[wall], &pose, &Matrix4::identity(), &mut Rng::new(1));
+        assert!(pts.len() > 1000 && pts.len() <= 1200, "{}", pts.len());
+        let mean_z = pts.iter().map(|(p, _)| p[2]).sum::<f64>() / pts.len() as f64;
+        assert!((mean_z - 2.0).abs() < 0.003, "{mean_z}");
+        assert!(pts.iter().all(|(p, n)| (p[2] - 2.0).abs() < 10.0 * cam.sigma(2.0) && n[2] < -0.999));
+    }
+
+    #[test]
+    fn grazing_and_out_of_range_returns_are_missing() {
+        // A floor seen almost edge-on beyond the incidence limit, and a wall beyond the range.
+        let floor = Object::new("floor", vec![Primitive::cuboid(Vector3::new(0.0, 0.0, -0.35), Vector3::new(20.0, 20.0, 0.05), 0.0)]);
+        let cam = CameraModel { width: 40, height: 30, dropout: 0.0, ..CameraModel::default() };
+        let pose = look_pose(Vector3::zeros(), 0.0, 0.0, 0.0);
+        let pts = cam.scan(std::slice::from_ref(&floor), &pose, &Matrix4::identity(), &mut Rng::new(2));
+        // The floor is 0.3 m below the camera: camera y ("down") is 0.3 and the cosine of the incidence angle
+        // is y / |p|. Only the lowest rows are steep enough; the other 600 - n rays that hit the floor graze it.
+        let cos_max = 75f64.to_radians().cos();
+        assert!(!pts.is_empty() && pts.len() < 300, "{}", pts.len());
+        for (p, n) in &pts {
+            let norm = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+            assert!(p[1] / norm > cos_max - 0.01, "{p:?}");
+            assert!(n[1] < -0.999, "{n:?}");
+        }
+        let far = Object::new("wall", vec![Primitive::cuboid(Vector3::new(6.0, 0.0, 0.0), Vector3::new(0.5, 5.0, 5.0), 0.0)]);
+        assert!(cam.scan(&[far], &pose, &Matrix4::identity(), &mut Rng::new(3)).is_empty());
+    }
+}

@@ -1,0 +1,122 @@
+//! The loss terms of the paper (RelativeNet, CVPR 2019, section 3.3) and their gradients.
+//!
+//! Every loss is evaluated in f64 from f32 inputs and returns f32 gradients.
+//!
+//! Euclidean norms are not differentiable at 0: the gradient of `|v|` is taken as `v / max(|v|, NORM_EPS)`,
+//! which is the exact derivative `v / |v|` whenever `|v| >= NORM_EPS` and goes smoothly to 0 (a valid
+//! subgradient) at `v = 0`, so a point that sits exactly on its reconstruction, or two identical codewords,
+//! give a zero gradient instead of NaN. Values are never changed by the guard.
+
+/// Below this norm, the gradient of a Euclidean norm is scaled down towards zero (see the module docs).
+pub const NORM_EPS: f64 = 1e-12;
+
+/// Euclidean norm in f64.
+fn norm(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+/// Chamfer distance of the paper, `d(X, Y) = max(mean_x min_y |x - y|, mean_y min_x |x - y|)` (Euclidean, not
+/// squared), between `x` (`n x dim`, the input patch) and `y` (`m x dim`, the reconstruction), and its
+/// gradient w.r.t. `y`.
+///
+/// Nearest neighbours are found by brute force; ties go to the lowest index, and when both directions are
+/// equal the gradient is that of the first (X to Y). Empty sets give 0 and a zero gradient.
+pub fn chamfer(x: &[f32], y: &[f32], dim: usize) -> (f64, Vec<f32>) {
+    let mut grad = vec![0.0f32; y.len()];
+    if dim == 0 || x.is_empty() || y.is_empty() {
+        return (0.0, grad);
+    }
+    let (n, m) = (x.len() / dim, y.len() / dim);
+    let d2 = |i: usize, j: usize| {
+        let (a, b) = (&x[i * dim..][..dim], &y[j * dim..][..dim]);
+        a.iter().zip(b).map(|(&p, &q)| (p as f64 - q as f64).powi(2)).sum::<f64>()
+    };
+    // For each x its nearest y, for each y its nearest x (squared distances, in one pass over all pairs).
+    let mut near_y = vec![(f64::INFINITY, 0usize); n];
+    let mut near_x = vec![(f64::INFINITY, 0usize); m];
+    for (i, ny) in near_y.iter_mut().enumerate() {
+        for (j, nx) in near_x.iter_mut().enumerate() {
+            let d = d2(i, j);
+            if d < ny.0 {
+                *ny = (d, j);
+            }
+            if d < nx.0 {
+                *nx = (d, i);
+            }
+        }
+    }
+    let a = near_y.iter().map(|&(d, _)| d.sqrt()).sum::<f64>() / n as f64;
+    let b = near_x.iter().map(|&(d, _)| d.sqrt()).sum::<f64>() / m as f64;
+    // d|y - x| / dy = (y - x) / |y - x|, guarded at 0.
+    let mut push = |xi: usize, yj: usize, scale: f64| {
+        let diff: Vec<f64> = (0..dim).map(|c| y[yj * dim + c] as f64 - x[xi * dim + c] as f64).collect();
+        let len = norm(&diff).max(NORM_EPS);
+        for (c, dv) in diff.iter().enumerate() {
+            grad[yj * dim + c] += (scale * dv / len) as f32;
+        }
+    };
+    if a >= b {
+        for (i, &(_, j)) in near_y.iter().enumerate() {
+            push(i, j, 1.0 / n as f64);
+        }
+        (a, grad)
+    } else {
+        for (j, &(_, i)) in near_x.iter().enumerate() {
+            push(i, j, 1.0 / m as f64);
+        }
+        (b, grad)
+    }
+}
+
+/// Below this norm a raw quaternion is degenerate: normalisation maps it to the identity with a zero gradient
+/// (the same threshold as `crate::model::relativenet::normalize_quaternion`).
+pub const MIN_QUATERNION_NORM: f64 = crate::model::relativenet::MIN_QUATERNION_NORM as f64;
+
+/// `q = r / |r|` (the identity when `|r|` is below [`MIN_QUATERNION_NORM`]).
+pub fn normalize_quaternion(r: [f32; 4]) -> [f64; 4] {
+    let r = r.map(f64::from);
+    let n = norm(&r);
+    if !(n > MIN_QUATERNION_NORM) {
+        return [1.0, 0.0, 0.0, 0.0];
+    }
+    r.map(|v| v / n)
+}
+
+/// Gradient of a loss w.r.t. the raw output `r`, given its gradient `d_q` w.r.t. `q = r / |r|`:
+/// `(I - q q^T) d_q / |r|`. Zero for a degenerate `r`.
+pub fn normalize_quaternion_backward(r: [f32; 4], d_q: [f64; 4]) -> [f64; 4] {
+    let rr = r.map(f64::from);
+    let n = norm(&rr);
+    if !(n > MIN_QUATERNION_NORM) {
+        return [0.0; 4];
+    }
+    let q = rr.map(|v| v / n);
+    let dot: f64 = q.iter().zip(&d_q).map(|(a, b)| a * b).sum();
+    [0, 1, 2, 3].map(|i| (d_q[i] - q[i] * dot) / n)
+}
+
+/// The pose loss `min(|q - q*|, |q + q*|)` (plain L2, as the paper's eq. 5) between a unit quaternion `q` and
+/// the label `q*`, and its gradient w.r.t. `q`.
+///
+/// `q` and `-q` are the same rotation, and a label can be written with either sign. Comparing against the
+/// nearer of `q*` and `-q*` makes the loss a function of the two rotations only, so the network is never
+/// punished for choosing the other (equally correct) sign, and the target does not jump where a fixed sign
+/// convention (say w >= 0) would flip it (rotations by about 180 degrees). On a tie (`q . q* = 0`) the
+/// `q - q*` branch is used.
+pub fn pose_loss(q: [f64; 4], label: [f64; 4]) -> (f64, [f64; 4]) {
+    let minus = [0, 1, 2, 3].map(|i| q[i] - label[i]);
+    let plus = [0, 1, 2, 3].map(|i| q[i] + label[i]);
+    let (nm, np) = (norm(&minus), norm(&plus));
+    let (diff, len) = if nm <= np { (minus, nm) } else { (plus, np) };
+    let g = len.max(NORM_EPS);
+    (len, diff.map(|d| d / g))
+}
+
+/// The feature-consistency loss of one corresponding pair, `|f_p - f_q|` (L2 of the difference of the two
+/// PPF-FoldNet codewords), and its gradient w.r.t. `f_p` (the gradient w.r.t. `f_q` is its negation).
+pub fn feat_loss(f_p: &[f32], f_q: &[f32]) -> (f64, Vec<f32>) {
+    let diff: Vec<f64> = f_p.iter().zip(f_q).map(|(&a, &b)| a as f64 - b as f64).collect();
+    let len = norm(&diff);
+    let g = len.max(NORM_EPS);
+    (len, diff.iter().map(|d| (d / g) as f32).collect())
+}

@@ -1,0 +1,125 @@
+//! The `dpr-gpu` binary end to end: a generated pair registers; bad input exits non-zero with one line and
+//! never panics; outputs are atomic and never replace an input.
+
+mod common;
+
+use common::{room_pair, temp_dir};
+use dpr_gpu::io::{LoadOptions, read_cloud, write_ply};
+use dpr_gpu::pose::{rotation_error_deg, translation_error};
+use nalgebra::Matrix4;
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn dpr(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_dpr-gpu")).args(args).output().expect("binary runs")
+}
+
+fn text(o: &Output) -> (String, String) {
+    (String::from_utf8_lossy(&o.stdout).into_owned(), String::from_utf8_lossy(&o.stderr).into_owned())
+}
+
+fn assert_clean_failure(o: &Output, needle: &str) {
+    let (_, err) = text(o);
+    assert!(!o.status.success(), "expected failure, stderr: {err}");
+    assert!(!err.contains("panicked"), "panic: {err}");
+    let lines: Vec<&str> = err.lines().filter(|l| !l.contains("XDG_RUNTIME_DIR")).collect();
+    assert_eq!(lines.len(), 1, "one line expected: {err}");
+    assert!(lines[0].starts_with("error: ") && lines[0].contains(needle), "'{needle}' not in: {err}");
+}
+
+/// Small model (64 points per patch) so the CPU run stays short in tests.
+fn small_weights(dir: &Path) -> String {
+    let w = dir.join("w.safetensors");
+    let o = dpr(&["init-weights", w.to_str().unwrap(), "--seed", "3", "--points", "64", "--grid", "8"]);
+    assert!(o.status.success(), "{:?}", text(&o));
+    w.to_str().unwrap().to_string()
+}
+
+#[test]
+fn registers_a_generated_pair_with_ransac_on_random_weights() {
+    // PPF-FoldNet codewords are rotation invariant even with random weights, so mutual matches of the same
+    // surfaces are mostly right and RANSAC recovers the known pose to within the keypoint spacing; ICP on the
+    // full clouds then makes it exact up to the sampling noise.
+    let dir = temp_dir("cli-register");
+    let (source, target, truth) = room_pair(1, 20_000);
+    let (s, t) = (dir.join("source.ply"), dir.join("target.ply"));
+    write_ply(&s, &source).unwrap();
+    write_ply(&t, &target).unwrap();
+    let weights = small_weights(&dir);
+    let (out, aligned) = (dir.join("T.txt"), dir.join("aligned.ply"));
+    let o = dpr(&[
+        "register", s.to_str().unwrap(), t.to_str().unwrap(), "--weights", &weights, "--keypoints", "300",
+        "--estimator", "ransac", "--voxel", "0.02", "--icp", "--json", "--out", out.to_str().unwrap(),
+        "--aligned", aligned.to_str().unwrap(),
+    ]);
+    let (stdout, stderr) = text(&o);
+    assert!(o.status.success(), "{stderr}");
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
+    let rows = v["target_from_source"].as_array().unwrap();
+    let m = Matrix4::from_fn(|r, c| rows[r][c].as_f64().unwrap());
+    assert!(rotation_error_deg(&m, &truth) < 0.5, "rotation error {}", rotation_error_deg(&m, &truth));
+    assert!(translation_error(&m, &truth) < 0.01, "translation error {}", translation_error(&m, &truth));
+    assert!(v["inliers"].as_u64().unwrap() >= 10);
+    assert!(v["hypotheses_scored"].as_u64().unwrap() >= 1);
+    assert!(v["timings"].as_array().unwrap().iter().any(|t| t["stage"] == "source.ppf_encoder"));
+    // --out holds the same matrix; --aligned holds the moved source.
+    let written: Vec<f64> = std::fs::read_to_string(&out).unwrap().split_whitespace().map(|x| x.parse().unwrap()).collect();
+    assert_eq!(written.len(), 16);
+    assert!((Matrix4::from_row_slice(&written) - m).abs().max() < 1e-6);
+    let (moved, _) = read_cloud(&aligned, &LoadOptions::default()).unwrap();
+    assert_eq!(moved.len(), source.len());
+    // Same inputs and seed, same result.
+    let again = dpr(&["register", s.to_str().unwrap(), t.to_str().unwrap(), "--weights", &weights, "--keypoints", "300", "--estimator", "ransac", "--voxel", "0.02", "--icp", "--json"]);
+    let w: serde_json::Value = serde_json::from_str(text(&again).0.trim()).unwrap();
+    assert_eq!(w["target_from_source"], v["target_from_source"]);
+    // Text output names the matrix and the stages.
+    let plain = dpr(&["register", s.to_str().unwrap(), t.to_str().unwrap(), "--weights", &weights, "--keypoints", "100", "--voxel", "0.02"]);
+    let (stdout, _) = text(&plain);
+    assert!(plain.status.success());
+    assert!(stdout.contains("target_from_source") && stdout.contains("inliers:") && stdout.contains("hypotheses scored"));
+}
+
+#[test]
+fn bad_input_fails_with_one_line_and_never_overwrites_inputs() {
+    let dir = temp_dir("cli-bad");
+    let weights = small_weights(&dir);
+    let (source, target, _) = room_pair(2, 2_000);
+    let (s, t) = (dir.join("s.ply"), dir.join("t.ply"));
+    write_ply(&s, &source).unwrap();
+    write_ply(&t, &target).unwrap();
+    let (s, t) = (s.to_str().unwrap(), t.to_str().unwrap());
+
+    assert_clean_failure(&dpr(&["register", "/nonexistent/a.ply", t, "--weights", &weights]), "/nonexistent/a.ply");
+    let truncated = dir.join("truncated.ply");
+    let bytes = std::fs::read(s).unwrap();
+    std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
+    assert_clean_failure(&dpr(&["register", truncated.to_str().unwrap(), t, "--weights", &weights]), "truncated.ply");
+    let empty = dir.join("empty.xyz");
+    std::fs::write(&empty, "# nothing\n").unwrap();
+    assert_clean_failure(&dpr(&["register", empty.to_str().unwrap(), t, "--weights", &weights]), "points");
+    assert_clean_failure(&dpr(&["register", s, t, "--weights", "/nonexistent/w.safetensors"]), "w.safetensors");
+    assert_clean_failure(&dpr(&["register", s, t, "--weights", s]), "weights");
+    assert_clean_failure(&dpr(&["register", s, t, "--weights", &weights, "--radius=-1"]), "radius");
+    assert_clean_failure(&dpr(&["register", s, t, "--weights", &weights, "--mutual", "7"]), "mutual");
+    assert_clean_failure(&dpr(&["register", s, t, "--weights", &weights, "--estimator", "magic"]), "magic");
+    // A radius far too small for the cloud's units: no patch has neighbours.
+    assert_clean_failure(&dpr(&["register", s, t, "--weights", &weights, "--radius", "0.00001"]), "radius");
+
+    let before = std::fs::read(s).unwrap();
+    assert_clean_failure(&dpr(&["register", s, t, "--weights", &weights, "--aligned", s]), "overwrite");
+    assert_clean_failure(&dpr(&["register", s, t, "--weights", &weights, "--out", t]), "overwrite");
+    assert_eq!(std::fs::read(s).unwrap(), before);
+}
+
+#[test]
+fn init_weights_and_info_describe_the_model() {
+    let dir = temp_dir("cli-info");
+    let w = dir.join("paper.safetensors");
+    assert!(dpr(&["init-weights", w.to_str().unwrap(), "--config", "paper", "--seed", "1"]).status.success());
+    let o = dpr(&["info", w.to_str().unwrap()]);
+    let (stdout, _) = text(&o);
+    assert!(o.status.success());
+    assert!(stdout.contains("\"points_per_patch\": 2048") && stdout.contains("\"grid\""), "{stdout}");
+    assert!(stdout.contains("parameters total"));
+    assert_clean_failure(&dpr(&["init-weights", dir.join("x").to_str().unwrap(), "--config", "huge"]), "huge");
+}

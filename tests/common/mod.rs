@@ -1,0 +1,69 @@
+//! Shared test helpers: small generated scenes and temp directories.
+#![allow(dead_code)]
+
+use dpr_gpu::PointCloud;
+use dpr_gpu::pose::{matrix_from_parts, matrix_from_quaternion, transform_point};
+use dpr_gpu::rng::Rng;
+use nalgebra::{Matrix4, Vector3};
+use std::path::PathBuf;
+
+/// A fresh, empty temp directory unique to this process and `name`.
+pub fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("dpr-gpu-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// `n` points sampled uniformly (by count per part) from a small room corner: floor, two walls, a box, a sphere
+/// and a cylinder, about 2 m across. Different seeds give different samples of the same surfaces.
+pub fn room_corner(seed: u64, n: usize) -> PointCloud {
+    let mut rng = Rng::new(seed);
+    let mut pts = Vec::with_capacity(n);
+    for i in 0..n {
+        let (u, v) = (rng.unit_f64(), rng.unit_f64());
+        let p = match i % 6 {
+            0 => [2.0 * u, 2.0 * v, 0.0],
+            1 => [2.0 * u, 0.0, 1.5 * v],
+            2 => [0.0, 2.0 * u, 1.5 * v],
+            3 => {
+                // Box 0.5 x 0.4 x 0.6 at (1.2, 1.0): one of its five visible faces.
+                let (x0, y0, sx, sy, sz) = (1.2, 1.0, 0.5, 0.4, 0.6);
+                match rng.below(5) {
+                    0 => [x0 + sx * u, y0 + sy * v, sz],
+                    1 => [x0, y0 + sy * u, sz * v],
+                    2 => [x0 + sx, y0 + sy * u, sz * v],
+                    3 => [x0 + sx * u, y0, sz * v],
+                    _ => [x0 + sx * u, y0 + sy, sz * v],
+                }
+            }
+            4 => {
+                let (th, z) = (std::f64::consts::TAU * u, 2.0 * v - 1.0);
+                let r = (1.0 - z * z).sqrt() * 0.25;
+                [0.6 + r * th.cos(), 1.4 + r * th.sin(), 0.25 + 0.25 * z]
+            }
+            _ => {
+                let th = std::f64::consts::TAU * u;
+                [1.5 + 0.15 * th.cos(), 0.5 + 0.15 * th.sin(), 0.8 * v]
+            }
+        };
+        pts.push(p.map(|c| c as f32));
+    }
+    PointCloud::from_points(pts)
+}
+
+/// A rigid transform with a sizeable rotation, seeded.
+pub fn known_pose(seed: u64) -> Matrix4<f64> {
+    let mut rng = Rng::new(seed);
+    let q = rng.unit_quaternion();
+    matrix_from_parts(&matrix_from_quaternion(q), &Vector3::new(rng.uniform(-2.0, 2.0), rng.uniform(-2.0, 2.0), rng.uniform(-2.0, 2.0)))
+}
+
+/// (source, target, target_from_source): two independent samples of the room, the target moved by the pose.
+pub fn room_pair(seed: u64, n: usize) -> (PointCloud, PointCloud, Matrix4<f64>) {
+    let truth = known_pose(seed);
+    let source = room_corner(seed * 2 + 1, n);
+    let target = room_corner(seed * 2 + 2, n);
+    let target = PointCloud::from_points(target.points.iter().map(|&p| transform_point(&truth, p)).collect());
+    (source, target, truth)
+}

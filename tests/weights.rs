@@ -1,0 +1,71 @@
+//! Weights files: round trip, self-description, and errors that list every mismatch.
+
+use dpr_gpu::model::{ModelConfig, Weights, params::tensor_specs};
+use dpr_gpu::Error;
+use std::collections::HashMap;
+
+fn small() -> ModelConfig {
+    ModelConfig { points_per_patch: 8, encoder_widths: vec![4, 4, 8], head_widths: vec![8, 6], fold_widths: vec![4], grid: [2, 2], relative_widths: vec![8, 4], ..ModelConfig::default() }
+}
+
+#[test]
+fn round_trip_keeps_config_tensors_and_notes() {
+    let mut w = Weights::init(&small(), 5).unwrap();
+    w.notes.insert("trained".into(), "no".into());
+    let back = Weights::from_bytes(&w.to_bytes().unwrap(), "mem").unwrap();
+    assert_eq!(back, w);
+    let dir = std::env::temp_dir().join(format!("dpr-weights-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("w.safetensors");
+    w.save(&path).unwrap();
+    assert_eq!(Weights::load(&path).unwrap(), w);
+    assert_ne!(Weights::init(&small(), 6).unwrap().tensors, w.tensors);
+    assert_eq!(Weights::init(&small(), 5).unwrap().tensors, w.tensors);
+}
+
+#[test]
+fn the_paper_config_has_the_published_widths() {
+    let c = ModelConfig::paper();
+    assert_eq!(c.concat_width(), 704);
+    assert_eq!(c.codeword(), 512);
+    assert_eq!(c.grid_points(), 2025);
+    let specs: HashMap<String, Vec<usize>> = tensor_specs(&c).into_iter().collect();
+    assert_eq!(specs["ppf.encoder.0.weight"], vec![64, 4]);
+    assert_eq!(specs["pc.encoder.0.weight"], vec![64, 3]);
+    assert_eq!(specs["ppf.head.0.weight"], vec![512, 704]);
+    assert_eq!(specs["ppf.fold1.0.weight"], vec![256, 514]);
+    assert_eq!(specs["ppf.fold2.0.weight"], vec![256, 516]);
+    assert_eq!(specs["pc.fold2.0.weight"], vec![256, 515]);
+    assert_eq!(specs["ppf.fold2.4.weight"], vec![4, 32]);
+    assert_eq!(specs["relative.0.weight"], vec![512, 1024]);
+    assert_eq!(specs["relative.3.weight"], vec![4, 128]);
+}
+
+#[test]
+fn wrong_shapes_missing_and_extra_tensors_are_all_reported() {
+    let w = Weights::init(&small(), 1).unwrap();
+    let mut bad = w.clone();
+    bad.tensors.remove("pc.head.1.bias");
+    bad.tensors.insert("ppf.encoder.0.weight".into(), vec![0.0; 3]);
+    bad.tensors.insert("mystery".into(), vec![1.0]);
+    let err = Weights::from_bytes(&bad.to_bytes().unwrap(), "bad.safetensors").unwrap_err();
+    let Error::Weights { path, problems } = &err else { panic!("{err}") };
+    assert_eq!(path, "bad.safetensors");
+    let text = problems.join("\n");
+    assert!(text.contains("missing tensor 'pc.head.1.bias'"), "{text}");
+    assert!(text.contains("'ppf.encoder.0.weight' has shape [3]"), "{text}");
+    assert!(text.contains("unexpected tensor 'mystery'"), "{text}");
+    assert_eq!(problems.len(), 3);
+}
+
+#[test]
+fn garbage_and_foreign_files_are_rejected_with_a_reason() {
+    assert!(Weights::from_bytes(b"not a safetensors file", "x").unwrap_err().to_string().contains("not a safetensors"));
+    let foreign = safetensors::serialize(Vec::<(String, safetensors::tensor::TensorView)>::new(), None).unwrap();
+    assert!(Weights::from_bytes(&foreign, "x").unwrap_err().to_string().contains("dpr_gpu.config"));
+    let w = Weights::init(&small(), 1).unwrap();
+    let bytes = w.to_bytes().unwrap();
+    for cut in [8, bytes.len() / 2, bytes.len() - 1] {
+        assert!(Weights::from_bytes(&bytes[..cut], "cut").is_err(), "truncated at {cut}");
+    }
+}
