@@ -31,7 +31,8 @@ pub trait Backend: Send + Sync {
     fn predict_rotations(&self, source: &[f32], target: &[f32], rows: usize) -> Result<Vec<[f32; 4]>>;
 
     /// One hypothesis per correspondence from its quaternion.
-    fn hypotheses(&self, quaternions: &[[f32; 4]], source: &[[f32; 3]], target: &[[f32; 3]]) -> Result<Vec<Hypothesis>>;
+    fn hypotheses(&self, quaternions: &[[f32; 4]], source: &[[f32; 3]], target: &[[f32; 3]])
+    -> Result<Vec<Hypothesis>>;
 
     /// Inlier count and residual sum of every hypothesis over every correspondence.
     fn score_hypotheses(
@@ -85,7 +86,12 @@ impl Backend for CpuBackend {
         Ok(self.model.relative.predict(source, target, rows))
     }
 
-    fn hypotheses(&self, quaternions: &[[f32; 4]], source: &[[f32; 3]], target: &[[f32; 3]]) -> Result<Vec<Hypothesis>> {
+    fn hypotheses(
+        &self,
+        quaternions: &[[f32; 4]],
+        source: &[[f32; 3]],
+        target: &[[f32; 3]],
+    ) -> Result<Vec<Hypothesis>> {
         Ok(hypotheses(quaternions, source, target))
     }
 

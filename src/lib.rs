@@ -2,8 +2,48 @@
 //!
 //! Learned pairwise registration of 3D scans: "3D Local Features for Direct Pairwise Registration"
 //! (Deng, Birdal, Ilic, CVPR 2019). PPF-FoldNet codewords give correspondences, RelativeNet predicts one
-//! relative rotation per correspondence, every correspondence becomes a pose hypothesis, and the best
-//! hypothesis is refined on its inliers.
+//! relative rotation per correspondence, every correspondence becomes a pose hypothesis, all hypotheses are
+//! scored, and the best is refined on its inliers.
+//!
+//! Transforms are named by their frames: `target_from_source` maps source points into the target frame,
+//! p_target = T p_source. Distances are in the clouds' units (metres by default); the patch radius, voxel
+//! size and thresholds scale together, so other units work by setting `radius`.
+//!
+//! ```
+//! use dpr_gpu::model::{ModelConfig, Weights};
+//! use dpr_gpu::{Estimator, PointCloud, RegistrationSettings, register};
+//!
+//! # fn main() -> dpr_gpu::Result<()> {
+//! // A small model with seeded random weights (use trained weights for real scans).
+//! let weights = std::env::temp_dir().join(format!("dpr-doc-{}.safetensors", std::process::id()));
+//! let config = ModelConfig { points_per_patch: 32, ..ModelConfig::default() };
+//! Weights::init(&config, 0)?.save(&weights)?;
+//!
+//! // Three faces of a box, and the same surfaces after a known motion.
+//! let mut points = Vec::new();
+//! for i in 0..40 {
+//!     for j in 0..40 {
+//!         let (a, b) = (i as f32 * 0.025, j as f32 * 0.025);
+//!         points.extend([[a, b, 0.0], [a, 0.0, b], [0.0, a, b * 0.7]]);
+//!     }
+//! }
+//! let source = PointCloud::from_points(points);
+//! let truth = nalgebra::Matrix4::new_translation(&nalgebra::Vector3::new(0.3, -0.2, 0.1))
+//!     * nalgebra::Matrix4::from_euler_angles(0.2, -0.1, 0.4);
+//! let target = source.transformed(&truth);
+//!
+//! let settings = RegistrationSettings {
+//!     weights: Some(weights),
+//!     keypoints: 200,
+//!     estimator: Estimator::Ransac,
+//!     ..RegistrationSettings::default()
+//! };
+//! let result = register(&source, &target, &settings)?;
+//! let error = dpr_gpu::pose::rotation_error_deg(&result.estimate.target_from_source, &truth);
+//! assert!(error < 2.0, "rotation error {error} deg");
+//! # Ok(())
+//! # }
+//! ```
 #![warn(missing_docs)]
 
 pub mod backend;
@@ -23,4 +63,5 @@ pub mod spatial;
 
 pub use cloud::PointCloud;
 pub use error::{Error, Result};
+pub use pipeline::{Registrar, register};
 pub use settings::*;

@@ -105,23 +105,23 @@ impl Registrar {
 
     /// Builds the pipeline from weights already in memory.
     pub fn with_weights(settings: &RegistrationSettings, weights: &Weights) -> Result<Registrar> {
-        if let Some(r) = settings.radius {
-            if !(r.is_finite() && r > 0.0) {
-                return Err(Error::invalid(format!("radius must be positive, got {r}")));
-            }
+        if let Some(r) = settings.radius
+            && !(r.is_finite() && r > 0.0)
+        {
+            return Err(Error::invalid(format!("radius must be positive, got {r}")));
         }
         if settings.keypoints == 0 {
             return Err(Error::invalid("keypoints must be at least 1"));
         }
-        if let MatchMode::Mutual(k) = settings.matching {
-            if !(1..=4).contains(&k) {
-                return Err(Error::invalid(format!("mutual K must be 1..4, got {k}")));
-            }
+        if let MatchMode::Mutual(k) = settings.matching
+            && !(1..=4).contains(&k)
+        {
+            return Err(Error::invalid(format!("mutual K must be 1..4, got {k}")));
         }
-        if let Some(t) = settings.inlier_threshold {
-            if !(t.is_finite() && t > 0.0) {
-                return Err(Error::invalid(format!("inlier threshold must be positive, got {t}")));
-            }
+        if let Some(t) = settings.inlier_threshold
+            && !(t.is_finite() && t > 0.0)
+        {
+            return Err(Error::invalid(format!("inlier threshold must be positive, got {t}")));
         }
         let model = Model::from_weights(weights)?;
         let backend = create_backend(settings.backend, model)?;
@@ -166,10 +166,8 @@ impl Registrar {
         }
         clock.lap("downsample");
         let index = PointIndex::new(&cloud.points)?;
-        let usable_normals = cloud
-            .normals
-            .as_ref()
-            .is_some_and(|ns| ns.iter().all(|n| n[0] * n[0] + n[1] * n[1] + n[2] * n[2] > 1e-12));
+        let usable_normals =
+            cloud.normals.as_ref().is_some_and(|ns| ns.iter().all(|n| n[0] * n[0] + n[1] * n[1] + n[2] * n[2] > 1e-12));
         if usable_normals {
             for n in cloud.normals.as_mut().expect("checked") {
                 let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
@@ -216,7 +214,8 @@ impl Registrar {
     /// Correspondences between two described scans (matching rule from the settings).
     pub fn correspond(&self, source: &ScanFeatures, target: &ScanFeatures) -> Result<Vec<Correspondence>> {
         let dim = self.backend.model().config.codeword();
-        let matches = self.backend.match_codewords(&source.ppf_codewords, &target.ppf_codewords, dim, self.settings.matching)?;
+        let matches =
+            self.backend.match_codewords(&source.ppf_codewords, &target.ppf_codewords, dim, self.settings.matching)?;
         Ok(matches
             .into_iter()
             .map(|m| Correspondence {
@@ -275,14 +274,22 @@ impl Registrar {
         let mut clock = Stopwatch::new();
         let correspondences = self.correspond(&described_source, &described_target)?;
         clock.lap("matching");
-        let estimate = self.estimate(&described_source, &described_target, &correspondences, self.settings.estimator)?;
+        let estimate =
+            self.estimate(&described_source, &described_target, &correspondences, self.settings.estimator)?;
         clock.lap("estimation");
         let mut timings = Vec::new();
         for (scan, f) in [("source", &described_source), ("target", &described_target)] {
-            timings.extend(f.timings.iter().map(|t| StageTime { stage: format!("{scan}.{}", t.stage), seconds: t.seconds }));
+            timings.extend(
+                f.timings.iter().map(|t| StageTime { stage: format!("{scan}.{}", t.stage), seconds: t.seconds }),
+            );
         }
         timings.extend(clock.timings);
-        Ok(RegistrationResult { estimate, correspondences: correspondences.len(), timings, backend: self.backend.name() })
+        Ok(RegistrationResult {
+            estimate,
+            correspondences: correspondences.len(),
+            timings,
+            backend: self.backend.name(),
+        })
     }
 }
 
@@ -294,6 +301,10 @@ fn prefix(what: &str, e: Error) -> Error {
 }
 
 /// Registers `source` onto `target`: the returned `target_from_source` maps source points into the target frame.
-pub fn register(source: &PointCloud, target: &PointCloud, settings: &RegistrationSettings) -> Result<RegistrationResult> {
+pub fn register(
+    source: &PointCloud,
+    target: &PointCloud,
+    settings: &RegistrationSettings,
+) -> Result<RegistrationResult> {
     Registrar::new(settings)?.register(source, target)
 }

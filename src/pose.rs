@@ -83,7 +83,7 @@ pub fn rigid_fit(source: &[[f32; 3]], target: &[[f32; 3]]) -> Option<Matrix4<f64
     let (u, v_t) = (svd.u?, svd.v_t?);
     let sv = svd.singular_values;
     // Collinear or coincident points leave the rotation about the line undetermined.
-    if !(sv[1] > 1e-12 * sv[0].max(1e-300)) {
+    if sv[1].is_nan() || sv[1] <= 1e-12 * sv[0].max(1e-300) {
         return None;
     }
     let mut d = Matrix3::identity();

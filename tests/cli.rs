@@ -48,9 +48,23 @@ fn registers_a_generated_pair_with_ransac_on_random_weights() {
     let weights = small_weights(&dir);
     let (out, aligned) = (dir.join("T.txt"), dir.join("aligned.ply"));
     let o = dpr(&[
-        "register", s.to_str().unwrap(), t.to_str().unwrap(), "--weights", &weights, "--keypoints", "300",
-        "--estimator", "ransac", "--voxel", "0.02", "--icp", "--json", "--out", out.to_str().unwrap(),
-        "--aligned", aligned.to_str().unwrap(),
+        "register",
+        s.to_str().unwrap(),
+        t.to_str().unwrap(),
+        "--weights",
+        &weights,
+        "--keypoints",
+        "300",
+        "--estimator",
+        "ransac",
+        "--voxel",
+        "0.02",
+        "--icp",
+        "--json",
+        "--out",
+        out.to_str().unwrap(),
+        "--aligned",
+        aligned.to_str().unwrap(),
     ]);
     let (stdout, stderr) = text(&o);
     assert!(o.status.success(), "{stderr}");
@@ -63,20 +77,47 @@ fn registers_a_generated_pair_with_ransac_on_random_weights() {
     assert!(v["hypotheses_scored"].as_u64().unwrap() >= 1);
     assert!(v["timings"].as_array().unwrap().iter().any(|t| t["stage"] == "source.ppf_encoder"));
     // --out holds the same matrix; --aligned holds the moved source.
-    let written: Vec<f64> = std::fs::read_to_string(&out).unwrap().split_whitespace().map(|x| x.parse().unwrap()).collect();
+    let written: Vec<f64> =
+        std::fs::read_to_string(&out).unwrap().split_whitespace().map(|x| x.parse().unwrap()).collect();
     assert_eq!(written.len(), 16);
     assert!((Matrix4::from_row_slice(&written) - m).abs().max() < 1e-6);
     let (moved, _) = read_cloud(&aligned, &LoadOptions::default()).unwrap();
     assert_eq!(moved.len(), source.len());
     // Same inputs and seed, same result.
-    let again = dpr(&["register", s.to_str().unwrap(), t.to_str().unwrap(), "--weights", &weights, "--keypoints", "300", "--estimator", "ransac", "--voxel", "0.02", "--icp", "--json"]);
+    let again = dpr(&[
+        "register",
+        s.to_str().unwrap(),
+        t.to_str().unwrap(),
+        "--weights",
+        &weights,
+        "--keypoints",
+        "300",
+        "--estimator",
+        "ransac",
+        "--voxel",
+        "0.02",
+        "--icp",
+        "--json",
+    ]);
     let w: serde_json::Value = serde_json::from_str(text(&again).0.trim()).unwrap();
     assert_eq!(w["target_from_source"], v["target_from_source"]);
     // Text output names the matrix and the stages.
-    let plain = dpr(&["register", s.to_str().unwrap(), t.to_str().unwrap(), "--weights", &weights, "--keypoints", "100", "--voxel", "0.02"]);
+    let plain = dpr(&[
+        "register",
+        s.to_str().unwrap(),
+        t.to_str().unwrap(),
+        "--weights",
+        &weights,
+        "--keypoints",
+        "100",
+        "--voxel",
+        "0.02",
+    ]);
     let (stdout, _) = text(&plain);
     assert!(plain.status.success());
-    assert!(stdout.contains("target_from_source") && stdout.contains("inliers:") && stdout.contains("hypotheses scored"));
+    assert!(
+        stdout.contains("target_from_source") && stdout.contains("inliers:") && stdout.contains("hypotheses scored")
+    );
 }
 
 #[test]

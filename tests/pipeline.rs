@@ -7,7 +7,10 @@ use dpr_gpu::cpu::mutual_knn::{codeword_distance, mutual_knn};
 use dpr_gpu::cpu::patch_features::point_features;
 use dpr_gpu::estimate::{ransac, verify};
 use dpr_gpu::model::{Model, ModelConfig, Weights};
-use dpr_gpu::pose::{matrix_from_parts, matrix_from_quaternion, quaternion_from_matrix, rotation_error_deg, transform_point, translation_error};
+use dpr_gpu::pose::{
+    matrix_from_parts, matrix_from_quaternion, quaternion_from_matrix, rotation_error_deg, transform_point,
+    translation_error,
+};
 use dpr_gpu::rng::Rng;
 use dpr_gpu::settings::{MatchMode, RansacSettings};
 use nalgebra::{Matrix4, Vector3};
@@ -59,8 +62,8 @@ proptest! {
         for k in 0..4 {
             prop_assert!((f[k] - g[k]).abs() < FEATURE_TOLERANCE * (1.0 + f[k].abs()), "ppf {k}: {f:?} vs {g:?}");
         }
-        for k in 0..3 {
-            prop_assert!(f[k] >= 0.0 && f[k] <= 1.0);
+        for angle in &f[..3] {
+            prop_assert!((0.0..=1.0).contains(angle));
         }
         let rc = rotate_vec(&t, c);
         for k in 0..3 {
@@ -107,8 +110,12 @@ fn encoders_are_invariant_to_the_order_of_patch_points() {
 
 /// Brute-force oracle: rank of each entry in its row and column (ties by index), mutual when both < K.
 fn brute_force_matches(d: &[f32], ns: usize, nt: usize, mode: MatchMode) -> Vec<(u32, u32)> {
-    let row_rank = |i: usize, j: usize| (0..nt).filter(|&k| d[i * nt + k] < d[i * nt + j] || (d[i * nt + k] == d[i * nt + j] && k < j)).count();
-    let col_rank = |i: usize, j: usize| (0..ns).filter(|&k| d[k * nt + j] < d[i * nt + j] || (d[k * nt + j] == d[i * nt + j] && k < i)).count();
+    let row_rank = |i: usize, j: usize| {
+        (0..nt).filter(|&k| d[i * nt + k] < d[i * nt + j] || (d[i * nt + k] == d[i * nt + j] && k < j)).count()
+    };
+    let col_rank = |i: usize, j: usize| {
+        (0..ns).filter(|&k| d[k * nt + j] < d[i * nt + j] || (d[k * nt + j] == d[i * nt + j] && k < i)).count()
+    };
     let mut out = Vec::new();
     for i in 0..ns {
         for j in 0..nt {

@@ -1,11 +1,19 @@
 //! Weights files: round trip, self-description, and errors that list every mismatch.
 
-use dpr_gpu::model::{ModelConfig, Weights, params::tensor_specs};
 use dpr_gpu::Error;
+use dpr_gpu::model::{ModelConfig, Weights, params::tensor_specs};
 use std::collections::HashMap;
 
 fn small() -> ModelConfig {
-    ModelConfig { points_per_patch: 8, encoder_widths: vec![4, 4, 8], head_widths: vec![8, 6], fold_widths: vec![4], grid: [2, 2], relative_widths: vec![8, 4], ..ModelConfig::default() }
+    ModelConfig {
+        points_per_patch: 8,
+        encoder_widths: vec![4, 4, 8],
+        head_widths: vec![8, 6],
+        fold_widths: vec![4],
+        grid: [2, 2],
+        relative_widths: vec![8, 4],
+        ..ModelConfig::default()
+    }
 }
 
 #[test]

@@ -96,9 +96,12 @@ mod tests {
     #[test]
     fn matches_naive_on_ragged_sizes() {
         let mut rng = Rng::new(5);
-        for &(rows, in_dim, out_dim, rpg, accumulate, relu) in
-            &[(7, 3, 5, 7, false, true), (13, 70, 130, 4, true, false), (64, 33, 64, 16, true, true), (1, 1, 1, 1, false, false)]
-        {
+        for &(rows, in_dim, out_dim, rpg, accumulate, relu) in &[
+            (7, 3, 5, 7, false, true),
+            (13, 70, 130, 4, true, false),
+            (64, 33, 64, 16, true, true),
+            (1, 1, 1, 1, false, false),
+        ] {
             let s = DenseShape { rows, in_dim, out_dim, rows_per_group: rpg, accumulate, relu };
             let mut v = |n: usize| (0..n).map(|_| rng.normal() as f32).collect::<Vec<f32>>();
             let x = v(rows * in_dim);

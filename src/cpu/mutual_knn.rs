@@ -35,7 +35,7 @@ pub fn codeword_distance(source: &[f32], target: &[f32], dim: usize) -> Vec<f32>
 pub fn k_smallest(values: impl Iterator<Item = f32>, k: usize) -> Vec<(f32, u32)> {
     let mut best: Vec<(f32, u32)> = Vec::with_capacity(k + 1);
     for (i, v) in values.enumerate() {
-        if best.len() == k && !(v < best[k - 1].0) {
+        if best.len() == k && v.partial_cmp(&best[k - 1].0) != Some(std::cmp::Ordering::Less) {
             continue;
         }
         let pos = best.iter().position(|&(bv, _)| v < bv).unwrap_or(best.len());

@@ -77,7 +77,10 @@ mod tests {
             }
         }
         let target = PointCloud { points: pts.clone(), normals: Some(nrm) };
-        let truth = matrix_from_parts(&Rotation3::new(Vector3::new(0.02, -0.01, 0.015)).into_inner(), &Vector3::new(0.01, -0.02, 0.015));
+        let truth = matrix_from_parts(
+            &Rotation3::new(Vector3::new(0.02, -0.01, 0.015)).into_inner(),
+            &Vector3::new(0.01, -0.02, 0.015),
+        );
         let inv = truth.try_inverse().unwrap();
         let source = PointCloud::from_points(pts.iter().map(|&p| transform_point(&inv, p)).collect());
         let index = PointIndex::new(&target.points).unwrap();

@@ -46,11 +46,13 @@ pub fn ransac(
         let better = match &best {
             None => true,
             Some(b) => {
-                candidate.inliers > b.inliers || (candidate.inliers == b.inliers && candidate.inlier_rmse < b.inlier_rmse)
+                candidate.inliers > b.inliers
+                    || (candidate.inliers == b.inliers && candidate.inlier_rmse < b.inlier_rmse)
             }
         };
         if better {
-            needed = required_iterations(settings.confidence, candidate.inliers as f64 / n as f64, settings.max_iterations);
+            needed =
+                required_iterations(settings.confidence, candidate.inliers as f64 / n as f64, settings.max_iterations);
             best = Some(candidate);
         }
     }

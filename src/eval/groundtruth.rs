@@ -155,20 +155,20 @@ mod tests {
 
     #[test]
     fn overlap_counts_fragment_i_points_near_transformed_j() {
-        // Fragment i: a 1 m x 1 m plane (2 cm grid); fragment j: the same plane shifted by -0.5 m in x in its
-        // own frame, so T_ij = translate(+0.5, 0, 0) maps it back over the right half of i.
+        // Fragment i: a 1 m x 1 m plane on a 2 cm grid; fragment j: the same samples in its own frame, placed
+        // 0.5 m further along x (T_ij = translate(0.5, 0, 0)), so it covers the right half of i and beyond.
         let i = grid_cloud(50, 0.02, 0.0);
-        let mut j = grid_cloud(50, 0.02, 0.0);
-        j.points.iter_mut().for_each(|p| p[0] -= 0.5);
+        let j = grid_cloud(50, 0.02, 0.0);
         let mut t = Matrix4::identity();
         t[(0, 3)] = 0.5;
         let rule = GroundTruthRule::default();
         let (pi, pj) = (PreparedFragment::new(&i, rule.grid), PreparedFragment::new(&j, rule.grid));
         let overlap = overlap_fraction(&pi, &pj, &t, rule.overlap_distance);
-        // Columns x >= 0.5 - 0.03 overlap: 25 of 50 columns plus the one within 3 cm (x = 0.48).
-        assert!((overlap - 27.0 / 50.0).abs() < 1e-9, "{overlap}");
-        let pairs = ground_truth_pairs(&[i.clone(), j.clone()], &[Matrix4::identity(), t.try_inverse().unwrap().try_inverse().unwrap()], &rule, 1);
+        // Columns x >= 0.5 - 0.03 overlap: x = 0.48 .. 0.98, 26 of 50 columns.
+        assert!((overlap - 26.0 / 50.0).abs() < 1e-9, "{overlap}");
+        let pairs = ground_truth_pairs(&[i.clone(), j.clone()], &[Matrix4::identity(), t], &rule, 1);
         assert_eq!(pairs.len(), 1);
+        assert!((pairs[0].overlap - 0.52).abs() < 1e-9 && pairs[0].transform == t);
         // Q: the 25 x 50 coincident points, all within 6 mm; information (0,0) counts them.
         assert!((pairs[0].information[(0, 0)] - 1250.0).abs() < 1e-9);
         // Far apart: no pair.

@@ -20,7 +20,7 @@ pub const MIN_QUATERNION_NORM: f32 = 1e-12;
 /// Normalises a raw network output `[w, x, y, z]` to a unit quaternion (identity when degenerate).
 pub fn normalize_quaternion(q: [f32; 4]) -> [f32; 4] {
     let n = q.iter().map(|v| v * v).sum::<f32>().sqrt();
-    if !(n > MIN_QUATERNION_NORM) {
+    if n.is_nan() || n <= MIN_QUATERNION_NORM {
         return [1.0, 0.0, 0.0, 0.0];
     }
     q.map(|v| v / n)
@@ -29,10 +29,8 @@ pub fn normalize_quaternion(q: [f32; 4]) -> [f32; 4] {
 impl RelativeNet {
     /// Builds the network from checked weights.
     pub fn from_weights(weights: &Weights) -> Result<RelativeNet> {
-        let layers = relative_layers(&weights.config)
-            .iter()
-            .map(|s| Linear::from_weights(weights, s))
-            .collect::<Result<_>>()?;
+        let layers =
+            relative_layers(&weights.config).iter().map(|s| Linear::from_weights(weights, s)).collect::<Result<_>>()?;
         Ok(RelativeNet { layers })
     }
 

@@ -67,8 +67,7 @@ impl Weights {
 
     /// Serialises to safetensors bytes.
     pub fn to_bytes(&self) -> Result<Vec<u8>> {
-        let mut metadata: HashMap<String, String> =
-            self.notes.iter().map(|(k, v)| (k.clone(), v.clone())).collect();
+        let mut metadata: HashMap<String, String> = self.notes.iter().map(|(k, v)| (k.clone(), v.clone())).collect();
         metadata.insert(CONFIG_KEY.into(), serde_json::to_string(&self.config).expect("config serialises"));
         metadata.insert(FORMAT_KEY.into(), FORMAT_VERSION.into());
         let specs: BTreeMap<String, Vec<usize>> = tensor_specs(&self.config).into_iter().collect();
@@ -102,9 +101,9 @@ impl Weights {
     /// Parses and checks safetensors bytes; `origin` names them in errors.
     pub fn from_bytes(bytes: &[u8], origin: &str) -> Result<Weights> {
         let fail = |problems: Vec<String>| Error::Weights { path: origin.to_string(), problems };
-        let (_, meta) = SafeTensors::read_metadata(bytes).map_err(|e| fail(vec![format!("not a safetensors file: {e}")]))?;
-        let mut notes: BTreeMap<String, String> =
-            meta.metadata().clone().unwrap_or_default().into_iter().collect();
+        let (_, meta) =
+            SafeTensors::read_metadata(bytes).map_err(|e| fail(vec![format!("not a safetensors file: {e}")]))?;
+        let mut notes: BTreeMap<String, String> = meta.metadata().clone().unwrap_or_default().into_iter().collect();
         let config_json = notes
             .remove(CONFIG_KEY)
             .ok_or_else(|| fail(vec![format!("metadata has no '{CONFIG_KEY}' (not a dpr-gpu weights file)")]))?;

@@ -37,12 +37,14 @@ pub fn estimate_normals(points: &[[f32; 3]], index: &PointIndex, k: usize, viewp
                 return fallback();
             }
             let eig = SymmetricEigen::new(cov);
-            let (imin, _) = eig.eigenvalues.iter().enumerate().fold((0, f64::INFINITY), |best, (i, &v)| {
-                if v < best.1 { (i, v) } else { best }
-            });
+            let (imin, _) = eig
+                .eigenvalues
+                .iter()
+                .enumerate()
+                .fold((0, f64::INFINITY), |best, (i, &v)| if v < best.1 { (i, v) } else { best });
             let mut n: Vector3<f64> = eig.eigenvectors.column(imin).into_owned();
             let len = n.norm();
-            if !(len > 0.0) || !len.is_finite() {
+            if len <= 0.0 || !len.is_finite() {
                 return fallback();
             }
             n /= len;

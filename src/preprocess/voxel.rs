@@ -14,12 +14,12 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel: f32) -> Result<PointCloud> {
     for (i, p) in cloud.points.iter().enumerate() {
         let key = p.map(|c| (c as f64 / voxel as f64).floor() as i64);
         let cell = cells.entry(key).or_insert(([0.0; 3], [0.0; 3], 0));
-        for a in 0..3 {
-            cell.0[a] += p[a] as f64;
+        for (sum, &c) in cell.0.iter_mut().zip(p) {
+            *sum += c as f64;
         }
         if let Some(n) = cloud.normals.as_ref().map(|ns| ns[i]) {
-            for a in 0..3 {
-                cell.1[a] += n[a] as f64;
+            for (sum, &c) in cell.1.iter_mut().zip(&n) {
+                *sum += c as f64;
             }
         }
         cell.2 += 1;

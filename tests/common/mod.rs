@@ -56,7 +56,10 @@ pub fn room_corner(seed: u64, n: usize) -> PointCloud {
 pub fn known_pose(seed: u64) -> Matrix4<f64> {
     let mut rng = Rng::new(seed);
     let q = rng.unit_quaternion();
-    matrix_from_parts(&matrix_from_quaternion(q), &Vector3::new(rng.uniform(-2.0, 2.0), rng.uniform(-2.0, 2.0), rng.uniform(-2.0, 2.0)))
+    matrix_from_parts(
+        &matrix_from_quaternion(q),
+        &Vector3::new(rng.uniform(-2.0, 2.0), rng.uniform(-2.0, 2.0), rng.uniform(-2.0, 2.0)),
+    )
 }
 
 /// (source, target, target_from_source): two independent samples of the room, the target moved by the pose.

@@ -1,0 +1,218 @@
+//! The training objective `L = L_rec + lambda1 L_pose + lambda2 L_feat` on a batch of corresponding patch
+//! pairs, and its gradient w.r.t. every parameter.
+//!
+//! Per pair (source patch p, target patch q, label q* = rotation of target_from_source):
+//! - `L_rec = mean over {p, q} of 1/2 (d_cham(PC, PC^) + d_cham(PPF, PPF^))`;
+//! - `L_pose = min(|q - q*|, |q + q*|)` with `q` the normalised RelativeNet output on
+//!   `[f_pc(p) - f_ppf(p) | f_pc(q) - f_ppf(q)]`;
+//! - `L_feat = |f_ppf(p) - f_ppf(q)|`.
+//!
+//! The batch loss is the mean over pairs (the paper sums `L_feat` over the correspondences; with a fixed batch
+//! size that is the same up to the scale of lambda2). A term can be dropped (the paper's ablation): its value
+//! is still computed and reported, but it adds nothing to the loss or the gradient.
+
+use super::backward::{Gradients, LayerWeights, decode_backward, encode_backward, relative_backward};
+use super::forward::{decode_tape, encode_tape, relative_tape};
+use super::loss::{chamfer, feat_loss, normalize_quaternion, normalize_quaternion_backward, pose_loss};
+use crate::error::{Error, Result};
+use crate::model::params::foldnet_layers;
+use crate::model::{Model, Net, Weights};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// One training pair: two patches (source first) and the relative rotation between them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairSample {
+    /// PPF-FoldNet inputs, `2 x points_per_patch x 4` (source patch, then target patch).
+    pub ppf: Vec<f32>,
+    /// PC-FoldNet inputs, `2 x points_per_patch x 3` (source patch, then target patch), each in its own
+    /// fragment's (augmented) frame, centred on its keypoint and divided by the radius.
+    pub pc: Vec<f32>,
+    /// Unit quaternion `[w, x, y, z]` of the rotation of target_from_source (maps source-patch directions
+    /// into the target patch's frame), the label RelativeNet regresses.
+    pub label: [f64; 4],
+}
+
+/// Which terms are trained and their weights.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LossSettings {
+    /// Train on the reconstruction loss.
+    pub rec: bool,
+    /// Train on the pose loss.
+    pub pose: bool,
+    /// Train on the feature-consistency loss.
+    pub feat: bool,
+    /// lambda1, the weight of `L_pose`.
+    pub lambda_pose: f64,
+    /// lambda2, the weight of `L_feat`.
+    pub lambda_feat: f64,
+}
+
+impl Default for LossSettings {
+    fn default() -> Self {
+        LossSettings { rec: true, pose: true, feat: true, lambda_pose: 1.0, lambda_feat: 0.1 }
+    }
+}
+
+/// Loss values (means over the batch). Disabled terms are still evaluated, for monitoring.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Losses {
+    /// `L_rec`.
+    pub rec: f64,
+    /// `L_pose`.
+    pub pose: f64,
+    /// `L_feat`.
+    pub feat: f64,
+    /// The trained total: the enabled terms, weighted.
+    pub total: f64,
+}
+
+/// Index of the first PC-FoldNet layer and of the first RelativeNet layer in `all_layers` order.
+fn bases(model: &Model) -> (usize, usize) {
+    let per_net = foldnet_layers(&model.config, Net::Ppf).len();
+    (per_net, 2 * per_net)
+}
+
+/// Loss of one pair, and (when `grads` is given) `scale` times its gradient added into `grads`.
+pub fn sample_objective(
+    model: &Model,
+    w: &LayerWeights<'_>,
+    sample: &PairSample,
+    settings: &LossSettings,
+    scale: f64,
+    grads: Option<&mut Gradients>,
+) -> Result<Losses> {
+    let n = model.config.points_per_patch;
+    if sample.ppf.len() != 2 * n * 4 || sample.pc.len() != 2 * n * 3 {
+        return Err(Error::invalid(format!(
+            "training pair has {} PPF and {} PC values, expected {} and {} (2 patches of {n} points)",
+            sample.ppf.len(),
+            sample.pc.len(),
+            2 * n * 4,
+            2 * n * 3
+        )));
+    }
+    let (pc_base, rel_base) = bases(model);
+    let ppf_e = encode_tape(&model.ppf, &sample.ppf, 2, n);
+    let pc_e = encode_tape(&model.pc, &sample.pc, 2, n);
+    let ppf_d = decode_tape(&model.ppf, &ppf_e.codeword, 2);
+    let pc_d = decode_tape(&model.pc, &pc_e.codeword, 2);
+    let m = model.config.grid_points();
+
+    // Reconstruction: both patches, both networks.
+    let mut rec = 0.0;
+    let mut d_ppf_rec = vec![0.0f32; 2 * m * 4];
+    let mut d_pc_rec = vec![0.0f32; 2 * m * 3];
+    for p in 0..2 {
+        let (c_pc, g_pc) = chamfer(&sample.pc[p * n * 3..][..n * 3], &pc_d.output()[p * m * 3..][..m * 3], 3);
+        let (c_ppf, g_ppf) = chamfer(&sample.ppf[p * n * 4..][..n * 4], &ppf_d.output()[p * m * 4..][..m * 4], 4);
+        rec += 0.25 * (c_pc + c_ppf);
+        let k = (0.25 * scale) as f32;
+        d_pc_rec[p * m * 3..][..m * 3].iter_mut().zip(&g_pc).for_each(|(d, g)| *d = k * g);
+        d_ppf_rec[p * m * 4..][..m * 4].iter_mut().zip(&g_ppf).for_each(|(d, g)| *d = k * g);
+    }
+
+    // Pose: RelativeNet on the pose features (PC codeword minus PPF codeword) of source and target.
+    let cw = model.config.codeword();
+    let feature = |p: usize| -> Vec<f32> {
+        pc_e.codeword[p * cw..][..cw].iter().zip(&ppf_e.codeword[p * cw..][..cw]).map(|(a, b)| a - b).collect()
+    };
+    let (f_s, f_t) = (feature(0), feature(1));
+    let rel = relative_tape(&model.relative, &f_s, &f_t, 1);
+    let raw_v = rel.last().expect("relative has layers");
+    let raw = [raw_v[0], raw_v[1], raw_v[2], raw_v[3]];
+    let (pose, d_q) = pose_loss(normalize_quaternion(raw), sample.label);
+
+    // Feature consistency on the PPF codewords.
+    let (feat, d_fp) = feat_loss(&ppf_e.codeword[..cw], &ppf_e.codeword[cw..]);
+
+    let total = [(settings.rec, 1.0, rec), (settings.pose, settings.lambda_pose, pose), (settings.feat, settings.lambda_feat, feat)]
+        .iter()
+        .filter(|t| t.0)
+        .map(|t| t.1 * t.2)
+        .sum();
+    let losses = Losses { rec, pose, feat, total };
+    let Some(grads) = grads else { return Ok(losses) };
+
+    let mut d_ppf_cw = vec![0.0f32; 2 * cw];
+    let mut d_pc_cw = vec![0.0f32; 2 * cw];
+    if settings.rec {
+        decode_backward(&model.ppf, w, 0, &ppf_e.codeword, &ppf_d, d_ppf_rec, &mut d_ppf_cw, grads);
+        decode_backward(&model.pc, w, pc_base, &pc_e.codeword, &pc_d, d_pc_rec, &mut d_pc_cw, grads);
+    }
+    if settings.pose {
+        let d_q = d_q.map(|v| v * settings.lambda_pose * scale);
+        let d_raw = normalize_quaternion_backward(raw, d_q).map(|v| v as f32).to_vec();
+        let (d_fs, d_ft) = relative_backward(&model.relative, w, rel_base, &f_s, &f_t, 1, &rel, d_raw, grads);
+        for (p, d_f) in [d_fs, d_ft].iter().enumerate() {
+            for (i, &g) in d_f.iter().enumerate() {
+                d_pc_cw[p * cw + i] += g;
+                d_ppf_cw[p * cw + i] -= g;
+            }
+        }
+    }
+    if settings.feat {
+        let k = (settings.lambda_feat * scale) as f32;
+        for (i, &g) in d_fp.iter().enumerate() {
+            d_ppf_cw[i] += k * g;
+            d_ppf_cw[cw + i] -= k * g;
+        }
+    }
+    // An all-zero codeword gradient back-propagates to exactly zero: skip the work.
+    if d_ppf_cw.iter().any(|&v| v != 0.0) {
+        encode_backward(&model.ppf, w, 0, &sample.ppf, &ppf_e, &d_ppf_cw, grads);
+    }
+    if d_pc_cw.iter().any(|&v| v != 0.0) {
+        encode_backward(&model.pc, w, pc_base, &sample.pc, &pc_e, &d_pc_cw, grads);
+    }
+    Ok(losses)
+}
+
+/// Mean loss over `samples` and its gradient. Samples run in parallel (rayon), in waves of one sample per
+/// thread; each sample's gradient is computed on one thread and the per-sample gradients are summed in
+/// sample order, so the result is bit-identical whatever the number of threads.
+pub fn batch_objective(weights: &Weights, samples: &[PairSample], settings: &LossSettings) -> Result<(Losses, Gradients)> {
+    if samples.is_empty() {
+        return Err(Error::invalid("empty training batch"));
+    }
+    let model = Model::from_weights(weights)?;
+    let w = LayerWeights::new(weights)?;
+    let scale = 1.0 / samples.len() as f64;
+    let mut total = Gradients::zeros(&weights.config);
+    let mut losses = Losses::default();
+    let wave = rayon::current_num_threads().max(1);
+    for chunk in samples.chunks(wave) {
+        let results: Vec<Result<(Losses, Gradients)>> = chunk
+            .par_iter()
+            .map(|s| {
+                let mut g = Gradients::zeros(&weights.config);
+                let l = sample_objective(&model, &w, s, settings, scale, Some(&mut g))?;
+                Ok((l, g))
+            })
+            .collect();
+        for r in results {
+            let (l, g) = r?;
+            losses.rec += l.rec * scale;
+            losses.pose += l.pose * scale;
+            losses.feat += l.feat * scale;
+            losses.total += l.total * scale;
+            total.add_assign(&g);
+        }
+    }
+    Ok((losses, total))
+}
+
+/// Mean loss over `samples` without gradients (parallel, deterministic).
+pub fn batch_loss(weights: &Weights, samples: &[PairSample], settings: &LossSettings) -> Result<Losses> {
+    let model = Model::from_weights(weights)?;
+    let w = LayerWeights::new(weights)?;
+    let scale = 1.0 / samples.len().max(1) as f64;
+    let all: Vec<Losses> =
+        samples.par_iter().map(|s| sample_objective(&model, &w, s, settings, scale, None)).collect::<Result<_>>()?;
+    Ok(all.iter().fold(Losses::default(), |a, l| Losses {
+        rec: a.rec + l.rec * scale,
+        pose: a.pose + l.pose * scale,
+        feat: a.feat + l.feat * scale,
+        total: a.total + l.total * scale,
+    }))
+}
