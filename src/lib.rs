@@ -11,7 +11,7 @@
 //!
 //! ```
 //! use dpr_gpu::model::{ModelConfig, Weights};
-//! use dpr_gpu::{Estimator, PointCloud, RegistrationSettings, register};
+//! use dpr_gpu::{Estimator, IcpSettings, PointCloud, RegistrationSettings, register};
 //!
 //! # fn main() -> dpr_gpu::Result<()> {
 //! // A small model with seeded random weights (use trained weights for real scans).
@@ -36,11 +36,12 @@
 //!     weights: Some(weights),
 //!     keypoints: 200,
 //!     estimator: Estimator::Ransac,
+//!     icp: Some(IcpSettings { max_correspondence_distance: 0.05, max_iterations: 30 }),
 //!     ..RegistrationSettings::default()
 //! };
 //! let result = register(&source, &target, &settings)?;
 //! let error = dpr_gpu::pose::rotation_error_deg(&result.estimate.target_from_source, &truth);
-//! assert!(error < 2.0, "rotation error {error} deg");
+//! assert!(error < 0.5, "rotation error {error} deg");
 //! # Ok(())
 //! # }
 //! ```

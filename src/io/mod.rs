@@ -57,7 +57,11 @@ pub fn read_cloud(path: &Path, options: &LoadOptions) -> Result<(PointCloud, Loa
     match format {
         Format::Ply => ply::parse(path, &data, options),
         Format::Pcd => pcd::parse(path, &data, options),
-        Format::Xyz => xyz::parse(path, &data, options),
+        Format::Xyz => {
+            // PTS files conventionally carry `x y z intensity r g b`: never read their columns 4-6 as normals.
+            let is_pts = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("pts"));
+            xyz::parse(path, &data, options, !is_pts)
+        }
     }
 }
 

@@ -1,7 +1,8 @@
 //! XYZ text (.xyz, .txt, .pts): one point per line, values separated by whitespace or by commas.
 //!
 //! Columns: `x y z` (3), `x y z` plus one or two ignored columns (4 or 5), or `x y z nx ny nz ...` (6 or more,
-//! columns after the sixth ignored). Every data line must have the same number of columns. Lines starting with
+//! columns after the sixth ignored; `.pts` files, whose columns 4-7 are usually intensity and colour, never
+//! yield normals). Every data line must have the same number of columns. Lines starting with
 //! `#` and blank lines are skipped. A first data line holding a single non-negative integer is taken as the
 //! point-count line of the PTS convention and skipped.
 
@@ -20,7 +21,13 @@ struct Columns {
 }
 
 /// Parses an XYZ text file's bytes.
-pub(super) fn parse(path: &Path, data: &[u8], options: &LoadOptions) -> Result<(PointCloud, LoadReport)> {
+/// `columns_456_are_normals` is false for formats whose extra columns are not normals (PTS).
+pub(super) fn parse(
+    path: &Path,
+    data: &[u8],
+    options: &LoadOptions,
+    columns_456_are_normals: bool,
+) -> Result<(PointCloud, LoadReport)> {
     let mut lines = TextLines::new(data, 0, 0);
     let mut tokens: Vec<&str> = Vec::new();
     let mut columns: Option<Columns> = None;
@@ -48,7 +55,7 @@ pub(super) fn parse(path: &Path, data: &[u8], options: &LoadOptions) -> Result<(
             );
             return Err(at_line(path, n, message));
         }
-        let normals = cols.count >= 6;
+        let normals = columns_456_are_normals && cols.count >= 6;
         let builder = builder.get_or_insert_with(|| {
             let capacity = capped_capacity(u64::MAX, data.len(), 2 * cols.count);
             CloudBuilder::new(options, normals, capacity)
@@ -103,7 +110,16 @@ mod tests {
 
     /// Parses `data` as an XYZ file named "t.xyz".
     fn parse_bytes(data: &[u8]) -> Result<(PointCloud, LoadReport)> {
-        parse(Path::new("t.xyz"), data, &LoadOptions::default())
+        parse(Path::new("t.xyz"), data, &LoadOptions::default(), true)
+    }
+
+    #[test]
+    fn pts_colour_columns_are_not_normals() {
+        let data = b"1 2 3 40 255 0 0\n4 5 6 41 0 255 0\n";
+        let (cloud, _) = parse(Path::new("t.pts"), data, &LoadOptions::default(), false).unwrap();
+        assert_eq!(cloud.points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
+        assert_eq!(cloud.normals, None);
+        assert!(parse_bytes(data).unwrap().0.normals.is_some());
     }
 
     #[test]

@@ -1,0 +1,234 @@
+//! The GPU context: instance, adapter, device and queue.
+//!
+//! The backend set comes from `DPR_GPU_BACKEND`, else `WGPU_BACKEND` (a comma list such as `vulkan` or
+//! `metal,dx12`), else the primary backends (Vulkan, Metal, DX12; never the GL fallback, whose compute
+//! support is too limited). `WGPU_ADAPTER_NAME` picks an adapter by case-insensitive substring. The device
+//! gets the adapter's own limits (so large buffers and 2-D grids can be used) after a check that the few
+//! limits the kernels rely on are met; a shortfall is an [`Error::Gpu`] naming the limit. Every operation runs
+//! inside validation and out-of-memory error scopes ([`GpuContext::scoped`]), so device errors come back as
+//! `Error::Gpu` instead of panicking.
+
+use crate::error::{Error, Result};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+
+/// Environment variable that selects the wgpu backends (takes precedence over `WGPU_BACKEND`).
+pub const BACKEND_ENV: &str = "DPR_GPU_BACKEND";
+
+/// Environment variable capping the size of one GPU buffer in MiB (default [`DEFAULT_MAX_BUFFER_MIB`]);
+/// work is chunked so that no buffer exceeds it.
+pub const MAX_BUFFER_ENV: &str = "DPR_GPU_MAX_BUFFER_MIB";
+
+/// Default per-buffer cap: enough for 5000 patches x 2048 points chunked, small enough for any GPU.
+pub const DEFAULT_MAX_BUFFER_MIB: u64 = 128;
+
+/// Limits the kernels need, with the minimum value each needs.
+const REQUIRED_LIMITS: &[(&str, fn(&wgpu::Limits) -> u64, u64)] = &[
+    ("max_bind_groups", |l| l.max_bind_groups.into(), 1),
+    ("max_storage_buffers_per_shader_stage", |l| l.max_storage_buffers_per_shader_stage.into(), 6),
+    ("max_uniform_buffers_per_shader_stage", |l| l.max_uniform_buffers_per_shader_stage.into(), 1),
+    ("max_compute_invocations_per_workgroup", |l| l.max_compute_invocations_per_workgroup.into(), 256),
+    ("max_compute_workgroup_size_x", |l| l.max_compute_workgroup_size_x.into(), 256),
+    ("max_compute_workgroup_storage_size", |l| l.max_compute_workgroup_storage_size.into(), 8192),
+    ("max_compute_workgroups_per_dimension", |l| l.max_compute_workgroups_per_dimension.into(), 1024),
+    ("max_storage_buffer_binding_size", |l| l.max_storage_buffer_binding_size, 1 << 20),
+];
+
+/// Instance, adapter, device and queue, plus the limits work is chunked by.
+pub struct GpuContext {
+    /// The adapter the device was created on.
+    pub adapter: wgpu::Adapter,
+    /// The logical device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// The adapter's description.
+    pub info: wgpu::AdapterInfo,
+    /// The device's limits (the adapter's).
+    pub limits: wgpu::Limits,
+    /// Optional features enabled on the device (`TIMESTAMP_QUERY` when the adapter has it).
+    pub features: wgpu::Features,
+    max_buffer_bytes: AtomicU64,
+    uncaptured: Arc<Mutex<Vec<String>>>,
+}
+
+impl std::fmt::Debug for GpuContext {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuContext").field("adapter", &self.adapter_info()).finish_non_exhaustive()
+    }
+}
+
+/// The backends named by `DPR_GPU_BACKEND` / `WGPU_BACKEND`, else the primary ones.
+pub fn backends_from_env() -> Result<wgpu::Backends> {
+    for var in [BACKEND_ENV, "WGPU_BACKEND"] {
+        if let Ok(value) = std::env::var(var) {
+            return parse_backends(&value).map_err(|e| Error::Gpu(format!("{var}: {e}")));
+        }
+    }
+    Ok(wgpu::Backends::PRIMARY)
+}
+
+/// Parses a comma list of backend names (vulkan/vk, metal/mtl, dx12/d3d12, gl/gles/opengl).
+pub fn parse_backends(list: &str) -> std::result::Result<wgpu::Backends, String> {
+    let mut out = wgpu::Backends::empty();
+    for name in list.split(',').map(|s| s.trim().to_ascii_lowercase()).filter(|s| !s.is_empty()) {
+        out |= match name.as_str() {
+            "vulkan" | "vk" => wgpu::Backends::VULKAN,
+            "metal" | "mtl" => wgpu::Backends::METAL,
+            "dx12" | "d3d12" => wgpu::Backends::DX12,
+            "gl" | "gles" | "opengl" => wgpu::Backends::GL,
+            "primary" => wgpu::Backends::PRIMARY,
+            other => return Err(format!("unknown backend '{other}' (expected vulkan, metal, dx12, gl or primary)")),
+        };
+    }
+    if out.is_empty() {
+        return Err(format!("no backend named in '{list}'"));
+    }
+    Ok(out)
+}
+
+impl GpuContext {
+    /// A context on the backends from the environment ([`backends_from_env`]).
+    pub fn new() -> Result<GpuContext> {
+        GpuContext::with_backends(backends_from_env()?)
+    }
+
+    /// A context on one of `backends`; `Error::Gpu` when no adapter exists or one lacks a needed limit.
+    pub fn with_backends(backends: wgpu::Backends) -> Result<GpuContext> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        desc.backends = backends;
+        desc.flags = wgpu::InstanceFlags::default().with_env();
+        let instance = wgpu::Instance::new(desc);
+        let adapter = pick_adapter(&instance, backends)?;
+        let info = adapter.get_info();
+        let name = format!("{} ({:?})", info.name, info.backend);
+        if !adapter.get_downlevel_capabilities().flags.contains(wgpu::DownlevelFlags::COMPUTE_SHADERS) {
+            return Err(Error::Gpu(format!("adapter {name} does not support compute shaders")));
+        }
+        let limits = adapter.limits();
+        for (limit, get, min) in REQUIRED_LIMITS {
+            let have = get(&limits);
+            if have < *min {
+                return Err(Error::Gpu(format!("adapter {name} has {limit} = {have}; dpr-gpu needs at least {min}")));
+            }
+        }
+        let features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("dpr-gpu"),
+            required_features: features,
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| Error::Gpu(format!("requesting a device on {name}: {e}")))?;
+        let uncaptured = Arc::new(Mutex::new(Vec::new()));
+        let sink = Arc::clone(&uncaptured);
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            if let Ok(mut v) = sink.lock() {
+                v.push(e.to_string());
+            }
+        }));
+        let max_buffer_mib = std::env::var(MAX_BUFFER_ENV)
+            .ok()
+            .and_then(|v| v.trim().parse::<u64>().ok())
+            .filter(|&v| v > 0)
+            .unwrap_or(DEFAULT_MAX_BUFFER_MIB);
+        let ctx = GpuContext {
+            adapter,
+            device,
+            queue,
+            info,
+            limits,
+            features,
+            max_buffer_bytes: AtomicU64::new(0),
+            uncaptured,
+        };
+        ctx.set_max_buffer_bytes(max_buffer_mib << 20);
+        Ok(ctx)
+    }
+
+    /// One line describing the adapter: name, backend, type and driver.
+    pub fn adapter_info(&self) -> String {
+        let i = &self.info;
+        let driver = [i.driver.as_str(), i.driver_info.as_str()]
+            .iter()
+            .filter(|s| !s.is_empty())
+            .copied()
+            .collect::<Vec<_>>()
+            .join(" ");
+        format!("{} ({:?}, {:?}{}{})", i.name, i.backend, i.device_type, if driver.is_empty() { "" } else { ", " }, driver)
+    }
+
+    /// Largest buffer (and storage binding) the chunking may create, in bytes: the smallest of the device's
+    /// `max_storage_buffer_binding_size`, `max_buffer_size` and the configured cap.
+    pub fn max_buffer_bytes(&self) -> u64 {
+        self.max_buffer_bytes.load(Ordering::Relaxed)
+    }
+
+    /// Sets the per-buffer cap (clamped to the device limits, rounded down to 256 bytes); tests shrink it to
+    /// force chunking.
+    pub fn set_max_buffer_bytes(&self, bytes: u64) {
+        let device_max = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
+        self.max_buffer_bytes.store((bytes.min(device_max) / 256 * 256).max(256), Ordering::Relaxed);
+    }
+
+    /// Whether GPU timestamps can be taken.
+    pub fn has_timestamps(&self) -> bool {
+        self.features.contains(wgpu::Features::TIMESTAMP_QUERY)
+    }
+
+    /// Runs `f` inside validation and out-of-memory error scopes; any captured (or uncaptured) device error
+    /// becomes `Error::Gpu("{what}: {error}")`.
+    pub fn scoped<T>(&self, what: &str, f: impl FnOnce() -> T) -> Result<T> {
+        let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let out = f();
+        let errors = [pollster::block_on(validation.pop()), pollster::block_on(oom.pop())];
+        let mut messages: Vec<String> = errors.into_iter().flatten().map(|e| e.to_string()).collect();
+        if let Ok(mut v) = self.uncaptured.lock() {
+            messages.append(&mut v);
+        }
+        if messages.is_empty() { Ok(out) } else { Err(Error::Gpu(format!("{what}: {}", messages.join("; ")))) }
+    }
+
+    /// Blocks until `submission` has finished (all work when `None`).
+    pub fn wait(&self, submission: Option<wgpu::SubmissionIndex>) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::Wait { submission_index: submission, timeout: None })
+            .map(|_| ())
+            .map_err(|e| Error::Gpu(format!("waiting for the GPU: {e}")))
+    }
+}
+
+/// The adapter named by `WGPU_ADAPTER_NAME`, else the default high-performance one.
+fn pick_adapter(instance: &wgpu::Instance, backends: wgpu::Backends) -> Result<wgpu::Adapter> {
+    let adapters = pollster::block_on(instance.enumerate_adapters(backends));
+    let names = || adapters.iter().map(|a| format!("{} ({:?})", a.get_info().name, a.get_info().backend)).collect::<Vec<_>>();
+    if let Ok(wanted) = std::env::var("WGPU_ADAPTER_NAME") {
+        let wanted_lc = wanted.to_lowercase();
+        return adapters
+            .iter()
+            .find(|a| a.get_info().name.to_lowercase().contains(&wanted_lc))
+            .cloned()
+            .ok_or_else(|| Error::Gpu(format!("WGPU_ADAPTER_NAME={wanted} matches none of the adapters {:?}", names())));
+    }
+    let options = wgpu::RequestAdapterOptions {
+        power_preference: wgpu::PowerPreference::from_env().unwrap_or(wgpu::PowerPreference::HighPerformance),
+        ..Default::default()
+    };
+    pollster::block_on(instance.request_adapter(&options)).map_err(|e| {
+        Error::Gpu(format!("no GPU adapter on backends {backends:?} ({e}); adapters seen: {:?}", names()))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backend_lists_parse_and_reject_unknown_names() {
+        assert_eq!(parse_backends("vulkan").unwrap(), wgpu::Backends::VULKAN);
+        assert_eq!(parse_backends(" VK , metal").unwrap(), wgpu::Backends::VULKAN | wgpu::Backends::METAL);
+        assert!(parse_backends("cuda").unwrap_err().contains("cuda"));
+        assert!(parse_backends(" , ").is_err());
+    }
+}
