@@ -2,7 +2,8 @@
 // codeword_distance: squared L2 distances between a chunk of source codewords (rows row_offset..+rows)
 // and all target codewords, summed over the dimensions in order. Each workgroup computes a 16 x 16 output
 // tile from 16 x 32 slices of both sets staged in workgroup memory; the tile grid is linearised.
-// Bindings: 0 params (uniform) | 1 source, 2 target (read, rows of `dim`) | 3 out (rows x cols, written).
+// Bindings: 0 params (uniform) | 1 source_codewords, 2 target_codewords (read, rows of `dim`) |
+//           3 out (rows x cols, written).
 // CPU twin: src/cpu/mutual_knn.rs (codeword_distance)
 
 struct CodewordDistanceParams {
@@ -21,8 +22,8 @@ const TILE: u32 = 16u;
 const TILE_D: u32 = 32u;
 
 @group(0) @binding(0) var<uniform> params: CodewordDistanceParams;
-@group(0) @binding(1) var<storage, read> source: array<f32>;
-@group(0) @binding(2) var<storage, read> target: array<f32>;
+@group(0) @binding(1) var<storage, read> source_codewords: array<f32>;
+@group(0) @binding(2) var<storage, read> target_codewords: array<f32>;
 @group(0) @binding(3) var<storage, read_write> out: array<f32>;
 
 // [d][row] and [d][col]: the inner loop reads both with unit stride across invocations.
@@ -54,10 +55,10 @@ fn main(
             var tv = 0.0;
             if d0 + d < dim {
                 if r0 + r < params.rows {
-                    sv = source[(params.row_offset + r0 + r) * dim + d0 + d];
+                    sv = source_codewords[(params.row_offset + r0 + r) * dim + d0 + d];
                 }
                 if c0 + r < params.cols {
-                    tv = target[(c0 + r) * dim + d0 + d];
+                    tv = target_codewords[(c0 + r) * dim + d0 + d];
                 }
             }
             s_tile[d * TILE + r] = sv;

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: MIT OR Apache-2.0
 // dense: one shared-MLP layer as a tiled GEMM over many rows,
-//   out[r, o] = act((accumulate ? out[r, o] : 0) + group[r / rows_per_group, o] + sum_k x[r, k] * w_t[w_row_offset + k, o])
+//   out[r, o] = act((accumulate ? out[r, o] : 0) + group[r / rows_per_group, o]
+//                   + sum_k x[r, k] * w_t[w_row_offset + k, o])
 // Each workgroup computes a 64 x 64 output tile (16 x 16 invocations, 4 x 4 outputs each) from 64 x 16 and
 // 16 x 64 tiles of x and w_t staged in workgroup memory; the tile grid is linearised over a 2-D dispatch.
 // Bindings: 0 params (uniform) | 1 x, 2 w_t, 3 group (read) | 4 out (read_write).

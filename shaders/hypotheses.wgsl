@@ -1,8 +1,8 @@
 // SPDX-License-Identifier: MIT OR Apache-2.0
 // hypotheses: one rigid pose per correspondence from its unit quaternion [w, x, y, z]:
 // R = R(q) (target_from_source), t = p_target - R p_source. One invocation per correspondence.
-// Bindings: 0 params (uniform) | 1 quaternions (4 per row), 2 source, 3 target (xyz per row) (read) |
-//           4 out (12 per row: R row-major, then t; written).
+// Bindings: 0 params (uniform) | 1 quaternions (4 per row), 2 source_points, 3 target_points (xyz per
+//           row) (read) | 4 out (12 per row: R row-major, then t; written).
 // CPU twin: src/cpu/hypotheses.rs
 
 struct HypothesesParams {
@@ -16,8 +16,8 @@ const WG_SIZE: u32 = 64u;
 
 @group(0) @binding(0) var<uniform> params: HypothesesParams;
 @group(0) @binding(1) var<storage, read> quaternions: array<f32>;
-@group(0) @binding(2) var<storage, read> source: array<f32>;
-@group(0) @binding(3) var<storage, read> target: array<f32>;
+@group(0) @binding(2) var<storage, read> source_points: array<f32>;
+@group(0) @binding(3) var<storage, read> target_points: array<f32>;
 @group(0) @binding(4) var<storage, read_write> out: array<f32>;
 
 @compute @workgroup_size(WG_SIZE)
@@ -44,8 +44,8 @@ fn main(
     r[6] = 2.0 * (x * z - w * y);
     r[7] = 2.0 * (y * z + w * x);
     r[8] = 1.0 - 2.0 * (x * x + y * y);
-    let ps = vec3<f32>(source[i * 3u], source[i * 3u + 1u], source[i * 3u + 2u]);
-    let pt = vec3<f32>(target[i * 3u], target[i * 3u + 1u], target[i * 3u + 2u]);
+    let ps = vec3<f32>(source_points[i * 3u], source_points[i * 3u + 1u], source_points[i * 3u + 2u]);
+    let pt = vec3<f32>(target_points[i * 3u], target_points[i * 3u + 1u], target_points[i * 3u + 2u]);
     for (var e = 0u; e < 9u; e++) {
         out[i * 12u + e] = r[e];
     }

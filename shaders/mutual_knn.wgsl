@@ -41,7 +41,7 @@ struct Best {
     index: array<u32, 4>,
 }
 
-// Inserts (v, idx) into the ascending list: the twin's k_smallest step (strict <, so earlier indices win ties).
+// Inserts (v, idx) into the ascending list: the twin's k_smallest step (strict <: earlier indices win ties).
 fn insert(best: ptr<function, Best>, v: f32, idx: u32, k: u32) {
     let count = (*best).count;
     if count == k && !(v < (*best).dist[k - 1u]) {

@@ -44,9 +44,9 @@ fn main(
     if i >= params.rows {
         return;
     }
-    let patch = i / params.points_per_patch;
-    let p_r = vec3<f32>(centers[patch * 3u], centers[patch * 3u + 1u], centers[patch * 3u + 2u]);
-    let n_r = vec3<f32>(center_normals[patch * 3u], center_normals[patch * 3u + 1u], center_normals[patch * 3u + 2u]);
+    let p = i / params.points_per_patch;
+    let p_r = vec3<f32>(centers[p * 3u], centers[p * 3u + 1u], centers[p * 3u + 2u]);
+    let n_r = vec3<f32>(center_normals[p * 3u], center_normals[p * 3u + 1u], center_normals[p * 3u + 2u]);
     let p_i = vec3<f32>(points[i * 3u], points[i * 3u + 1u], points[i * 3u + 2u]);
     let n_i = vec3<f32>(normals[i * 3u], normals[i * 3u + 1u], normals[i * 3u + 2u]);
     let d = p_r - p_i;

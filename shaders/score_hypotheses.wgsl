@@ -3,8 +3,9 @@
 // (inlier: |p_target - (R p_source + t)|^2 < threshold^2). One workgroup per hypothesis (linearised 2-D
 // grid): invocations stride over the correspondences, then a tree reduction in workgroup memory. With
 // write_mask set, hypothesis 0 also writes its per-correspondence inlier flags (for refinement).
-// Bindings: 0 params (uniform) | 1 hypotheses (12 per row: R row-major, t), 2 source, 3 target (xyz) (read) |
-//           4 inliers (u32), 5 residual_sums (f32), 6 mask (u32 per correspondence) (written).
+// Bindings: 0 params (uniform) | 1 hypotheses (12 per row: R row-major, t), 2 source_points,
+//           3 target_points (xyz) (read) | 4 inliers (u32), 5 residual_sums (f32), 6 mask (u32 per
+//           correspondence) (written).
 // CPU twin: src/cpu/score_hypotheses.rs
 
 struct ScoreHypothesesParams {
@@ -18,8 +19,8 @@ const WG_SIZE: u32 = 64u;
 
 @group(0) @binding(0) var<uniform> params: ScoreHypothesesParams;
 @group(0) @binding(1) var<storage, read> hypotheses: array<f32>;
-@group(0) @binding(2) var<storage, read> source: array<f32>;
-@group(0) @binding(3) var<storage, read> target: array<f32>;
+@group(0) @binding(2) var<storage, read> source_points: array<f32>;
+@group(0) @binding(3) var<storage, read> target_points: array<f32>;
 @group(0) @binding(4) var<storage, read_write> inliers: array<u32>;
 @group(0) @binding(5) var<storage, read_write> residual_sums: array<f32>;
 @group(0) @binding(6) var<storage, read_write> mask: array<u32>;
@@ -45,8 +46,8 @@ fn main(
     var count = 0u;
     var sum = 0.0;
     for (var c = lid; c < params.correspondences; c += WG_SIZE) {
-        let ps = vec3<f32>(source[c * 3u], source[c * 3u + 1u], source[c * 3u + 2u]);
-        let pt = vec3<f32>(target[c * 3u], target[c * 3u + 1u], target[c * 3u + 2u]);
+        let ps = vec3<f32>(source_points[c * 3u], source_points[c * 3u + 1u], source_points[c * 3u + 2u]);
+        let pt = vec3<f32>(target_points[c * 3u], target_points[c * 3u + 1u], target_points[c * 3u + 2u]);
         let rp = vec3<f32>(
             r[0] * ps.x + r[1] * ps.y + r[2] * ps.z,
             r[3] * ps.x + r[4] * ps.y + r[5] * ps.z,

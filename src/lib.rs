@@ -53,6 +53,8 @@ pub mod cloud;
 pub mod cpu;
 pub mod error;
 pub mod estimate;
+pub mod eval;
+pub mod gpu;
 pub mod io;
 pub mod model;
 pub mod pipeline;
@@ -61,6 +63,8 @@ pub mod preprocess;
 pub mod rng;
 pub mod settings;
 pub mod spatial;
+pub mod synth;
+pub mod train;
 
 pub use cloud::PointCloud;
 pub use error::{Error, Result};

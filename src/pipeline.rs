@@ -58,18 +58,19 @@ pub fn load_weights(settings: &RegistrationSettings) -> Result<Weights> {
     Weights::load(&path)
 }
 
-/// Creates the backend `kind` for `model`.
+/// Creates the backend `kind` for `model`. `Auto` takes a GPU adapter when one exists and otherwise warns and
+/// falls back to the CPU reference path.
 pub fn create_backend(kind: BackendKind, model: Model) -> Result<Box<dyn Backend>> {
     match kind {
         BackendKind::Cpu => Ok(Box::new(CpuBackend::new(model))),
-        BackendKind::Gpu | BackendKind::Auto => {
-            let _ = &model;
-            if kind == BackendKind::Auto {
-                eprintln!("warning: no GPU backend available; using the CPU reference path");
-                return Ok(Box::new(CpuBackend::new(model)));
+        BackendKind::Gpu => Ok(Box::new(crate::gpu::GpuBackend::new(model)?)),
+        BackendKind::Auto => match crate::gpu::GpuBackend::new(model.clone()) {
+            Ok(gpu) => Ok(Box::new(gpu)),
+            Err(e) => {
+                eprintln!("warning: {e}; using the CPU reference path");
+                Ok(Box::new(CpuBackend::new(model)))
             }
-            Err(Error::Gpu("the GPU backend is not available in this build".into()))
-        }
+        },
     }
 }
 

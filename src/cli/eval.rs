@@ -1,10 +1,172 @@
-//! `dpr-gpu eval` (placeholder until the eval work lands).
+//! `dpr-gpu eval`: the 3DMatch evaluation protocol on a dataset, by running the pipeline on every gt.log pair
+//! or by scoring an existing result log.
+
+use crate::cli::register::{RegisterOptions, parse_estimator};
+use crate::eval::dataset::{SceneData, load_dataset};
+use crate::eval::gtlog::{LogRecord, format_log, read_log};
+use crate::eval::report::{EstimatorReport, Report, format_table, protocol_notes};
+use crate::eval::run::{EvalOptions, estimator_name, pairs_to_run, run_scene, score_log};
+use crate::eval::score::{REFERENCE_RADIUS, Thresholds};
+use crate::io::{LoadOptions, write_atomic};
+use crate::pipeline::Registrar;
+use crate::settings::Estimator;
+use anyhow::{Context, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
 
 /// Arguments of `dpr-gpu eval`.
 #[derive(clap::Args, Debug)]
-pub struct Args {}
+#[command(after_help = "--estimator also accepts `both`: RelativeNet and RANSAC on the same correspondences, side by \
+side. Registration recall counts gt.log pairs with j - i > 1 (success: e^T Sigma e / Sigma_11 <= 0.04; for a pairs \
+file: source-point RMSE <= 0.2 m); feature-match recall counts every gt.log pair (inlier: |x_i - T_ij x_j| < 0.10 m; \
+matched: inlier ratio > 0.05, strict). Distances scale with --radius / 0.30. Results go to \
+OUT/<estimator>/<scene>.log (3DMatch format) and OUT/report.json.")]
+pub struct Args {
+    /// A folder of scenes (each with cloud_bin_*.ply, gt.log and gt.info), one scene folder, or a pairs file
+    /// (`source target` + 16 numbers, p_target = T p_source, paths relative to the file).
+    pub dataset: PathBuf,
+    /// Registration options; `--estimator` also accepts `both` (RelativeNet and RANSAC on the same
+    /// correspondences, side by side).
+    #[command(flatten)]
+    pub register: RegisterOptions,
+    /// Score this result log instead of running the pipeline: a .log file (single-scene dataset), a folder
+    /// holding `<scene>.log` per scene, or a path template containing `{scene}`.
+    #[arg(long)]
+    pub log: Option<String>,
+    /// Output folder for the result logs (`<estimator>/<scene>.log`) and `report.json`.
+    #[arg(long, default_value = "eval_out")]
+    pub out: PathBuf,
+    /// Register every fragment pair i < j (not only gt.log pairs) and report those whose estimated overlap
+    /// exceeds --min-overlap, as the 3DMatch toolbox does (this is what makes precision meaningful).
+    #[arg(long)]
+    pub all_pairs: bool,
+    /// Estimated overlap needed to report a pair with --all-pairs.
+    #[arg(long, default_value_t = 0.23)]
+    pub min_overlap: f64,
+}
+
+/// The estimators named by `--estimator` (`relativenet`, `ransac` or `both`).
+pub fn parse_estimators(s: &str) -> anyhow::Result<Vec<Estimator>> {
+    if s == "both" {
+        return Ok(vec![Estimator::RelativeNet, Estimator::Ransac]);
+    }
+    parse_estimator(s)
+        .map(|e| vec![e])
+        .map_err(|_| anyhow::anyhow!("unknown estimator '{s}' (expected relativenet, ransac or both)"))
+}
+
+/// Where the result log of `scene` is, given the `--log` argument.
+fn log_path_for(log: &str, scene: &SceneData, scene_count: usize) -> anyhow::Result<PathBuf> {
+    if log.contains("{scene}") {
+        return Ok(PathBuf::from(log.replace("{scene}", &scene.name)));
+    }
+    let p = PathBuf::from(log);
+    if p.is_dir() {
+        return Ok(p.join(format!("{}.log", scene.name)));
+    }
+    if scene_count > 1 {
+        bail!(
+            "--log {log} is one file but the dataset has {scene_count} scenes; pass a folder of <scene>.log files or a \
+             path with {{scene}}"
+        );
+    }
+    Ok(p)
+}
+
+fn write_report(out: &Path, report: &Report) -> anyhow::Result<()> {
+    let json = serde_json::to_string_pretty(report).context("serialising the report")?;
+    write_atomic(&out.join("report.json"), json.as_bytes())?;
+    print!("{}", format_table(report));
+    println!("report: {}", out.join("report.json").display());
+    Ok(())
+}
+
+fn score_logs(args: &Args, log: &str, scenes: Vec<SceneData>, opts: &EvalOptions) -> anyhow::Result<Report> {
+    let count = scenes.len();
+    let mut scores = Vec::new();
+    for mut scene in scenes {
+        let path = log_path_for(log, &scene, count)?;
+        let records: Vec<LogRecord> = if path.is_file() {
+            read_log(&path)?
+        } else {
+            eprintln!("warning: {}: no result log at {}; every pair counts as missing", scene.name, path.display());
+            Vec::new()
+        };
+        scores.push(score_log(&mut scene, &records, opts).with_context(|| format!("scoring {}", path.display()))?);
+    }
+    Ok(Report {
+        dataset: args.dataset.display().to_string(),
+        mode: "log".into(),
+        log: Some(log.to_string()),
+        thresholds: opts.thresholds,
+        protocol: protocol_notes(&opts.thresholds),
+        settings: None,
+        estimators: vec![EstimatorReport::new("log", scores)],
+        fragments: Vec::new(),
+    })
+}
+
+fn run_pipeline(args: &Args, scenes: Vec<SceneData>, opts: &EvalOptions) -> anyhow::Result<Report> {
+    let estimators = parse_estimators(&args.register.estimator)?;
+    let settings = args.register.to_settings()?;
+    let registrar = Registrar::new(&settings).context("preparing the pipeline")?;
+    let total: usize = scenes.iter().map(|s| pairs_to_run(s, opts).len()).sum();
+    let bar = if std::io::stderr().is_terminal() { ProgressBar::new(total as u64) } else { ProgressBar::hidden() };
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} pairs {msg} [{elapsed_precise} < {eta_precise}]")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let mut per_estimator: Vec<Vec<_>> = vec![Vec::new(); estimators.len()];
+    let mut fragments = Vec::new();
+    for mut scene in scenes {
+        bar.set_message(scene.name.clone());
+        let run = run_scene(&mut scene, &registrar, &estimators, opts, &mut || bar.inc(1))
+            .with_context(|| format!("evaluating scene {}", scene.name))?;
+        for (k, (estimator, score, log)) in run.estimators.into_iter().enumerate() {
+            let path = args.out.join(estimator_name(estimator)).join(format!("{}.log", scene.name));
+            std::fs::create_dir_all(path.parent().unwrap_or(&args.out))
+                .with_context(|| format!("creating {}", path.display()))?;
+            write_atomic(&path, format_log(&log).as_bytes())?;
+            per_estimator[k].push(score);
+        }
+        fragments.extend(run.fragments);
+    }
+    bar.finish_and_clear();
+    Ok(Report {
+        dataset: args.dataset.display().to_string(),
+        mode: "pipeline".into(),
+        log: None,
+        thresholds: opts.thresholds,
+        protocol: protocol_notes(&opts.thresholds),
+        settings: Some(settings),
+        estimators: estimators
+            .iter()
+            .zip(per_estimator)
+            .map(|(&e, scores)| EstimatorReport::new(estimator_name(e), scores))
+            .collect(),
+        fragments,
+    })
+}
 
 /// Runs `dpr-gpu eval`.
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("eval is not implemented yet")
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let radius = args.register.radius.map_or(REFERENCE_RADIUS, f64::from);
+    if !(radius > 0.0 && radius.is_finite()) {
+        bail!("--radius must be positive, got {radius}");
+    }
+    let opts = EvalOptions {
+        thresholds: Thresholds::for_radius(radius),
+        seed: args.register.seed,
+        load: LoadOptions { drop_zero_points: args.register.drop_zero },
+        all_pairs: args.all_pairs,
+        min_overlap: args.min_overlap,
+    };
+    let scenes = load_dataset(&args.dataset).with_context(|| format!("loading {}", args.dataset.display()))?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let report = match &args.log {
+        Some(log) => score_logs(&args, log, scenes, &opts)?,
+        None => run_pipeline(&args, scenes, &opts)?,
+    };
+    write_report(&args.out, &report)
 }

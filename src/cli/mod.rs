@@ -2,6 +2,7 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod bench;
 pub mod eval;
 pub mod register;
 pub mod synth;
@@ -21,6 +22,8 @@ pub struct Cli {
 pub enum Command {
     /// Register SOURCE onto TARGET and print target_from_source.
     Register(register::Args),
+    /// Time every stage and the GEMM throughput on the current adapter (or the CPU).
+    Bench(bench::Args),
     /// Write a seeded random initialisation of the model.
     InitWeights(weights::InitArgs),
     /// Print a weights file's config and parameter counts.
@@ -36,6 +39,7 @@ pub fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let outcome = match cli.command {
         Command::Register(args) => register::run(args),
+        Command::Bench(args) => bench::run(args),
         Command::InitWeights(args) => weights::run_init(args),
         Command::Info(args) => weights::run_info(args),
         Command::Synth(args) => synth::run(args),

@@ -183,11 +183,9 @@ pub fn load_pairs_file(path: &Path) -> Result<SceneData> {
         }
         let mut m = Matrix4::zeros();
         for (c, f) in fields[2..].iter().enumerate() {
-            let v: f64 = f
-                .parse()
-                .ok()
-                .filter(|v: &f64| v.is_finite())
-                .ok_or_else(|| Error::parse(path, format!("line {line_no}"), format!("`{f}` is not a finite number")))?;
+            let v: f64 = f.parse().ok().filter(|v: &f64| v.is_finite()).ok_or_else(|| {
+                Error::parse(path, format!("line {line_no}"), format!("`{f}` is not a finite number"))
+            })?;
             m[(c / 4, c % 4)] = v;
         }
         let j = id_of(fields[0], &mut files);

@@ -9,6 +9,8 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Matrix4, Matrix6, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
+use std::collections::HashSet;
+use std::hash::{BuildHasherDefault, Hasher};
 
 /// The constants of the ground-truth rule; the defaults are the official ones.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -27,7 +29,13 @@ pub struct GroundTruthRule {
 
 impl Default for GroundTruthRule {
     fn default() -> Self {
-        GroundTruthRule { grid: 0.01, overlap_distance: 0.03, min_overlap: 0.30, info_distance: 0.006, max_info_points: 5000 }
+        GroundTruthRule {
+            grid: 0.01,
+            overlap_distance: 0.03,
+            min_overlap: 0.30,
+            info_distance: 0.006,
+            max_info_points: 5000,
+        }
     }
 }
 
@@ -46,19 +54,75 @@ pub struct GtPair {
     pub information: Matrix6<f64>,
 }
 
-/// A fragment downsampled on the ground-truth grid, with a k-d tree over its points (own frame).
+/// A fragment downsampled on the ground-truth grid, with a k-d tree over its points (own frame) and a coarse
+/// occupancy grid that answers "nothing within `reach`" without a tree query (most queries of non-overlapping
+/// parts are far from every point, where exact nearest-neighbour searches are slowest).
 pub struct PreparedFragment {
     /// Grid-averaged points.
     pub points: Vec<[f64; 3]>,
     tree: Option<ImmutableKdTree<f64, 3>>,
+    /// Cell size of `near`: the largest distance [`PreparedFragment::is_within`] can prefilter.
+    reach: f64,
+    /// Cells (of size `reach`) that hold a point or neighbour a cell that does.
+    near: HashSet<u64, BuildHasherDefault<CellHasher>>,
+}
+
+/// A multiplicative hasher for packed cell keys (the default SipHash costs more than the lookups it guards).
+#[derive(Default)]
+struct CellHasher(u64);
+
+impl Hasher for CellHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(self.0 ^ b as u64);
+        }
+    }
+
+    fn write_u64(&mut self, x: u64) {
+        let h = (x ^ (x >> 29)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        self.0 = h ^ (h >> 32);
+    }
+}
+
+/// Cell coordinates packed into 21 bits each; distant cells may share a key, which only costs an exact query.
+fn cell_key(p: &[f64; 3], cell: f64) -> [i64; 3] {
+    [(p[0] / cell).floor() as i64, (p[1] / cell).floor() as i64, (p[2] / cell).floor() as i64]
+}
+
+fn pack(c: [i64; 3]) -> u64 {
+    const M: i64 = (1 << 21) - 1;
+    ((c[0] & M) as u64) | (((c[1] & M) as u64) << 21) | (((c[2] & M) as u64) << 42)
 }
 
 impl PreparedFragment {
-    /// Downsamples `cloud` on a `grid` and indexes it.
-    pub fn new(cloud: &PointCloud, grid: f64) -> PreparedFragment {
-        let points = grid_average(&cloud.points, grid);
+    /// Downsamples `cloud` on a `grid` and indexes it for queries up to `reach`.
+    pub fn new(cloud: &PointCloud, grid: f64, reach: f64) -> PreparedFragment {
+        PreparedFragment::from_points(grid_average(&cloud.points, grid), reach)
+    }
+
+    /// Indexes `points` as they are (no downsampling) for queries up to `reach`.
+    pub fn from_points(points: Vec<[f64; 3]>, reach: f64) -> PreparedFragment {
         let tree = (!points.is_empty()).then(|| ImmutableKdTree::new_from_slice(&points).ok()).flatten();
-        PreparedFragment { points, tree }
+        let mut near = HashSet::default();
+        if reach > 0.0 && reach.is_finite() {
+            let mut cells: Vec<[i64; 3]> = points.iter().map(|p| cell_key(p, reach)).collect();
+            cells.sort_unstable();
+            cells.dedup();
+            for c in cells {
+                for dx in -1..=1 {
+                    for dy in -1..=1 {
+                        for dz in -1..=1 {
+                            near.insert(pack([c[0] + dx, c[1] + dy, c[2] + dz]));
+                        }
+                    }
+                }
+            }
+        }
+        PreparedFragment { points, tree, reach, near }
     }
 
     /// Squared distance from `p` (this fragment's frame) to the nearest point (infinite when empty).
@@ -67,6 +131,14 @@ impl PreparedFragment {
             Some(t) => t.query(p).nearest_one::<SquaredEuclidean<f64>>().execute().distance,
             None => f64::INFINITY,
         }
+    }
+
+    /// True when some point is closer than `distance` (strict) to `p`.
+    pub fn is_within(&self, p: &[f64; 3], distance: f64) -> bool {
+        if distance <= self.reach && !self.near.contains(&pack(cell_key(p, self.reach))) {
+            return false;
+        }
+        self.nearest_sq(p) < distance * distance
     }
 }
 
@@ -77,13 +149,17 @@ fn apply(t: &Matrix4<f64>, p: &[f64; 3]) -> [f64; 3] {
 
 /// Fraction of fragment-i points whose nearest point of fragment j mapped by `transform` (x_i = T x_j) is
 /// closer than `distance` (strict). Distances are computed in fragment j's frame via T⁻¹, which is equivalent.
-pub fn overlap_fraction(frag_i: &PreparedFragment, frag_j: &PreparedFragment, transform: &Matrix4<f64>, distance: f64) -> f64 {
+pub fn overlap_fraction(
+    frag_i: &PreparedFragment,
+    frag_j: &PreparedFragment,
+    transform: &Matrix4<f64>,
+    distance: f64,
+) -> f64 {
     if frag_i.points.is_empty() {
         return 0.0;
     }
     let inv = super::metrics::inverse(transform);
-    let d2 = distance * distance;
-    let hits = frag_i.points.iter().filter(|p| frag_j.nearest_sq(&apply(&inv, p)) < d2).count();
+    let hits = frag_i.points.iter().filter(|p| frag_j.is_within(&apply(&inv, p), distance)).count();
     hits as f64 / frag_i.points.len() as f64
 }
 
@@ -97,9 +173,8 @@ pub fn correspondence_points(
     max_points: usize,
     rng: &mut Rng,
 ) -> Vec<[f64; 3]> {
-    let d2 = distance * distance;
     let q: Vec<[f64; 3]> =
-        frag_j.points.iter().map(|p| apply(transform, p)).filter(|q| frag_i.nearest_sq(q) < d2).collect();
+        frag_j.points.iter().map(|p| apply(transform, p)).filter(|q| frag_i.is_within(q, distance)).collect();
     if q.len() <= max_points {
         return q;
     }
@@ -126,7 +201,8 @@ pub fn ground_truth_pairs(
     rule: &GroundTruthRule,
     seed: u64,
 ) -> Vec<GtPair> {
-    let prepared: Vec<PreparedFragment> = fragments.par_iter().map(|c| PreparedFragment::new(c, rule.grid)).collect();
+    let prepared: Vec<PreparedFragment> =
+        fragments.par_iter().map(|c| PreparedFragment::new(c, rule.grid, rule.overlap_distance)).collect();
     let n = fragments.len().min(world_from_fragment.len());
     let pairs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
     pairs
@@ -162,7 +238,7 @@ mod tests {
         let mut t = Matrix4::identity();
         t[(0, 3)] = 0.5;
         let rule = GroundTruthRule::default();
-        let (pi, pj) = (PreparedFragment::new(&i, rule.grid), PreparedFragment::new(&j, rule.grid));
+        let (pi, pj) = (PreparedFragment::new(&i, rule.grid, 0.03), PreparedFragment::new(&j, rule.grid, 0.03));
         let overlap = overlap_fraction(&pi, &pj, &t, rule.overlap_distance);
         // Columns x >= 0.5 - 0.03 overlap: x = 0.48 .. 0.98, 26 of 50 columns.
         assert!((overlap - 26.0 / 50.0).abs() < 1e-9, "{overlap}");
@@ -180,7 +256,7 @@ mod tests {
     #[test]
     fn correspondence_set_is_capped_and_seeded() {
         let c = grid_cloud(100, 0.01, 1.0);
-        let p = PreparedFragment::new(&c, 0.01);
+        let p = PreparedFragment::new(&c, 0.01, 0.03);
         let a = correspondence_points(&p, &p, &Matrix4::identity(), 0.006, 5000, &mut Rng::new(3));
         let b = correspondence_points(&p, &p, &Matrix4::identity(), 0.006, 5000, &mut Rng::new(3));
         assert_eq!(a.len(), 5000);

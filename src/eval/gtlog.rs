@@ -48,17 +48,27 @@ fn parse_header(path: &Path, line: usize, text: &str) -> Result<(usize, usize, u
     let ints: Option<Vec<usize>> = fields.iter().map(|f| f.parse::<usize>().ok()).collect();
     match ints.as_deref() {
         Some([i, j, n]) => Ok((*i, *j, *n)),
-        _ => Err(Error::parse(path, format!("line {line}"), format!("expected a record header `i j n` (three non-negative integers), found `{text}`"))),
+        _ => Err(Error::parse(
+            path,
+            format!("line {line}"),
+            format!("expected a record header `i j n` (three non-negative integers), found `{text}`"),
+        )),
     }
 }
 
 fn parse_row<const C: usize>(path: &Path, line: usize, text: &str) -> Result<[f64; C]> {
     let values: Vec<f64> = text
         .split_whitespace()
-        .map(|f| f.parse::<f64>().map_err(|_| Error::parse(path, format!("line {line}"), format!("`{f}` is not a number"))))
+        .map(|f| {
+            f.parse::<f64>().map_err(|_| Error::parse(path, format!("line {line}"), format!("`{f}` is not a number")))
+        })
         .collect::<Result<_>>()?;
     if values.len() != C {
-        return Err(Error::parse(path, format!("line {line}"), format!("expected {C} numbers in a matrix row, found {}", values.len())));
+        return Err(Error::parse(
+            path,
+            format!("line {line}"),
+            format!("expected {C} numbers in a matrix row, found {}", values.len()),
+        ));
     }
     if let Some(v) = values.iter().find(|v| !v.is_finite()) {
         return Err(Error::parse(path, format!("line {line}"), format!("non-finite matrix entry {v}")));
@@ -66,20 +76,31 @@ fn parse_row<const C: usize>(path: &Path, line: usize, text: &str) -> Result<[f6
     Ok(std::array::from_fn(|k| values[k]))
 }
 
+/// A record's header `(i, j, n)` and its matrix.
+type Record<const R: usize> = ((usize, usize, usize), SMatrix<f64, R, R>);
+
 /// Parses records of a header plus a `R x R` matrix.
-fn parse_records<const R: usize>(text: &str, path: &Path) -> Result<Vec<((usize, usize, usize), SMatrix<f64, R, R>)>> {
+fn parse_records<const R: usize>(text: &str, path: &Path) -> Result<Vec<Record<R>>> {
     let mut lines = data_lines(text);
     let mut out = Vec::new();
     let mut seen: HashMap<(usize, usize), usize> = HashMap::new();
     while let Some((line, header)) = lines.next() {
         let (i, j, n) = parse_header(path, line, header)?;
         if let Some(first) = seen.insert((i, j), line) {
-            return Err(Error::parse(path, format!("line {line}"), format!("duplicate record for pair ({i}, {j}) (first at line {first})")));
+            return Err(Error::parse(
+                path,
+                format!("line {line}"),
+                format!("duplicate record for pair ({i}, {j}) (first at line {first})"),
+            ));
         }
         let mut m = SMatrix::<f64, R, R>::zeros();
         for r in 0..R {
             let Some((row_line, row)) = lines.next() else {
-                return Err(Error::parse(path, format!("line {line}"), format!("record ({i}, {j}) is truncated: {r} of {R} matrix rows")));
+                return Err(Error::parse(
+                    path,
+                    format!("line {line}"),
+                    format!("record ({i}, {j}) is truncated: {r} of {R} matrix rows"),
+                ));
             };
             let values = parse_row::<R>(path, row_line, row)?;
             for (c, v) in values.into_iter().enumerate() {
@@ -122,7 +143,9 @@ pub fn format_e(x: f64) -> String {
     format!("{:>15}", format!("{mantissa}e{sign}{:02}", exp.abs()))
 }
 
-fn format_records<const R: usize>(records: impl Iterator<Item = ((usize, usize, usize), SMatrix<f64, R, R>)>) -> String {
+fn format_records<const R: usize>(
+    records: impl Iterator<Item = ((usize, usize, usize), SMatrix<f64, R, R>)>,
+) -> String {
     let mut out = String::new();
     for ((i, j, n), m) in records {
         out.push_str(&format!("{i}\t{j}\t{n}\n"));

@@ -76,10 +76,11 @@ pub fn information_matrix(points: &[[f64; 3]]) -> Matrix6<f64> {
     info
 }
 
-/// Geodesic angle between the rotations of two transforms, in degrees.
+/// Geodesic angle between the rotations of two transforms, in degrees (atan2 form, accurate near 0 and 180).
 pub fn rotation_error_deg(a: &Matrix4<f64>, b: &Matrix4<f64>) -> f64 {
     let r = a.fixed_view::<3, 3>(0, 0).transpose() * b.fixed_view::<3, 3>(0, 0);
-    (((r.trace() - 1.0) / 2.0).clamp(-1.0, 1.0)).acos().to_degrees()
+    let sin = 0.5 * Vector3::new(r[(2, 1)] - r[(1, 2)], r[(0, 2)] - r[(2, 0)], r[(1, 0)] - r[(0, 1)]).norm();
+    sin.atan2((r.trace() - 1.0) / 2.0).to_degrees()
 }
 
 /// Distance between the translations of two transforms.
@@ -101,7 +102,11 @@ pub fn rmse_between(points: &[[f32; 3]], a: &Matrix4<f64>, b: &Matrix4<f64>) -> 
 
 /// Feature-match inliers (spec 3.6): correspondences `(x_i, x_j)` (target / fragment-i point, source /
 /// fragment-j point) with |x_i − T_ij x_j| < `tau1` (strict).
-pub fn count_feature_inliers(pairs: impl IntoIterator<Item = ([f32; 3], [f32; 3])>, gt: &Matrix4<f64>, tau1: f64) -> usize {
+pub fn count_feature_inliers(
+    pairs: impl IntoIterator<Item = ([f32; 3], [f32; 3])>,
+    gt: &Matrix4<f64>,
+    tau1: f64,
+) -> usize {
     let (r, t) = (gt.fixed_view::<3, 3>(0, 0).into_owned(), gt.fixed_view::<3, 1>(0, 3).into_owned());
     pairs
         .into_iter()
@@ -132,7 +137,12 @@ mod tests {
             let r = m.fixed_view::<3, 3>(0, 0).into_owned();
             let q = quaternion_from_rotation(&r);
             let w = 0.5 * (1.0 + r.trace()).sqrt();
-            let expected = [w, (r[(2, 1)] - r[(1, 2)]) / (4.0 * w), (r[(0, 2)] - r[(2, 0)]) / (4.0 * w), (r[(1, 0)] - r[(0, 1)]) / (4.0 * w)];
+            let expected = [
+                w,
+                (r[(2, 1)] - r[(1, 2)]) / (4.0 * w),
+                (r[(0, 2)] - r[(2, 0)]) / (4.0 * w),
+                (r[(1, 0)] - r[(0, 1)]) / (4.0 * w),
+            ];
             for k in 0..4 {
                 assert!((q[k] - expected[k]).abs() < 1e-12, "{deg}: {q:?} vs {expected:?}");
             }

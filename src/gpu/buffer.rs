@@ -103,10 +103,7 @@ pub fn map_staging(ctx: &GpuContext, staging: &wgpu::Buffer, submission: wgpu::S
     rx.recv()
         .map_err(|_| Error::Gpu("readback callback never ran".into()))?
         .map_err(|e| Error::Gpu(format!("mapping a readback buffer: {e}")))?;
-    let bytes = staging
-        .get_mapped_range(..)
-        .map_err(|e| Error::Gpu(format!("reading a mapped buffer: {e}")))?
-        .to_vec();
+    let bytes = staging.get_mapped_range(..).map_err(|e| Error::Gpu(format!("reading a mapped buffer: {e}")))?.to_vec();
     staging.unmap();
     Ok(bytes)
 }

@@ -22,8 +22,11 @@ pub const MAX_BUFFER_ENV: &str = "DPR_GPU_MAX_BUFFER_MIB";
 /// Default per-buffer cap: enough for 5000 patches x 2048 points chunked, small enough for any GPU.
 pub const DEFAULT_MAX_BUFFER_MIB: u64 = 128;
 
+/// Reads one limit as a u64.
+type LimitGetter = fn(&wgpu::Limits) -> u64;
+
 /// Limits the kernels need, with the minimum value each needs.
-const REQUIRED_LIMITS: &[(&str, fn(&wgpu::Limits) -> u64, u64)] = &[
+const REQUIRED_LIMITS: &[(&str, LimitGetter, u64)] = &[
     ("max_bind_groups", |l| l.max_bind_groups.into(), 1),
     ("max_storage_buffers_per_shader_stage", |l| l.max_storage_buffers_per_shader_stage.into(), 6),
     ("max_uniform_buffers_per_shader_stage", |l| l.max_uniform_buffers_per_shader_stage.into(), 1),
@@ -155,7 +158,14 @@ impl GpuContext {
             .copied()
             .collect::<Vec<_>>()
             .join(" ");
-        format!("{} ({:?}, {:?}{}{})", i.name, i.backend, i.device_type, if driver.is_empty() { "" } else { ", " }, driver)
+        format!(
+            "{} ({:?}, {:?}{}{})",
+            i.name,
+            i.backend,
+            i.device_type,
+            if driver.is_empty() { "" } else { ", " },
+            driver
+        )
     }
 
     /// Largest buffer (and storage binding) the chunking may create, in bytes: the smallest of the device's
@@ -202,22 +212,20 @@ impl GpuContext {
 /// The adapter named by `WGPU_ADAPTER_NAME`, else the default high-performance one.
 fn pick_adapter(instance: &wgpu::Instance, backends: wgpu::Backends) -> Result<wgpu::Adapter> {
     let adapters = pollster::block_on(instance.enumerate_adapters(backends));
-    let names = || adapters.iter().map(|a| format!("{} ({:?})", a.get_info().name, a.get_info().backend)).collect::<Vec<_>>();
+    let names =
+        || adapters.iter().map(|a| format!("{} ({:?})", a.get_info().name, a.get_info().backend)).collect::<Vec<_>>();
     if let Ok(wanted) = std::env::var("WGPU_ADAPTER_NAME") {
         let wanted_lc = wanted.to_lowercase();
-        return adapters
-            .iter()
-            .find(|a| a.get_info().name.to_lowercase().contains(&wanted_lc))
-            .cloned()
-            .ok_or_else(|| Error::Gpu(format!("WGPU_ADAPTER_NAME={wanted} matches none of the adapters {:?}", names())));
+        return adapters.iter().find(|a| a.get_info().name.to_lowercase().contains(&wanted_lc)).cloned().ok_or_else(
+            || Error::Gpu(format!("WGPU_ADAPTER_NAME={wanted} matches none of the adapters {:?}", names())),
+        );
     }
     let options = wgpu::RequestAdapterOptions {
         power_preference: wgpu::PowerPreference::from_env().unwrap_or(wgpu::PowerPreference::HighPerformance),
         ..Default::default()
     };
-    pollster::block_on(instance.request_adapter(&options)).map_err(|e| {
-        Error::Gpu(format!("no GPU adapter on backends {backends:?} ({e}); adapters seen: {:?}", names()))
-    })
+    pollster::block_on(instance.request_adapter(&options))
+        .map_err(|e| Error::Gpu(format!("no GPU adapter on backends {backends:?} ({e}); adapters seen: {:?}", names())))
 }
 
 #[cfg(test)]

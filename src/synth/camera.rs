@@ -132,7 +132,12 @@ pub struct MotionModel {
 
 impl Default for MotionModel {
     fn default() -> Self {
-        MotionModel { yaw_per_fragment_deg: [15.0, 40.0], pitch_deg: [-35.0, -5.0], height: [1.2, 1.8], wall_margin: 0.4 }
+        MotionModel {
+            yaw_per_fragment_deg: [15.0, 40.0],
+            pitch_deg: [-35.0, -5.0],
+            height: [1.2, 1.8],
+            wall_margin: 0.4,
+        }
     }
 }
 
@@ -211,7 +216,8 @@ mod tests {
     #[test]
     fn a_wall_in_front_is_seen_at_its_depth_with_noise_and_facing_normals() {
         // A big wall 2 m in front of a camera at the origin looking along +x.
-        let wall = Object::new("wall", vec![Primitive::cuboid(Vector3::new(2.5, 0.0, 0.0), Vector3::new(0.5, 5.0, 5.0), 0.0)]);
+        let wall =
+            Object::new("wall", vec![Primitive::cuboid(Vector3::new(2.5, 0.0, 0.0), Vector3::new(0.5, 5.0, 5.0), 0.0)]);
         let cam = CameraModel { width: 40, height: 30, ..CameraModel::default() };
         let pose = look_pose(Vector3::zeros(), 0.0, 0.0, 0.0);
         let pts = cam.scan(&[wall], &pose, &Matrix4::identity(), &mut Rng::new(1));
@@ -224,7 +230,10 @@ mod tests {
     #[test]
     fn grazing_and_out_of_range_returns_are_missing() {
         // A floor seen almost edge-on beyond the incidence limit, and a wall beyond the range.
-        let floor = Object::new("floor", vec![Primitive::cuboid(Vector3::new(0.0, 0.0, -0.35), Vector3::new(20.0, 20.0, 0.05), 0.0)]);
+        let floor = Object::new(
+            "floor",
+            vec![Primitive::cuboid(Vector3::new(0.0, 0.0, -0.35), Vector3::new(20.0, 20.0, 0.05), 0.0)],
+        );
         let cam = CameraModel { width: 40, height: 30, dropout: 0.0, ..CameraModel::default() };
         let pose = look_pose(Vector3::zeros(), 0.0, 0.0, 0.0);
         let pts = cam.scan(std::slice::from_ref(&floor), &pose, &Matrix4::identity(), &mut Rng::new(2));
@@ -237,7 +246,8 @@ mod tests {
             assert!(p[1] / norm > cos_max - 0.01, "{p:?}");
             assert!(n[1] < -0.999, "{n:?}");
         }
-        let far = Object::new("wall", vec![Primitive::cuboid(Vector3::new(6.0, 0.0, 0.0), Vector3::new(0.5, 5.0, 5.0), 0.0)]);
+        let far =
+            Object::new("wall", vec![Primitive::cuboid(Vector3::new(6.0, 0.0, 0.0), Vector3::new(0.5, 5.0, 5.0), 0.0)]);
         assert!(cam.scan(&[far], &pose, &Matrix4::identity(), &mut Rng::new(3)).is_empty());
     }
 }

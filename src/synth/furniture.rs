@@ -270,10 +270,11 @@ pub fn cabinet(rng: &mut Rng) -> Furniture {
 /// A desk with a monitor on a stand and a keyboard.
 pub fn desk(rng: &mut Rng) -> Furniture {
     let mut f = table(rng);
-    let top = f.parts[0].center.z + match f.parts[0].shape {
-        super::geometry::Shape::Cuboid { half } => half.z,
-        _ => 0.0,
-    };
+    let top = f.parts[0].center.z
+        + match f.parts[0].shape {
+            super::geometry::Shape::Cuboid { half } => half.z,
+            _ => 0.0,
+        };
     let [hx, hy] = f.half;
     // Remove clutter that could collide with the monitor: keep the structure only, then add the screen.
     f.parts.retain(|p| p.center.z < top - 1e-9);
@@ -394,9 +395,8 @@ mod tests {
 
     #[test]
     fn every_builder_stays_inside_its_footprint_and_above_the_floor() {
-        let builders: [fn(&mut Rng) -> Furniture; 13] = [
-            table, round_table, chair, shelf, sofa, cabinet, desk, bed, box_stack, bin, ball, floor_lamp, plant,
-        ];
+        let builders: [fn(&mut Rng) -> Furniture; 13] =
+            [table, round_table, chair, shelf, sofa, cabinet, desk, bed, box_stack, bin, ball, floor_lamp, plant];
         for seed in 0..20 {
             let mut rng = Rng::new(seed);
             for b in builders {

@@ -216,8 +216,7 @@ fn intersect_cuboid(o: &Vector3<f64>, d: &Vector3<f64>, half: &Vector3<f64>) -> 
 /// facing the ray (when the entry point is inside the disc).
 fn intersect_cylinder(o: &Vector3<f64>, d: &Vector3<f64>, r: f64, hh: f64) -> Option<(f64, Vector3<f64>)> {
     let mut best: Option<(f64, Vector3<f64>)> = None;
-    if let Some(t) = entry_root(d.x * d.x + d.y * d.y, 2.0 * (o.x * d.x + o.y * d.y), o.x * o.x + o.y * o.y - r * r)
-    {
+    if let Some(t) = entry_root(d.x * d.x + d.y * d.y, 2.0 * (o.x * d.x + o.y * d.y), o.x * o.x + o.y * o.y - r * r) {
         let p = o + d * t;
         if p.z.abs() <= hh {
             best = Some((t, Vector3::new(p.x / r, p.y / r, 0.0)));

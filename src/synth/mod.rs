@@ -11,8 +11,8 @@
 //! collected in order, so thread scheduling does not matter.
 
 pub mod camera;
-pub mod fuse;
 pub mod furniture;
+pub mod fuse;
 pub mod geometry;
 pub mod room;
 
@@ -300,14 +300,22 @@ mod tests {
         assert_eq!(a.fragments, b.fragments);
         assert_eq!(a.world_from_fragment, b.world_from_fragment);
         assert_ne!(a.fragments, c.fragments);
-        assert!(a.fragments.iter().all(|f| f.len() > 1000), "{:?}", a.fragments.iter().map(|f| f.len()).collect::<Vec<_>>());
+        assert!(
+            a.fragments.iter().all(|f| f.len() > 1000),
+            "{:?}",
+            a.fragments.iter().map(|f| f.len()).collect::<Vec<_>>()
+        );
     }
 
     #[test]
     fn consecutive_fragments_overlap_under_the_ground_truth() {
         let scene = generate_scene(11, &tiny()).unwrap();
         let gt = scene.ground_truth(&GroundTruthRule::default(), 0);
-        assert!(gt.iter().any(|p| p.i == 0 && p.j == 1), "{:?}", gt.iter().map(|p| (p.i, p.j, p.overlap)).collect::<Vec<_>>());
+        assert!(
+            gt.iter().any(|p| p.i == 0 && p.j == 1),
+            "{:?}",
+            gt.iter().map(|p| (p.i, p.j, p.overlap)).collect::<Vec<_>>()
+        );
         for p in &gt {
             assert!(p.overlap >= 0.3 && p.information[(0, 0)] > 100.0);
             assert!((p.transform - scene.relative_pose(p.i, p.j)).norm() < 1e-12);

@@ -51,7 +51,9 @@ impl Footprint {
         let (ca, cb) = (self.corners(), other.corners());
         for axis in self.axes().into_iter().chain(other.axes()) {
             let proj = |cs: &[[f64; 2]; 4]| {
-                cs.iter().map(|c| c[0] * axis[0] + c[1] * axis[1]).fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| (lo.min(x), hi.max(x)))
+                cs.iter()
+                    .map(|c| c[0] * axis[0] + c[1] * axis[1])
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| (lo.min(x), hi.max(x)))
             };
             let ((a0, a1), (b0, b1)) = (proj(&ca), proj(&cb));
             if a1 + clearance < b0 || b1 + clearance < a0 {
@@ -147,7 +149,15 @@ impl Room {
     }
 
     /// Places `f` at (x, y) with `yaw` when it fits; returns its footprint index.
-    fn place(&mut self, f: &Furniture, x: f64, y: f64, yaw: f64, clearance: f64, ignore: Option<usize>) -> Option<usize> {
+    fn place(
+        &mut self,
+        f: &Furniture,
+        x: f64,
+        y: f64,
+        yaw: f64,
+        clearance: f64,
+        ignore: Option<usize>,
+    ) -> Option<usize> {
         let fp = Footprint { center: [x, y], half: f.half, yaw, height: f.height };
         if !self.fits(&fp, clearance, ignore) {
             return None;
@@ -220,10 +230,7 @@ pub fn generate_room(rng: &mut Rng) -> Room {
         (vec![[0.0, 0.0], [w, 0.0], [w, d], [0.0, d]], [w / 2.0, d / 2.0])
     } else {
         let (a, b) = (w * rng.uniform(0.3, 0.5), d * rng.uniform(0.3, 0.5));
-        (
-            vec![[0.0, 0.0], [w, 0.0], [w, d - b], [w - a, d - b], [w - a, d], [0.0, d]],
-            [(w - a) / 2.0, (d - b) / 2.0],
-        )
+        (vec![[0.0, 0.0], [w, 0.0], [w, d - b], [w - a, d - b], [w - a, d], [0.0, d]], [(w - a) / 2.0, (d - b) / 2.0])
     };
     let mut room = Room { polygon, height, kernel_center, objects: Vec::new(), footprints: Vec::new() };
     build_shell(&mut room, rng);
@@ -360,7 +367,8 @@ fn build_shell(room: &mut Room, rng: &mut Rng) {
         let ph = pw * rng.uniform(0.5, 1.2);
         let z = rng.uniform(1.3, 1.8).min(h - ph / 2.0 - 0.15);
         let depth = rng.uniform(0.01, 0.04);
-        room.objects.push(Object::new("picture", vec![wall_box(a, b, s, pw / 2.0, 0.0, depth, z - ph / 2.0, z + ph / 2.0)]));
+        room.objects
+            .push(Object::new("picture", vec![wall_box(a, b, s, pw / 2.0, 0.0, depth, z - ph / 2.0, z + ph / 2.0)]));
     }
     // Sometimes a pillar in a wall.
     if rng.below(4) == 0
@@ -378,6 +386,47 @@ fn build_shell(room: &mut Room, rng: &mut Rng) {
             room.footprints.push(Footprint { center: [c.x, c.y], half: [pw / 2.0, pd / 2.0], yaw, height: h });
         }
     }
+    // Wall shelves: a board on two brackets holding clutter, or a wall cabinet.
+    for _ in 0..rng.below(4) {
+        let Some(k) = pick_edge(rng, 1.0) else { continue };
+        let (a, b) = edges[k];
+        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let sw = rng.uniform(0.5, 1.2).min(len - 0.3);
+        let s = rng.uniform(sw / 2.0 + 0.1, len - sw / 2.0 - 0.1);
+        if !free(&fixtures[k], s - sw / 2.0, s + sw / 2.0) {
+            continue;
+        }
+        let depth = rng.uniform(0.18, 0.32);
+        let z = rng.uniform(1.1, 1.7).min(h - 0.5);
+        let yaw = (b[1] - a[1]).atan2(b[0] - a[0]);
+        let mut parts = Vec::new();
+        let top = if rng.below(3) == 0 {
+            // A closed wall cabinet.
+            let ch = rng.uniform(0.35, 0.6);
+            parts.push(wall_box(a, b, s, sw / 2.0, 0.0, depth, z, z + ch));
+            parts.push(wall_box(a, b, s - sw / 4.0, sw / 4.0 - 0.005, depth, depth + 0.015, z + 0.01, z + ch - 0.01));
+            parts.push(wall_box(a, b, s + sw / 4.0, sw / 4.0 - 0.005, depth, depth + 0.015, z + 0.01, z + ch - 0.01));
+            z + ch
+        } else {
+            let t = rng.uniform(0.018, 0.03);
+            parts.push(wall_box(a, b, s, sw / 2.0, 0.0, depth, z - t, z));
+            for side in [-1.0, 1.0] {
+                parts.push(wall_box(a, b, s + side * sw * 0.35, 0.01, 0.0, depth * 0.8, z - t - 0.12, z - t));
+            }
+            // Clutter in the board's frame: local x along the wall, local y into the room.
+            let rot = rot_z(yaw);
+            let origin = on_wall(a, b, s, depth / 2.0, 0.0);
+            let count = 1 + rng.below(5);
+            for p in furniture::clutter(rng, sw / 2.0, depth / 2.0, z, count, 0.3) {
+                parts.push(p.placed(&rot, &origin));
+            }
+            z + 0.3
+        };
+        fixtures[k].push((s - sw / 2.0, s + sw / 2.0));
+        room.objects.push(Object::new("wall shelf", parts));
+        let c = on_wall(a, b, s, depth / 2.0, 0.0);
+        room.footprints.push(Footprint { center: [c.x, c.y], half: [sw / 2.0, depth / 2.0], yaw, height: top });
+    }
     // A ceiling light: a flat disc or a pendant sphere on a cord.
     let c = room.kernel_center;
     let light = if rng.below(2) == 0 {
@@ -385,7 +434,7 @@ fn build_shell(room: &mut Room, rng: &mut Rng) {
         vec![Primitive::upright_cylinder(v(c[0], c[1], h - 0.04), r, 0.04)]
     } else {
         let r = rng.uniform(0.1, 0.2);
-        let drop = rng.uniform(0.4, 0.7);
+        let drop = rng.uniform(0.15, 0.35);
         vec![
             Primitive::upright_cylinder(v(c[0], c[1], h - drop / 2.0), 0.005, drop / 2.0),
             Primitive::sphere(v(c[0], c[1], h - drop - r), r),
@@ -397,7 +446,7 @@ fn build_shell(room: &mut Room, rng: &mut Rng) {
 /// Furniture against the walls, then table groups and small free-standing things.
 fn furnish(room: &mut Room, rng: &mut Rng) {
     let perimeter: f64 = room.edges().map(|(a, b)| (b[0] - a[0]).hypot(b[1] - a[1])).sum();
-    let wall_items = (perimeter / 2.5) as usize + rng.below(3);
+    let wall_items = (perimeter / 1.5) as usize + rng.below(3);
     for _ in 0..wall_items {
         let f = match rng.below(10) {
             0..=2 => furniture::shelf(rng),
@@ -413,7 +462,7 @@ fn furnish(room: &mut Room, rng: &mut Rng) {
     // One or two table groups with chairs around.
     for _ in 0..1 + rng.below(2) {
         let table = if rng.below(3) == 0 { furniture::round_table(rng) } else { furniture::table(rng) };
-        let Some(ti) = room.place_free(rng, &table, 1.0) else { continue };
+        let Some(ti) = room.place_free(rng, &table, 0.5) else { continue };
         let fp = room.footprints[ti];
         let r = rot_z(fp.yaw);
         let n_chairs = rng.below(5);
@@ -431,7 +480,7 @@ fn furnish(room: &mut Room, rng: &mut Rng) {
     }
     let (lo, hi) = room.bounds();
     let area = (hi[0] - lo[0]) * (hi[1] - lo[1]);
-    for _ in 0..(area / 5.0) as usize + rng.below(4) {
+    for _ in 0..(area / 2.5) as usize + rng.below(4) {
         let f = match rng.below(7) {
             0 | 1 => furniture::box_stack(rng),
             2 => furniture::bin(rng),

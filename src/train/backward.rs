@@ -102,7 +102,7 @@ impl FoldIndex {
 }
 
 /// Runs `dense_backward` for layer `index` with the given inputs, accumulating into `grads.layers[index]`.
-#[allow(clippy::too_many_arguments)]
+#[expect(clippy::too_many_arguments, reason = "BLAS-style and layer-shaped signatures")]
 fn layer_backward(
     w: &LayerWeights<'_>,
     grads: &mut Gradients,
@@ -129,7 +129,7 @@ fn layer_backward(
 /// A chain of plain layers `first..first + outs.len()` (outputs `outs`), ReLU
 /// on those for which `relu(i)`: back-propagates `d_last` (w.r.t. the last output) down to the gradient w.r.t.
 /// the first layer's output, which it returns; the first layer itself is left to the caller.
-#[allow(clippy::too_many_arguments)]
+#[expect(clippy::too_many_arguments, reason = "BLAS-style and layer-shaped signatures")]
 fn chain_backward(
     w: &LayerWeights<'_>,
     grads: &mut Gradients,
@@ -201,7 +201,7 @@ pub fn encode_backward(
 
 /// Back-propagates through one fold; `x` is the per-point input of its first layer; returns the gradient
 /// w.r.t. `x` when `want_x`, and adds the codeword gradient into `d_codeword`.
-#[allow(clippy::too_many_arguments)]
+#[expect(clippy::too_many_arguments, reason = "BLAS-style and layer-shaped signatures")]
 fn fold_backward(
     w: &LayerWeights<'_>,
     grads: &mut Gradients,
@@ -230,7 +230,7 @@ fn fold_backward(
 
 /// Back-propagates through the decoder: `d_recon` is the loss gradient w.r.t. the reconstruction; the codeword
 /// gradient is added into `d_codeword`. `base` is the network's first layer index.
-#[allow(clippy::too_many_arguments)]
+#[expect(clippy::too_many_arguments, reason = "BLAS-style and layer-shaped signatures")]
 pub fn decode_backward(
     net: &FoldNet,
     w: &LayerWeights<'_>,
@@ -251,7 +251,7 @@ pub fn decode_backward(
 
 /// Back-propagates through RelativeNet from `d_raw` (gradient w.r.t. the raw 4-vectors); returns the
 /// gradients w.r.t. the source and target features. `base` is RelativeNet's first layer index.
-#[allow(clippy::too_many_arguments)]
+#[expect(clippy::too_many_arguments, reason = "BLAS-style and layer-shaped signatures")]
 pub fn relative_backward(
     net: &RelativeNet,
     w: &LayerWeights<'_>,

@@ -1,17 +1,12 @@
-//! The matrix kernels of training: one register-blocked multiply-accumulate, compiled three times (baseline,
-//! AVX2, AVX-512) and picked at run time, because the crate is built for baseline x86-64 and training is
-//! bound by these loops.
+//! The matrix kernel of training: one blocked multiply-accumulate with an AVX-512 and an AVX2 micro-kernel
+//! picked at run time (the crate is built for baseline x86-64, and training is bound by these loops), and a
+//! portable one elsewhere.
 //!
-//! Every output element is computed in the same order on every path: the starting value, then the products
-//! added one by one in increasing `p`, each as a separate multiply and add (Rust never contracts to FMA), so the
-//! three paths give bit-identical results and [`dense`] gives exactly what `crate::cpu::dense::dense` gives.
+//! Every output element is computed in the same order on every path: its starting value, then the products
+//! added one by one in increasing `p`, each as a separate multiply and add (never a fused multiply-add), so all
+//! paths give bit-identical results and [`dense`] gives exactly what `crate::cpu::dense::dense` gives.
 
 use crate::cpu::dense::DenseShape;
-
-/// Rows of the output computed together.
-const MR: usize = 4;
-/// Output columns computed together (two AVX-512 or four AVX2 registers per row).
-const NR: usize = 32;
 
 /// What the kernel does with the product `A · B` for each output element.
 #[derive(Clone, Copy)]
@@ -23,21 +18,52 @@ enum Epilogue<'a> {
     Dense { group: &'a [f32], rows_per_group: usize, accumulate: bool, relu: bool },
 }
 
-/// Sizes and strides of `A` (`m x k`, row stride `lda`) and `B` (`k x n`, row stride `ldb`).
+/// Sizes and strides of `A` (`m x k`; element (i, p) at `a[i * sa + p * sp]`) and `B` (`k x n`, row stride
+/// `ldb`).
 #[derive(Clone, Copy)]
 struct Operands<'a> {
     m: usize,
     n: usize,
     k: usize,
     a: &'a [f32],
-    lda: usize,
+    sa: usize,
+    sp: usize,
     b: &'a [f32],
     ldb: usize,
 }
 
+/// A full-tile micro-kernel: `acc[i][j] += sum_p a[i * sa + p * sp] * b[p * ldb + j]` for an `MR x NR` tile,
+/// the products added in increasing `p`. Callers guarantee `a` and `b` cover the tile.
+type Micro<const MR: usize, const NR: usize> =
+    unsafe fn(usize, &[f32], [usize; 2], &[f32], usize, &mut [[f32; NR]; MR]);
+
+/// The portable tile loop (also used for partial tiles): `rn x cn` of the tile.
 #[inline(always)]
-fn body(op: &Operands<'_>, c: &mut [f32], ldc: usize, epi: Epilogue<'_>) {
-    let Operands { m, n, k, a, lda, b, ldb } = *op;
+#[expect(clippy::too_many_arguments, reason = "BLAS-style and layer-shaped signatures")]
+fn tile_loop<const MR: usize, const NR: usize>(
+    k: usize,
+    a: &[f32],
+    [sa, sp]: [usize; 2],
+    b: &[f32],
+    ldb: usize,
+    acc: &mut [[f32; NR]; MR],
+    rn: usize,
+    cn: usize,
+) {
+    for p in 0..k {
+        let w = &b[p * ldb..][..cn];
+        for (i, acc_row) in acc.iter_mut().enumerate().take(rn) {
+            let xv = a[i * sa + p * sp];
+            for (s, &wv) in acc_row[..cn].iter_mut().zip(w) {
+                *s += xv * wv;
+            }
+        }
+    }
+}
+
+#[inline(always)]
+fn body<const MR: usize, const NR: usize>(op: &Operands<'_>, c: &mut [f32], ldc: usize, epi: Epilogue<'_>, micro: Option<Micro<MR, NR>>) {
+    let Operands { m, n, k, a, sa, sp, b, ldb } = *op;
     // Column strips outermost so a strip of B (k x NR) stays in cache while every row block streams past it.
     for c0 in (0..n).step_by(NR) {
         let cn = NR.min(n - c0);
@@ -61,27 +87,13 @@ fn body(op: &Operands<'_>, c: &mut [f32], ldc: usize, epi: Epilogue<'_>) {
                     }
                 }
             }
-            if cn == NR && rn == MR {
-                // The hot path: fixed trip counts, so the accumulators stay in registers.
-                for p in 0..k {
-                    let w: &[f32; NR] = b[p * ldb + c0..][..NR].try_into().expect("NR columns");
-                    for (i, acc_row) in acc.iter_mut().enumerate() {
-                        let xv = a[(r0 + i) * lda + p];
-                        for (s, &wv) in acc_row.iter_mut().zip(w) {
-                            *s += xv * wv;
-                        }
-                    }
-                }
-            } else {
-                for p in 0..k {
-                    let w = &b[p * ldb + c0..][..cn];
-                    for (i, acc_row) in acc.iter_mut().enumerate().take(rn) {
-                        let xv = a[(r0 + i) * lda + p];
-                        for (s, &wv) in acc_row[..cn].iter_mut().zip(w) {
-                            *s += xv * wv;
-                        }
-                    }
-                }
+            // (With k = 0 the operands may be empty: nothing is read from them then.)
+            let (a_t, b_t) = (a.get(r0 * sa..).unwrap_or(&[]), b.get(c0..).unwrap_or(&[]));
+            match micro {
+                // SAFETY: a full tile; `run` checked that A and B cover every tile, and the micro-kernel was
+                // chosen for a CPU feature that is present.
+                Some(f) if rn == MR && cn == NR && k > 0 => unsafe { f(k, a_t, [sa, sp], b_t, ldb, &mut acc) },
+                _ => tile_loop(k, a_t, [sa, sp], b_t, ldb, &mut acc, rn, cn),
             }
             let relu = matches!(epi, Epilogue::Dense { relu: true, .. });
             for (i, acc_row) in acc.iter().enumerate().take(rn) {
@@ -95,50 +107,159 @@ fn body(op: &Operands<'_>, c: &mut [f32], ldc: usize, epi: Epilogue<'_>) {
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-fn body_avx512(op: &Operands<'_>, c: &mut [f32], ldc: usize, epi: Epilogue<'_>) {
-    body(op, c, ldc, epi)
-}
+mod x86 {
+    use std::arch::x86_64::*;
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn body_avx2(op: &Operands<'_>, c: &mut [f32], ldc: usize, epi: Epilogue<'_>) {
-    body(op, c, ldc, epi)
+    /// 8 x 32 tile in 16 AVX-512 registers. Separate multiply and add, as the portable loop.
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn micro_avx512(k: usize, a: &[f32], [sa, sp]: [usize; 2], b: &[f32], ldb: usize, acc: &mut [[f32; 32]; 8]) {
+        debug_assert!(a.len() > 7 * sa + (k - 1) * sp && b.len() >= (k - 1) * ldb + 32);
+        let (pa, pb) = (a.as_ptr(), b.as_ptr());
+        // SAFETY (all pointer reads): the caller guarantees rows 0..8 of A hold k values and rows 0..k of B
+        // hold 32 values at these strides.
+        unsafe {
+            let mut c = [[_mm512_setzero_ps(); 2]; 8];
+            for i in 0..8 {
+                c[i][0] = _mm512_loadu_ps(acc[i].as_ptr());
+                c[i][1] = _mm512_loadu_ps(acc[i].as_ptr().add(16));
+            }
+            for p in 0..k {
+                let b0 = _mm512_loadu_ps(pb.add(p * ldb));
+                let b1 = _mm512_loadu_ps(pb.add(p * ldb + 16));
+                for i in 0..8 {
+                    let x = _mm512_set1_ps(*pa.add(i * sa + p * sp));
+                    c[i][0] = _mm512_add_ps(c[i][0], _mm512_mul_ps(x, b0));
+                    c[i][1] = _mm512_add_ps(c[i][1], _mm512_mul_ps(x, b1));
+                }
+            }
+            for i in 0..8 {
+                _mm512_storeu_ps(acc[i].as_mut_ptr(), c[i][0]);
+                _mm512_storeu_ps(acc[i].as_mut_ptr().add(16), c[i][1]);
+            }
+        }
+    }
+
+    /// 6 x 16 tile in 12 AVX registers. Separate multiply and add, as the portable loop.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn micro_avx2(k: usize, a: &[f32], [sa, sp]: [usize; 2], b: &[f32], ldb: usize, acc: &mut [[f32; 16]; 6]) {
+        debug_assert!(a.len() > 5 * sa + (k - 1) * sp && b.len() >= (k - 1) * ldb + 16);
+        let (pa, pb) = (a.as_ptr(), b.as_ptr());
+        // SAFETY (all pointer reads): the caller guarantees rows 0..6 of A hold k values and rows 0..k of B
+        // hold 16 values at these strides.
+        unsafe {
+            let mut c = [[_mm256_setzero_ps(); 2]; 6];
+            for i in 0..6 {
+                c[i][0] = _mm256_loadu_ps(acc[i].as_ptr());
+                c[i][1] = _mm256_loadu_ps(acc[i].as_ptr().add(8));
+            }
+            for p in 0..k {
+                let b0 = _mm256_loadu_ps(pb.add(p * ldb));
+                let b1 = _mm256_loadu_ps(pb.add(p * ldb + 8));
+                for i in 0..6 {
+                    let x = _mm256_set1_ps(*pa.add(i * sa + p * sp));
+                    c[i][0] = _mm256_add_ps(c[i][0], _mm256_mul_ps(x, b0));
+                    c[i][1] = _mm256_add_ps(c[i][1], _mm256_mul_ps(x, b1));
+                }
+            }
+            for i in 0..6 {
+                _mm256_storeu_ps(acc[i].as_mut_ptr(), c[i][0]);
+                _mm256_storeu_ps(acc[i].as_mut_ptr().add(8), c[i][1]);
+            }
+        }
+    }
+
+    #[target_feature(enable = "avx512f")]
+    pub(super) fn body_avx512(op: &super::Operands<'_>, c: &mut [f32], ldc: usize, epi: super::Epilogue<'_>) {
+        super::body::<8, 32>(op, c, ldc, epi, Some(micro_avx512))
+    }
+
+    #[target_feature(enable = "avx2")]
+    pub(super) fn body_avx2(op: &super::Operands<'_>, c: &mut [f32], ldc: usize, epi: super::Epilogue<'_>) {
+        super::body::<6, 16>(op, c, ldc, epi, Some(micro_avx2))
+    }
 }
 
 fn run(op: &Operands<'_>, c: &mut [f32], ldc: usize, epi: Epilogue<'_>) {
     if op.m == 0 || op.n == 0 {
         return;
     }
-    assert!(op.a.len() >= (op.m - 1) * op.lda + op.k, "gemm: A too short");
+    assert!(op.k == 0 || op.a.len() > (op.m - 1) * op.sa + (op.k - 1) * op.sp, "gemm: A too short");
     assert!(op.k == 0 || op.b.len() >= (op.k - 1) * op.ldb + op.n, "gemm: B too short");
     assert!(c.len() >= (op.m - 1) * ldc + op.n, "gemm: C too short");
     #[cfg(target_arch = "x86_64")]
     {
         if std::arch::is_x86_feature_detected!("avx512f") {
             // SAFETY: the CPU supports AVX-512F (checked just above).
-            return unsafe { body_avx512(op, c, ldc, epi) };
+            return unsafe { x86::body_avx512(op, c, ldc, epi) };
         }
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2 (checked just above).
-            return unsafe { body_avx2(op, c, ldc, epi) };
+            return unsafe { x86::body_avx2(op, c, ldc, epi) };
         }
     }
-    body(op, c, ldc, epi)
+    body::<4, 64>(op, c, ldc, epi, None)
 }
 
 /// `c[i * ldc + j] += sum_p a[i * lda + p] * b[p * ldb + j]` for `i < m`, `j < n`, `p < k`.
 ///
 /// Panics when a slice is too short for the sizes and strides (an internal invariant of the callers).
-#[allow(clippy::too_many_arguments)]
+#[expect(clippy::too_many_arguments, reason = "BLAS-style and layer-shaped signatures")]
 pub fn gemm_acc(m: usize, n: usize, k: usize, a: &[f32], lda: usize, b: &[f32], ldb: usize, c: &mut [f32], ldc: usize) {
-    run(&Operands { m, n, k, a, lda, b, ldb }, c, ldc, Epilogue::Accumulate);
+    run(&Operands { m, n, k, a, sa: lda, sp: 1, b, ldb }, c, ldc, Epilogue::Accumulate);
+}
+
+/// [`gemm_acc`] with `A` stored transposed: `c[i * ldc + j] += sum_p a[p * lda + i] * b[p * ldb + j]`.
+#[expect(clippy::too_many_arguments, reason = "BLAS-style and layer-shaped signatures")]
+pub fn gemm_acc_at(m: usize, n: usize, k: usize, a: &[f32], lda: usize, b: &[f32], ldb: usize, c: &mut [f32], ldc: usize) {
+    run(&Operands { m, n, k, a, sa: 1, sp: lda, b, ldb }, c, ldc, Epilogue::Accumulate);
 }
 
 /// Exactly `crate::cpu::dense::dense` (same arguments, bit-identical results), vectorised for the CPU at hand.
 pub fn dense(shape: &DenseShape, x: &[f32], w_t: &[f32], group_term: &[f32], out: &mut [f32]) {
     let DenseShape { rows, in_dim, out_dim, rows_per_group, accumulate, relu } = *shape;
-    let op = Operands { m: rows, n: out_dim, k: in_dim, a: x, lda: in_dim, b: w_t, ldb: out_dim };
+    let op = Operands { m: rows, n: out_dim, k: in_dim, a: x, sa: in_dim, sp: 1, b: w_t, ldb: out_dim };
     let epi = Epilogue::Dense { group: group_term, rows_per_group: rows_per_group.max(1), accumulate, relu };
     run(&op, out, out_dim, epi);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+
+    #[test]
+    fn every_path_matches_the_portable_loop_bit_for_bit() {
+        let mut rng = Rng::new(1);
+        for &(m, n, k) in &[(1, 1, 1), (8, 32, 5), (13, 70, 33), (17, 47, 64), (6, 16, 0), (40, 100, 9)] {
+            let mut v = |len: usize| (0..len).map(|_| rng.normal() as f32).collect::<Vec<f32>>();
+            let (lda, ldb, ldc) = (k + 3, n + 5, n + 2);
+            let a = v(m * lda);
+            let b = v(k.max(1) * ldb);
+            let c0 = v(m * ldc);
+            let op = Operands { m, n, k, a: &a, sa: lda, sp: 1, b: &b, ldb };
+            let mut want = c0.clone();
+            body::<4, 64>(&op, &mut want, ldc, Epilogue::Accumulate, None);
+            let mut got = c0.clone();
+            run(&op, &mut got, ldc, Epilogue::Accumulate);
+            assert_eq!(got, want, "{m}x{n}x{k}");
+            // The same product with A stored transposed.
+            let mut a_t = vec![0.0; k.max(1) * m];
+            for i in 0..m {
+                for p in 0..k {
+                    a_t[p * m + i] = a[i * lda + p];
+                }
+            }
+            let mut got_t = c0.clone();
+            gemm_acc_at(m, n, k, &a_t, m, &b, ldb, &mut got_t, ldc);
+            assert_eq!(got_t, want, "transposed {m}x{n}x{k}");
+            // Against a plain f64 product too.
+            for i in 0..m {
+                for j in 0..n {
+                    let exact: f64 = c0[i * ldc + j] as f64
+                        + (0..k).map(|p| a[i * lda + p] as f64 * b[p * ldb + j] as f64).sum::<f64>();
+                    assert!((got[i * ldc + j] as f64 - exact).abs() < 1e-4 * (1.0 + exact.abs()));
+                }
+            }
+        }
+    }
 }

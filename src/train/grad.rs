@@ -5,7 +5,7 @@
 //! are *accumulated* into the buffers the caller passes, so several uses of a layer (or several samples) can
 //! share one gradient buffer.
 
-use super::gemm::gemm_acc;
+use super::gemm::{gemm_acc, gemm_acc_at};
 
 /// One per-row input slice of a dense layer: `x` is `rows x width`, and it multiplies the weight columns
 /// `offset..offset + width`.
@@ -52,17 +52,6 @@ pub fn relu_backward(out: &[f32], d_out: &[f32]) -> Vec<f32> {
     out.iter().zip(d_out).map(|(&y, &g)| if y > 0.0 { g } else { 0.0 }).collect()
 }
 
-/// `rows x cols` to `cols x rows`.
-pub fn transpose(x: &[f32], rows: usize, cols: usize) -> Vec<f32> {
-    let mut t = vec![0.0; x.len()];
-    for r in 0..rows {
-        for c in 0..cols {
-            t[c * rows + r] = x[r * cols + c];
-        }
-    }
-    t
-}
-
 /// Backward of one dense layer
 /// `out[r] = act(b + W_g · g[r / rows_per_group] + sum_s W_s · x_s[r])` over `rows` rows.
 ///
@@ -70,7 +59,7 @@ pub fn transpose(x: &[f32], rows: usize, cols: usize) -> Vec<f32> {
 /// loss w.r.t. it. `group` is the per-group input (`groups x width`, `groups = rows / rows_per_group`) with the
 /// weight columns it multiplies, or `None`. The gradient w.r.t. a per-group input sums over the group's rows;
 /// so does the weight gradient of its columns.
-#[allow(clippy::too_many_arguments)]
+#[expect(clippy::too_many_arguments, reason = "BLAS-style and layer-shaped signatures")]
 pub fn dense_backward(
     layer: &DenseLayer<'_>,
     rows: usize,
@@ -91,10 +80,9 @@ pub fn dense_backward(
         }
     }
     if !segments.is_empty() {
-        let dz_t = transpose(&dz, rows, n_out);
         for (s, seg) in segments.iter().enumerate() {
             // dW[:, off..off + w] += dz^T · x_s
-            gemm_acc(n_out, seg.width, rows, &dz_t, rows, seg.x, seg.width, &mut grads.weight[seg.offset..], n_in);
+            gemm_acc_at(n_out, seg.width, rows, &dz, n_out, seg.x, seg.width, &mut grads.weight[seg.offset..], n_in);
             // dx_s += dz · W[:, off..off + w]
             if let Some(Some(dx)) = grads.segments.get_mut(s) {
                 gemm_acc(rows, seg.width, n_out, &dz, n_out, &layer.weight[seg.offset..], n_in, dx, seg.width);
@@ -112,8 +100,7 @@ pub fn dense_backward(
                 *d += v;
             }
         }
-        let dz_sum_t = transpose(&dz_sum, groups, n_out);
-        gemm_acc(n_out, g.width, groups, &dz_sum_t, groups, g.x, g.width, &mut grads.weight[g.offset..], n_in);
+        gemm_acc_at(n_out, g.width, groups, &dz_sum, n_out, g.x, g.width, &mut grads.weight[g.offset..], n_in);
         if let Some(dg) = grads.group.as_deref_mut() {
             gemm_acc(groups, g.width, n_out, &dz_sum, n_out, &layer.weight[g.offset..], n_in, dg, g.width);
         }

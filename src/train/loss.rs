@@ -76,7 +76,7 @@ pub const MIN_QUATERNION_NORM: f64 = crate::model::relativenet::MIN_QUATERNION_N
 pub fn normalize_quaternion(r: [f32; 4]) -> [f64; 4] {
     let r = r.map(f64::from);
     let n = norm(&r);
-    if !(n > MIN_QUATERNION_NORM) {
+    if n.is_nan() || n <= MIN_QUATERNION_NORM {
         return [1.0, 0.0, 0.0, 0.0];
     }
     r.map(|v| v / n)
@@ -87,7 +87,7 @@ pub fn normalize_quaternion(r: [f32; 4]) -> [f64; 4] {
 pub fn normalize_quaternion_backward(r: [f32; 4], d_q: [f64; 4]) -> [f64; 4] {
     let rr = r.map(f64::from);
     let n = norm(&rr);
-    if !(n > MIN_QUATERNION_NORM) {
+    if n.is_nan() || n <= MIN_QUATERNION_NORM {
         return [0.0; 4];
     }
     let q = rr.map(|v| v / n);

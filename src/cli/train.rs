@@ -1,0 +1,389 @@
+//! `dpr-gpu train`: trains PPF-FoldNet, PC-FoldNet and RelativeNet on registered fragment pairs, with a
+//! progress bar, a CSV loss log, periodic atomic checkpoints and exact resumption.
+
+use crate::model::{ModelConfig, Weights};
+use crate::train::checkpoint::read_checkpoint;
+use crate::train::data::discover_pairs;
+use crate::train::{Losses, TrainSettings, Trainer};
+use anyhow::{Context, bail};
+use clap::ValueEnum;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// Model size presets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum ConfigPreset {
+    /// `ModelConfig::default()`: the paper's widths, 256 points per patch, 16 x 16 grid.
+    Compact,
+    /// `ModelConfig::paper()`: 2048 points per patch, 45 x 45 grid.
+    Paper,
+}
+
+/// Arguments of `dpr-gpu train`.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Training data: dataset folders, scene folders (cloud_bin_k.ply + gt.log), gt.log files or pairs files.
+    /// Never the evaluation set.
+    #[arg(long, num_args = 1.., required_unless_present = "resume")]
+    pub data: Vec<PathBuf>,
+    /// Where the final weights go (safetensors).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Model size preset [default: compact].
+    #[arg(long, value_enum)]
+    pub config: Option<ConfigPreset>,
+    /// Points per patch (overrides the preset).
+    #[arg(long)]
+    pub points: Option<usize>,
+    /// Folding grid G x G (overrides the preset).
+    #[arg(long)]
+    pub grid: Option<usize>,
+    /// Train until this many steps are done in total (a resumed run counts the checkpoint's steps).
+    #[arg(long, default_value_t = 1000)]
+    pub steps: u64,
+    /// Pairs per step [default: 32].
+    #[arg(long)]
+    pub batch: Option<usize>,
+    /// Initial learning rate [default: 1e-3].
+    #[arg(long)]
+    pub lr: Option<f64>,
+    /// Learning-rate factor per `--lr-decay-every` steps (smooth exponential decay) [default: 0.5].
+    #[arg(long)]
+    pub lr_decay: Option<f64>,
+    /// Steps per `--lr-decay` factor; 0 keeps the rate constant [default: steps / 3].
+    #[arg(long)]
+    pub lr_decay_every: Option<u64>,
+    /// Decoupled (AdamW) weight decay on weight matrices [default: 1e-6].
+    #[arg(long)]
+    pub weight_decay: Option<f64>,
+    /// lambda1, weight of the pose loss [default: 1].
+    #[arg(long)]
+    pub lambda_pose: Option<f64>,
+    /// lambda2, weight of the feature-consistency loss [default: 0.1].
+    #[arg(long)]
+    pub lambda_feat: Option<f64>,
+    /// Drop the reconstruction loss (ablation).
+    #[arg(long)]
+    pub no_rec: bool,
+    /// Drop the pose loss (ablation).
+    #[arg(long)]
+    pub no_pose: bool,
+    /// Drop the feature-consistency loss (ablation).
+    #[arg(long)]
+    pub no_feat: bool,
+    /// Seed of the initial weights and of the sampling [default: 0].
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Voxel size for downsampling fragments (cloud units) [default: 0.025].
+    #[arg(long)]
+    pub voxel: Option<f32>,
+    /// Distance within which a mapped source point has a corresponding target point [default: 0.03].
+    #[arg(long)]
+    pub match_distance: Option<f32>,
+    /// Also rotate target fragments by uniform random rotations.
+    #[arg(long)]
+    pub rotate_target: bool,
+    /// Do not rotate source fragments (labels are then the dataset's own relative rotations).
+    #[arg(long)]
+    pub no_rotate_source: bool,
+    /// Start from these weights instead of a random initialisation (their config is used).
+    #[arg(long)]
+    pub init: Option<PathBuf>,
+    /// Save a checkpoint every K steps (0: only at the end).
+    #[arg(long, default_value_t = 100)]
+    pub checkpoint_every: u64,
+    /// Checkpoint file [default: OUT with extension .ckpt.safetensors].
+    #[arg(long)]
+    pub checkpoint: Option<PathBuf>,
+    /// Continue the run saved in this checkpoint, exactly where it stopped.
+    #[arg(long)]
+    pub resume: Option<PathBuf>,
+    /// Append per-step losses to this CSV file.
+    #[arg(long)]
+    pub log: Option<PathBuf>,
+}
+
+/// The checkpoint path: `--checkpoint`, or OUT with its extension replaced by `ckpt.safetensors`.
+fn checkpoint_path(args: &Args) -> PathBuf {
+    args.checkpoint.clone().unwrap_or_else(|| args.out.with_extension("ckpt.safetensors"))
+}
+
+/// The model configuration of a fresh run.
+fn model_config(args: &Args) -> anyhow::Result<ModelConfig> {
+    let mut config = match args.config.unwrap_or(ConfigPreset::Compact) {
+        ConfigPreset::Compact => ModelConfig::default(),
+        ConfigPreset::Paper => ModelConfig::paper(),
+    };
+    if let Some(n) = args.points {
+        config.points_per_patch = n;
+    }
+    if let Some(g) = args.grid {
+        config.grid = [g, g];
+    }
+    config.validate()?;
+    Ok(config)
+}
+
+/// The settings of a fresh run.
+fn fresh_settings(args: &Args) -> TrainSettings {
+    let mut s = TrainSettings { data: args.data.clone(), ..TrainSettings::default() };
+    s.batch = args.batch.unwrap_or(s.batch);
+    s.seed = args.seed.unwrap_or(s.seed);
+    s.adam.lr = args.lr.unwrap_or(s.adam.lr);
+    s.adam.lr_decay = args.lr_decay.unwrap_or(s.adam.lr_decay);
+    s.adam.lr_decay_every = args.lr_decay_every.unwrap_or((args.steps / 3).max(1));
+    s.adam.weight_decay = args.weight_decay.unwrap_or(s.adam.weight_decay);
+    s.loss.lambda_pose = args.lambda_pose.unwrap_or(s.loss.lambda_pose);
+    s.loss.lambda_feat = args.lambda_feat.unwrap_or(s.loss.lambda_feat);
+    s.loss.rec = !args.no_rec;
+    s.loss.pose = !args.no_pose;
+    s.loss.feat = !args.no_feat;
+    s.sampling.voxel = args.voxel.unwrap_or(s.sampling.voxel);
+    s.sampling.match_distance = args.match_distance.unwrap_or(s.sampling.match_distance);
+    s.sampling.rotate_target = args.rotate_target;
+    s.sampling.rotate_source = !args.no_rotate_source;
+    s
+}
+
+/// Refuses options that would change a resumed run.
+fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> anyhow::Result<()> {
+    let mut clashes = Vec::new();
+    let mut check = |name: &str, differs: bool| {
+        if differs {
+            clashes.push(name.to_string());
+        }
+    };
+    let sized = args.config.is_some() || args.points.is_some() || args.grid.is_some();
+    check("--config/--points/--grid", sized && model_config(args).ok().as_ref() != Some(config));
+    check("--batch", args.batch.is_some_and(|v| v != s.batch));
+    check("--seed", args.seed.is_some_and(|v| v != s.seed));
+    check("--lr", args.lr.is_some_and(|v| v != s.adam.lr));
+    check("--lr-decay", args.lr_decay.is_some_and(|v| v != s.adam.lr_decay));
+    check("--lr-decay-every", args.lr_decay_every.is_some_and(|v| v != s.adam.lr_decay_every));
+    check("--weight-decay", args.weight_decay.is_some_and(|v| v != s.adam.weight_decay));
+    check("--lambda-pose", args.lambda_pose.is_some_and(|v| v != s.loss.lambda_pose));
+    check("--lambda-feat", args.lambda_feat.is_some_and(|v| v != s.loss.lambda_feat));
+    check("--no-rec", args.no_rec && s.loss.rec);
+    check("--no-pose", args.no_pose && s.loss.pose);
+    check("--no-feat", args.no_feat && s.loss.feat);
+    check("--voxel", args.voxel.is_some_and(|v| v != s.sampling.voxel));
+    check("--match-distance", args.match_distance.is_some_and(|v| v != s.sampling.match_distance));
+    check("--rotate-target", args.rotate_target && !s.sampling.rotate_target);
+    check("--no-rotate-source", args.no_rotate_source && s.sampling.rotate_source);
+    check("--init", args.init.is_some());
+    if clashes.is_empty() {
+        Ok(())
+    } else {
+        bail!("{} differ from the checkpoint's run and cannot change when resuming", clashes.join(", "))
+    }
+}
+
+/// Opens the CSV log: fresh runs start it (header), resumed runs keep only the rows up to the checkpoint's
+/// step (later rows belong to steps that will be redone) and append.
+fn open_log(path: &Path, resumed_at: Option<u64>) -> anyhow::Result<std::fs::File> {
+    const HEADER: &str = "step,total,rec,pose,feat,lr,seconds";
+    let mut kept = vec![HEADER.to_string()];
+    if let Some(step) = resumed_at
+        && path.is_file()
+    {
+        let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        for line in text.lines().skip(1) {
+            let s = line.split(',').next().and_then(|v| v.parse::<u64>().ok());
+            if s.is_some_and(|s| s <= step) {
+                kept.push(line.to_string());
+            }
+        }
+    }
+    crate::io::write_atomic(path, format!("{}\n", kept.join("\n")).as_bytes())?;
+    std::fs::OpenOptions::new().append(true).open(path).with_context(|| format!("opening {}", path.display()))
+}
+
+/// Mean of the losses of the last steps.
+fn mean(losses: &[Losses]) -> Losses {
+    let k = 1.0 / losses.len().max(1) as f64;
+    losses.iter().fold(Losses::default(), |a, l| Losses {
+        rec: a.rec + k * l.rec,
+        pose: a.pose + k * l.pose,
+        feat: a.feat + k * l.feat,
+        total: a.total + k * l.total,
+    })
+}
+
+/// Fails early (not after hours of training) when an output cannot be written: a directory in its place, or a
+/// missing parent folder.
+fn check_output(flag: &str, path: &Path) -> anyhow::Result<()> {
+    if path.is_dir() {
+        bail!("{flag} {} is a directory", path.display());
+    }
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    if !parent.is_dir() {
+        bail!("{flag} {}: folder {} does not exist", path.display(), parent.display());
+    }
+    Ok(())
+}
+
+/// Runs `dpr-gpu train`.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let ckpt = checkpoint_path(&args);
+    check_output("--out", &args.out)?;
+    check_output("--checkpoint", &ckpt)?;
+    if let Some(log) = &args.log {
+        check_output("--log", log)?;
+    }
+    let mut trainer = if let Some(resume) = &args.resume {
+        let (meta, weights, adam) = read_checkpoint(resume)?;
+        check_resume_args(&args, &meta.settings, &meta.config)?;
+        let mut settings = meta.settings;
+        if !args.data.is_empty() {
+            settings.data = args.data.clone();
+        }
+        let pairs = discover_pairs(&settings.data)?;
+        Trainer::from_checkpoint_parts(weights, settings, pairs, adam, meta.step)?
+    } else {
+        let settings = fresh_settings(&args);
+        let weights = match &args.init {
+            Some(p) => Weights::load(p)?,
+            None => Weights::init(&model_config(&args)?, settings.seed)?,
+        };
+        let pairs = discover_pairs(&settings.data)?;
+        Trainer::with_pairs(weights, settings, pairs)?
+    };
+    let start = trainer.step_count();
+    if start >= args.steps {
+        bail!("the checkpoint is already at step {start}; ask for more --steps");
+    }
+    let sampler = trainer.sampler_mut();
+    eprintln!("preparing {} fragments of {} pairs...", sampler.fragment_count(), sampler.pair_count());
+    let usable = sampler.preload()?;
+    if usable == 0 {
+        bail!("no fragment pair has corresponding patches (check the data, --voxel and --match-distance)");
+    }
+    eprintln!("{usable} pairs with corresponding patches; {} parameters", trainer.weights().parameter_count());
+    let mut log = match &args.log {
+        Some(p) => Some(open_log(p, args.resume.as_ref().map(|_| start))?),
+        None => None,
+    };
+    let bar = indicatif::ProgressBar::new(args.steps);
+    bar.set_position(start);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} eta {eta} {msg}")
+            .context("progress style")?
+            .progress_chars("=> "),
+    );
+    let clock = std::time::Instant::now();
+    let mut recent: Vec<Losses> = Vec::new();
+    while trainer.step_count() < args.steps {
+        let lr = trainer.learning_rate();
+        let losses = trainer.step()?;
+        let step = trainer.step_count();
+        if let Some(f) = log.as_mut() {
+            let secs = clock.elapsed().as_secs_f64();
+            let (t, r, p, e) = (losses.total, losses.rec, losses.pose, losses.feat);
+            writeln!(f, "{step},{t:.6},{r:.6},{p:.6},{e:.6},{lr:.3e},{secs:.2}").context("writing the log")?;
+        }
+        recent.push(losses);
+        if recent.len() > 50 {
+            recent.remove(0);
+        }
+        let m = mean(&recent);
+        bar.set_message(format!("loss {:.4} rec {:.4} pose {:.4} feat {:.4}", m.total, m.rec, m.pose, m.feat));
+        bar.set_position(step);
+        if args.checkpoint_every > 0 && step % args.checkpoint_every == 0 {
+            trainer.save_checkpoint(&ckpt)?;
+        }
+    }
+    bar.finish();
+    trainer.save_checkpoint(&ckpt)?;
+    let mut weights = trainer.weights().clone();
+    let m = mean(&recent);
+    let final_losses = serde_json::json!({
+        "steps_averaged": recent.len(),
+        "total": m.total, "rec": m.rec, "pose": m.pose, "feat": m.feat,
+    });
+    weights.notes.insert("dpr_gpu.train.command".into(), std::env::args().collect::<Vec<_>>().join(" "));
+    weights.notes.insert("dpr_gpu.train.steps".into(), trainer.step_count().to_string());
+    weights.notes.insert("dpr_gpu.train.final_losses".into(), final_losses.to_string());
+    weights.notes.insert("dpr_gpu.train.settings".into(), serde_json::to_string(trainer.settings())?);
+    weights.save(&args.out)?;
+    eprintln!(
+        "wrote {} after {} steps (mean of the last {}: loss {:.4}, rec {:.4}, pose {:.4}, feat {:.4}); checkpoint {}",
+        args.out.display(),
+        trainer.step_count(),
+        recent.len(),
+        m.total,
+        m.rec,
+        m.pose,
+        m.feat,
+        ckpt.display()
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cloud::PointCloud;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: Args,
+    }
+
+    fn parse(line: &str) -> Args {
+        Cli::try_parse_from(std::iter::once("train").chain(line.split_whitespace())).expect("arguments parse").args
+    }
+
+    /// Two views of a floor with a box, the second moved by a known motion, as a pairs file.
+    fn write_data(dir: &Path) {
+        let mut points = Vec::new();
+        for i in 0..40 {
+            for j in 0..40 {
+                let (a, b) = (i as f32 * 0.025, j as f32 * 0.025);
+                points.push([a, b, 0.0]);
+                if (0.3..0.6).contains(&a) && (0.3..0.6).contains(&b) {
+                    points.push([a, b, 0.3]);
+                }
+                if a < 0.6 {
+                    points.push([a, 0.0, b * 0.5]);
+                }
+            }
+        }
+        let source = PointCloud::from_points(points);
+        let t = nalgebra::Matrix4::new_translation(&nalgebra::Vector3::new(0.2, -0.1, 0.3))
+            * nalgebra::Matrix4::from_euler_angles(0.3, -0.2, 0.9);
+        crate::io::write_ply(&dir.join("a.ply"), &source).unwrap();
+        crate::io::write_ply(&dir.join("b.ply"), &source.transformed(&t)).unwrap();
+        let flat: Vec<String> = (0..16).map(|k| format!("{:.12}", t[(k / 4, k % 4)])).collect();
+        std::fs::write(dir.join("pairs.txt"), format!("a.ply b.ply {}\n", flat.join(" "))).unwrap();
+    }
+
+    #[test]
+    fn train_checkpoints_resumes_exactly_and_writes_notes() {
+        let dir = std::env::temp_dir().join(format!("dpr-gpu-cli-train-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        write_data(&dir);
+        let d = dir.display();
+        let common = format!("--data {d}/pairs.txt --points 8 --grid 3 --batch 2 --voxel 0.03 --checkpoint-every 2");
+        run(parse(&format!("{common} --out {d}/a.safetensors --steps 4 --log {d}/a.csv"))).unwrap();
+        // Resuming may not change the run.
+        let clash = run(parse(&format!("{common} --out {d}/a.safetensors --steps 6 --resume {d}/a.ckpt.safetensors --batch 3")));
+        assert!(clash.unwrap_err().to_string().contains("--batch"));
+        run(parse(&format!("--out {d}/a.safetensors --steps 6 --log {d}/a.csv --resume {d}/a.ckpt.safetensors"))).unwrap();
+        run(parse(&format!("{common} --out {d}/b.safetensors --steps 6"))).unwrap();
+        let a = Weights::load(&dir.join("a.safetensors")).unwrap();
+        let b = Weights::load(&dir.join("b.safetensors")).unwrap();
+        assert_eq!(a.tensors, b.tensors, "resumed run differs from the uninterrupted one");
+        assert_eq!(a.notes["dpr_gpu.train.steps"], "6");
+        assert!(a.notes.contains_key("dpr_gpu.train.command") && a.notes.contains_key("dpr_gpu.train.final_losses"));
+        let log = std::fs::read_to_string(dir.join("a.csv")).unwrap();
+        let steps: Vec<&str> = log.lines().skip(1).map(|l| l.split(',').next().unwrap()).collect();
+        assert_eq!(steps, ["1", "2", "3", "4", "5", "6"], "{log}");
+        // Bad outputs fail before training.
+        let e = run(parse(&format!("{common} --out {d}/missing/w.safetensors"))).unwrap_err().to_string();
+        assert!(e.contains("does not exist"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

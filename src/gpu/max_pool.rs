@@ -1,0 +1,74 @@
+//! Host side of `shaders/max_pool.wgsl`: per-group, per-channel maximum. CPU twin: [`crate::cpu::max_pool`].
+
+use super::kernel::{BindKind, KernelSpec, ParamsLayout, gpu_params};
+use super::recorder::Recorder;
+use super::{Gpu, to_u32, workgroups};
+use crate::error::{Error, Result};
+
+gpu_params! {
+    /// Mirrors `struct MaxPoolParams` in shaders/max_pool.wgsl.
+    pub struct MaxPoolParams {
+        /// Groups (patches).
+        pub groups: u32,
+        /// Rows per group (points per patch).
+        pub rows_per_group: u32,
+        /// Channels (row width).
+        pub channels: u32,
+        /// Padding.
+        pub _pad: u32,
+    }
+}
+
+/// Invocations per workgroup (`WG_SIZE` in the shader).
+pub const WG_SIZE: u32 = 64;
+
+/// The kernel's registry entry.
+pub const SPEC: KernelSpec = KernelSpec {
+    name: "max_pool",
+    source: include_str!("../../shaders/max_pool.wgsl"),
+    binds: &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadWrite],
+    workgroup_size: WG_SIZE,
+    params: ParamsLayout::of::<MaxPoolParams>(),
+};
+
+impl MaxPoolParams {
+    /// Parameters for `groups x rows_per_group x channels`.
+    pub fn new(groups: usize, rows_per_group: usize, channels: usize) -> Result<MaxPoolParams> {
+        to_u32(groups * channels, "max_pool outputs")?;
+        Ok(MaxPoolParams {
+            groups: to_u32(groups, "max_pool groups")?,
+            rows_per_group: to_u32(rows_per_group, "max_pool rows per group")?,
+            channels: to_u32(channels, "max_pool channels")?,
+            _pad: 0,
+        })
+    }
+}
+
+/// Records the pooling of `x` into `out` (`groups x channels`).
+pub fn record<'a>(
+    rec: &mut Recorder<'a>,
+    gpu: &'a Gpu,
+    params: &MaxPoolParams,
+    x: &wgpu::Buffer,
+    out: &wgpu::Buffer,
+) -> Result<()> {
+    let n = params.groups as usize * params.channels as usize;
+    rec.dispatch(&gpu.kernels.max_pool, params, &[x, out], workgroups(n, WG_SIZE))
+}
+
+/// Runs the kernel on slices; `out` (`groups x channels`) holds the initial contents (a sentinel in tests)
+/// and receives the result.
+pub fn run(gpu: &Gpu, x: &[f32], groups: usize, rows_per_group: usize, channels: usize, out: &mut [f32]) -> Result<()> {
+    if x.len() != groups * rows_per_group * channels || out.len() != groups * channels {
+        return Err(Error::invalid("max_pool: slice lengths do not match the shape"));
+    }
+    let ctx = &gpu.context;
+    let xb = super::buffer::GpuBuffer::from_slice(ctx, "x", x)?;
+    let ob = super::buffer::GpuBuffer::from_slice(ctx, "out", out)?;
+    let mut rec = Recorder::new(gpu, "max_pool");
+    record(&mut rec, gpu, &MaxPoolParams::new(groups, rows_per_group, channels)?, xb.raw(), ob.raw())?;
+    let r = rec.read(ob.raw(), 0, (out.len() * 4) as u64);
+    let bytes = rec.finish()?;
+    out.copy_from_slice(bytemuck::cast_slice(&bytes[r]));
+    Ok(())
+}

@@ -1,0 +1,393 @@
+//! The WGSL compute path: every learned and massively parallel stage as a hand-written kernel run through
+//! wgpu on any GPU (Vulkan, Metal, DX12), checked against the CPU twins in [`crate::cpu`].
+//!
+//! Layout: one module per kernel (`shaders/k.wgsl` + `gpu/k.rs` + `cpu/k.rs`, registered in
+//! [`kernel::KERNELS`]); [`context`] (instance, adapter, device, error scopes), [`buffer`] (typed buffers,
+//! reusable workspace, readback), [`recorder`] (batched dispatches, one submission per chunk), [`nets`]
+//! (the networks composed from kernels). [`Gpu`] holds the device and the compiled pipelines;
+//! [`GpuBackend`] adds the uploaded weights and implements [`Backend`].
+//!
+//! Subgroup and f16 variants are not implemented: every kernel is the portable f32 version.
+
+pub mod buffer;
+pub mod codeword_distance;
+pub mod context;
+pub mod dense;
+pub mod hypotheses;
+pub mod kernel;
+pub mod max_pool;
+pub mod mutual_knn;
+pub mod nets;
+pub mod normalize_quaternion;
+pub mod patch_features;
+pub mod recorder;
+pub mod score_hypotheses;
+pub mod testing;
+
+use crate::backend::Backend;
+use crate::cpu::hypotheses::Hypothesis;
+use crate::cpu::mutual_knn::Match;
+use crate::cpu::score_hypotheses::HypothesisScore;
+use crate::error::{Error, Result};
+use crate::model::{Model, Net};
+use crate::preprocess::GatheredPatches;
+use crate::settings::MatchMode;
+use buffer::Workspace;
+pub use context::GpuContext;
+use kernel::Kernels;
+use nets::{GpuModel, items_per_chunk};
+use recorder::Recorder;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+/// `n` as a `u32` kernel parameter, or an error naming `what`.
+pub(crate) fn to_u32(n: usize, what: &str) -> Result<u32> {
+    u32::try_from(n).map_err(|_| Error::Gpu(format!("{what} = {n} does not fit a 32-bit kernel parameter")))
+}
+
+/// Workgroups covering `n` invocations of `wg_size`.
+pub(crate) fn workgroups(n: usize, wg_size: u32) -> u64 {
+    (n as u64).div_ceil(u64::from(wg_size))
+}
+
+/// A device with every pipeline compiled: what the kernel functions (`gpu::k::run`) need.
+pub struct Gpu {
+    /// Device, queue and limits.
+    pub context: GpuContext,
+    /// The compiled kernels.
+    pub kernels: Kernels,
+    /// A small read-only placeholder for optional inputs.
+    pub(crate) dummy: wgpu::Buffer,
+    /// A small writable placeholder for unused outputs.
+    pub(crate) dummy_rw: wgpu::Buffer,
+    profiling: AtomicBool,
+    gpu_time_ns: AtomicU64,
+}
+
+impl std::fmt::Debug for Gpu {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Gpu").field("adapter", &self.adapter_info()).finish_non_exhaustive()
+    }
+}
+
+impl Gpu {
+    /// A device on the backends from the environment, with every kernel compiled.
+    pub fn new() -> Result<Gpu> {
+        Gpu::from_context(GpuContext::new()?)
+    }
+
+    /// Compiles every kernel on `context`.
+    pub fn from_context(context: GpuContext) -> Result<Gpu> {
+        let kernels = Kernels::new(&context)?;
+        let dummy = buffer::storage_buffer(&context, "dummy", 16)?;
+        let dummy_rw = buffer::storage_buffer(&context, "dummy_rw", 16)?;
+        Ok(Gpu { context, kernels, dummy, dummy_rw, profiling: AtomicBool::new(false), gpu_time_ns: AtomicU64::new(0) })
+    }
+
+    /// One line describing the adapter.
+    pub fn adapter_info(&self) -> String {
+        self.context.adapter_info()
+    }
+
+    /// Turns GPU timestamps on or off (they need `TIMESTAMP_QUERY`; see [`Gpu::take_gpu_time`]).
+    pub fn set_profiling(&self, on: bool) {
+        self.profiling.store(on, Ordering::Relaxed);
+    }
+
+    /// Whether profiling is on.
+    pub fn profiling(&self) -> bool {
+        self.profiling.load(Ordering::Relaxed)
+    }
+
+    /// GPU time of the submissions since the last call (profiling on), or `None` without timestamp support.
+    pub fn take_gpu_time(&self) -> Option<Duration> {
+        let ns = self.gpu_time_ns.swap(0, Ordering::Relaxed);
+        self.context.has_timestamps().then(|| Duration::from_nanos(ns))
+    }
+
+    pub(crate) fn add_gpu_time(&self, ns: u64) {
+        self.gpu_time_ns.fetch_add(ns, Ordering::Relaxed);
+    }
+}
+
+/// The GPU backend: the model's weights uploaded once, pipelines compiled once, scratch buffers reused
+/// across calls.
+pub struct GpuBackend {
+    gpu: Arc<Gpu>,
+    model: Model,
+    weights: GpuModel,
+    workspace: Mutex<Workspace>,
+}
+
+impl GpuBackend {
+    /// Creates a device (backends from the environment) and uploads `model`'s weights.
+    pub fn new(model: Model) -> Result<GpuBackend> {
+        GpuBackend::with_gpu(Arc::new(Gpu::new()?), model)
+    }
+
+    /// Uploads `model`'s weights to an existing (possibly shared) device.
+    pub fn with_gpu(gpu: Arc<Gpu>, model: Model) -> Result<GpuBackend> {
+        let weights = gpu.context.scoped("uploading weights", || GpuModel::upload(&gpu.context, &model))??;
+        Ok(GpuBackend { gpu, model, weights, workspace: Mutex::new(Workspace::default()) })
+    }
+
+    /// One line describing the adapter.
+    pub fn adapter_info(&self) -> String {
+        self.gpu.adapter_info()
+    }
+
+    /// The device and kernels.
+    pub fn gpu(&self) -> &Gpu {
+        &self.gpu
+    }
+
+    /// Fills every scratch buffer with `value` before use (tests: unwritten elements then show up).
+    pub fn set_poison(&self, value: Option<f32>) -> Result<()> {
+        self.workspace()?.poison = value.map(f32::to_bits);
+        Ok(())
+    }
+
+    /// Bytes of scratch buffers currently held.
+    pub fn workspace_bytes(&self) -> Result<u64> {
+        Ok(self.workspace()?.bytes())
+    }
+
+    fn workspace(&self) -> Result<MutexGuard<'_, Workspace>> {
+        self.workspace.lock().map_err(|_| Error::Gpu("a previous GPU call panicked (workspace lock poisoned)".into()))
+    }
+
+    fn run<T>(&self, what: &str, f: impl FnOnce(&mut Workspace) -> Result<T>) -> Result<T> {
+        let mut ws = self.workspace()?;
+        self.gpu.context.scoped(what, || f(&mut ws))?
+    }
+
+    /// Reconstructions (`patches x grid_points x io_width`) of codewords, as `model.{ppf,pc}.decode`.
+    pub fn decode(&self, net: Net, codewords: &[f32], patches: usize) -> Result<Vec<f32>> {
+        let f = self.foldnet(net);
+        self.run("decode", |ws| nets::decode(&self.gpu, ws, f, codewords, patches))
+    }
+
+    /// Inlier flags of one hypothesis over the correspondences (for refinement on the best hypothesis).
+    pub fn inlier_mask(
+        &self,
+        hypothesis: &Hypothesis,
+        source: &[[f32; 3]],
+        target: &[[f32; 3]],
+        threshold: f32,
+    ) -> Result<Vec<bool>> {
+        let mut mask = vec![0u32; source.len()];
+        score_hypotheses::inlier_mask(&self.gpu, hypothesis, source, target, threshold, &mut mask)?;
+        Ok(mask.into_iter().map(|m| m == 1).collect())
+    }
+
+    fn foldnet(&self, net: Net) -> &nets::GpuFoldNet {
+        match net {
+            Net::Ppf => &self.weights.ppf,
+            Net::Pc => &self.weights.pc,
+        }
+    }
+}
+
+impl Backend for GpuBackend {
+    fn name(&self) -> String {
+        format!("gpu ({})", self.adapter_info())
+    }
+
+    fn model(&self) -> &Model {
+        &self.model
+    }
+
+    fn patch_features(&self, patches: &GatheredPatches, radius: f32) -> Result<(Vec<f32>, Vec<f32>)> {
+        let n = self.model.config.points_per_patch;
+        let p = patches.centers.len();
+        if patches.center_normals.len() != p || patches.points.len() != p * n || patches.normals.len() != p * n {
+            return Err(Error::invalid(format!("patch_features: expected {p} patches of {n} points with normals")));
+        }
+        let gpu = &self.gpu;
+        let ctx = &gpu.context;
+        self.run("patch_features", |ws| {
+            let chunk = items_per_chunk(ctx, (n * 16) as u64, "patch's features")?;
+            let mut pending = Vec::new();
+            for c0 in (0..p).step_by(chunk) {
+                let cp = chunk.min(p - c0);
+                let rows = cp * n;
+                let pts = c0 * n..(c0 + cp) * n;
+                let centers = ws.upload(ctx, "pf_centers", &patches.centers[c0..c0 + cp])?;
+                let center_normals = ws.upload(ctx, "pf_center_normals", &patches.center_normals[c0..c0 + cp])?;
+                let points = ws.upload(ctx, "pf_points", &patches.points[pts.clone()])?;
+                let normals = ws.upload(ctx, "pf_normals", &patches.normals[pts])?;
+                let ppf = ws.buffer(ctx, "pf_ppf", (rows * 16) as u64)?;
+                let pc = ws.buffer(ctx, "pf_pc", (rows * 12) as u64)?;
+                let params = patch_features::PatchFeaturesParams {
+                    rows: to_u32(rows, "patch points")?,
+                    points_per_patch: to_u32(n, "points per patch")?,
+                    radius,
+                    _pad: 0,
+                };
+                let mut rec = Recorder::new(gpu, "patch_features");
+                let b = patch_features::PatchFeaturesBuffers {
+                    centers: &centers,
+                    center_normals: &center_normals,
+                    points: &points,
+                    normals: &normals,
+                    ppf: &ppf,
+                    pc: &pc,
+                };
+                patch_features::record(&mut rec, gpu, &params, &b)?;
+                rec.read(&ppf, 0, (rows * 16) as u64);
+                rec.read(&pc, 0, (rows * 12) as u64);
+                pending.push(rec.submit()?);
+            }
+            let (mut ppf, mut pc) = (Vec::with_capacity(p * n * 4), Vec::with_capacity(p * n * 3));
+            for pend in pending {
+                let out = pend.wait(gpu)?;
+                ppf.extend_from_slice(bytemuck::cast_slice::<u8, f32>(&out[0]));
+                pc.extend_from_slice(bytemuck::cast_slice::<u8, f32>(&out[1]));
+            }
+            Ok((ppf, pc))
+        })
+    }
+
+    fn encode(&self, net: Net, input: &[f32], patches: usize) -> Result<Vec<f32>> {
+        let n = self.model.config.points_per_patch;
+        let f = self.foldnet(net);
+        self.run("encode", |ws| nets::encode(&self.gpu, ws, f, input, patches, n))
+    }
+
+    fn match_codewords(&self, source: &[f32], target: &[f32], dim: usize, mode: MatchMode) -> Result<Vec<Match>> {
+        let (k, mutual) = mutual_knn::mode_k(mode)?;
+        if dim == 0 || !source.len().is_multiple_of(dim) || !target.len().is_multiple_of(dim) {
+            return Err(Error::invalid(format!("match_codewords: codeword arrays are not rows of {dim}")));
+        }
+        let (ns, nt) = (source.len() / dim, target.len() / dim);
+        if ns == 0 || nt == 0 {
+            return Ok(Vec::new());
+        }
+        let gpu = &self.gpu;
+        let ctx = &gpu.context;
+        self.run("match_codewords", |ws| {
+            let chunk = items_per_chunk(ctx, (nt * 4) as u64, "row of the distance matrix")?;
+            let s = ws.upload(ctx, "match_source", source)?;
+            let t = ws.upload(ctx, "match_target", target)?;
+            let lists = mutual_knn::KnnBuffers::new(|name, bytes| ws.buffer(ctx, name, bytes), ns, nt)?;
+            let dist = ws.buffer(ctx, "match_distances", (chunk.min(ns) * nt * 4) as u64)?;
+            let mut rec = Recorder::new(gpu, "match_codewords");
+            for r0 in (0..ns).step_by(chunk) {
+                let rows = chunk.min(ns - r0);
+                let params = codeword_distance::CodewordDistanceParams::new(rows, nt, dim, r0)?;
+                codeword_distance::record(&mut rec, gpu, &params, &s, &t, &dist)?;
+                mutual_knn::record_chunk(&mut rec, gpu, &lists, &dist, (rows, nt, r0, ns), k, mutual)?;
+            }
+            if mutual {
+                mutual_knn::record_flags(&mut rec, gpu, &lists, &dist, ns, nt, k)?;
+            }
+            let bytes = (ns * mutual_knn::K_MAX * 4) as u64;
+            rec.read(&lists.row_dist, 0, bytes);
+            rec.read(&lists.row_index, 0, bytes);
+            rec.read(&lists.flags, 0, bytes);
+            let out = rec.finish()?;
+            let flags: Vec<u32> = bytemuck::pod_collect_to_vec(&out[2]);
+            Ok(mutual_knn::compact(
+                &bytemuck::pod_collect_to_vec::<u8, f32>(&out[0]),
+                &bytemuck::pod_collect_to_vec::<u8, u32>(&out[1]),
+                mutual.then_some(flags.as_slice()),
+                k,
+            ))
+        })
+    }
+
+    fn predict_rotations(&self, source: &[f32], target: &[f32], rows: usize) -> Result<Vec<[f32; 4]>> {
+        self.run("predict_rotations", |ws| nets::relative(&self.gpu, ws, &self.weights.relative, source, target, rows))
+    }
+
+    fn hypotheses(
+        &self,
+        quaternions: &[[f32; 4]],
+        source: &[[f32; 3]],
+        target: &[[f32; 3]],
+    ) -> Result<Vec<Hypothesis>> {
+        let rows = quaternions.len();
+        if source.len() != rows || target.len() != rows {
+            return Err(Error::invalid("hypotheses: quaternions and points differ in length"));
+        }
+        let gpu = &self.gpu;
+        let ctx = &gpu.context;
+        self.run("hypotheses", |ws| {
+            let chunk = items_per_chunk(ctx, (hypotheses::HYPOTHESIS_FLOATS * 4) as u64, "hypothesis")?;
+            let mut pending = Vec::new();
+            for r0 in (0..rows).step_by(chunk) {
+                let n = chunk.min(rows - r0);
+                let q = ws.upload(ctx, "hyp_quaternions", &quaternions[r0..r0 + n])?;
+                let s = ws.upload(ctx, "hyp_source", &source[r0..r0 + n])?;
+                let t = ws.upload(ctx, "hyp_target", &target[r0..r0 + n])?;
+                let bytes = (n * hypotheses::HYPOTHESIS_FLOATS * 4) as u64;
+                let out = ws.buffer(ctx, "hyp_out", bytes)?;
+                let mut rec = Recorder::new(gpu, "hypotheses");
+                hypotheses::record(&mut rec, gpu, n, [&q, &s, &t], &out)?;
+                rec.read(&out, 0, bytes);
+                pending.push(rec.submit()?);
+            }
+            let mut out = Vec::with_capacity(rows);
+            for p in pending {
+                let floats: Vec<f32> = bytemuck::pod_collect_to_vec(&p.wait(gpu)?[0]);
+                out.extend(floats.chunks_exact(hypotheses::HYPOTHESIS_FLOATS).map(hypotheses::from_row));
+            }
+            Ok(out)
+        })
+    }
+
+    fn score_hypotheses(
+        &self,
+        hypotheses: &[Hypothesis],
+        source: &[[f32; 3]],
+        target: &[[f32; 3]],
+        threshold: f32,
+    ) -> Result<Vec<HypothesisScore>> {
+        if source.len() != target.len() {
+            return Err(Error::invalid("score_hypotheses: source and target points differ in length"));
+        }
+        let gpu = &self.gpu;
+        let ctx = &gpu.context;
+        self.run("score_hypotheses", |ws| {
+            let s = ws.upload(ctx, "score_source", source)?;
+            let t = ws.upload(ctx, "score_target", target)?;
+            let chunk = items_per_chunk(ctx, (hypotheses::HYPOTHESIS_FLOATS * 4) as u64, "hypothesis")?;
+            let mut pending = Vec::new();
+            for h0 in (0..hypotheses.len()).step_by(chunk) {
+                let n = chunk.min(hypotheses.len() - h0);
+                let rows: Vec<[f32; hypotheses::HYPOTHESIS_FLOATS]> =
+                    hypotheses[h0..h0 + n].iter().map(hypotheses::to_row).collect();
+                let h = ws.upload(ctx, "score_hypotheses", &rows)?;
+                let inliers = ws.buffer(ctx, "score_inliers", (n * 4) as u64)?;
+                let sums = ws.buffer(ctx, "score_sums", (n * 4) as u64)?;
+                let params = score_hypotheses::ScoreHypothesesParams {
+                    hypotheses: to_u32(n, "hypotheses")?,
+                    correspondences: to_u32(source.len(), "correspondences")?,
+                    threshold_sq: threshold * threshold,
+                    write_mask: 0,
+                };
+                let mut rec = Recorder::new(gpu, "score_hypotheses");
+                let out =
+                    score_hypotheses::ScoreBuffers { inliers: &inliers, residual_sums: &sums, mask: &gpu.dummy_rw };
+                score_hypotheses::record(&mut rec, gpu, &params, [&h, &s, &t], &out)?;
+                rec.read(&inliers, 0, (n * 4) as u64);
+                rec.read(&sums, 0, (n * 4) as u64);
+                pending.push(rec.submit()?);
+            }
+            let mut out = Vec::with_capacity(hypotheses.len());
+            for p in pending {
+                let data = p.wait(gpu)?;
+                let counts: Vec<u32> = bytemuck::pod_collect_to_vec(&data[0]);
+                let sums: Vec<f32> = bytemuck::pod_collect_to_vec(&data[1]);
+                out.extend(
+                    counts
+                        .into_iter()
+                        .zip(sums)
+                        .map(|(inliers, residual_sum)| HypothesisScore { inliers, residual_sum }),
+                );
+            }
+            Ok(out)
+        })
+    }
+}

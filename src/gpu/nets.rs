@@ -1,0 +1,367 @@
+//! The networks on the GPU: weights uploaded once per layer, and the forward passes of FoldNet (encode,
+//! decode) and RelativeNet composed from `dense`, `max_pool` and `normalize_quaternion` dispatches, in the
+//! same order of operations as the CPU reference (`model::foldnet`, `model::relativenet`).
+//!
+//! Work is chunked by whole patches (or rows) so that no buffer exceeds [`GpuContext::max_buffer_bytes`];
+//! each chunk is one submission, and the chunks' readbacks are collected after the last one is queued.
+//! A concatenated input is never built: as on the CPU, each slice is a dense call into the same output
+//! (accumulating), and the per-patch slice (global feature or codeword) becomes the group term.
+
+use super::buffer::Workspace;
+use super::context::GpuContext;
+use super::dense::{self, DenseParams};
+use super::max_pool::{self, MaxPoolParams};
+use super::recorder::{Pending, Recorder};
+use super::{Gpu, normalize_quaternion};
+use crate::cpu::dense::DenseShape;
+use crate::error::{Error, Result};
+use crate::model::linear::Linear;
+use crate::model::{FoldNet, Model};
+
+/// A linear layer's transposed weight and bias on the GPU.
+pub struct GpuLinear {
+    /// Input width.
+    pub in_dim: usize,
+    /// Output width.
+    pub out_dim: usize,
+    /// `in_dim x out_dim`, as [`Linear::weight_t`].
+    pub weight_t: wgpu::Buffer,
+    /// `out_dim`.
+    pub bias: wgpu::Buffer,
+}
+
+impl GpuLinear {
+    fn upload(ctx: &GpuContext, layer: &Linear) -> Result<GpuLinear> {
+        Ok(GpuLinear {
+            in_dim: layer.in_dim,
+            out_dim: layer.out_dim,
+            weight_t: super::buffer::GpuBuffer::from_slice(ctx, "weight_t", &layer.weight_t)?.raw().clone(),
+            bias: super::buffer::GpuBuffer::from_slice(ctx, "bias", &layer.bias)?.raw().clone(),
+        })
+    }
+}
+
+/// One FoldNet's layers on the GPU.
+pub struct GpuFoldNet {
+    /// Per-point MLP before the first max-pool.
+    pub encoder: Vec<GpuLinear>,
+    /// Per-point MLP after the skip concatenation.
+    pub head: Vec<GpuLinear>,
+    /// First folding MLP.
+    pub fold1: Vec<GpuLinear>,
+    /// Second folding MLP.
+    pub fold2: Vec<GpuLinear>,
+    /// Folding grid (`grid_points x 2`), host copy (tiled per chunk on upload).
+    pub grid: Vec<f32>,
+    /// Per-point input / reconstruction width.
+    pub io_width: usize,
+}
+
+/// The whole model on the GPU.
+pub struct GpuModel {
+    /// PPF-FoldNet.
+    pub ppf: GpuFoldNet,
+    /// PC-FoldNet.
+    pub pc: GpuFoldNet,
+    /// RelativeNet.
+    pub relative: Vec<GpuLinear>,
+}
+
+fn upload_all(ctx: &GpuContext, layers: &[Linear]) -> Result<Vec<GpuLinear>> {
+    layers.iter().map(|l| GpuLinear::upload(ctx, l)).collect()
+}
+
+impl GpuFoldNet {
+    fn upload(ctx: &GpuContext, f: &FoldNet) -> Result<GpuFoldNet> {
+        if f.encoder.is_empty() || f.encoder.len() > ENCODER_NAMES.len() || f.head.is_empty() || f.fold1.is_empty() {
+            return Err(Error::invalid(format!(
+                "GPU FoldNet needs 1..={} encoder layers and non-empty head and folding MLPs",
+                ENCODER_NAMES.len()
+            )));
+        }
+        Ok(GpuFoldNet {
+            encoder: upload_all(ctx, &f.encoder)?,
+            head: upload_all(ctx, &f.head)?,
+            fold1: upload_all(ctx, &f.fold1)?,
+            fold2: upload_all(ctx, &f.fold2)?,
+            grid: f.grid.clone(),
+            io_width: f.net.io_width(),
+        })
+    }
+
+    /// Codeword length.
+    pub fn codeword_len(&self) -> usize {
+        self.head.last().map_or(0, |l| l.out_dim)
+    }
+}
+
+impl GpuModel {
+    /// Uploads every weight once.
+    pub fn upload(ctx: &GpuContext, model: &Model) -> Result<GpuModel> {
+        if model.relative.layers.is_empty() {
+            return Err(Error::invalid("RelativeNet has no layers"));
+        }
+        Ok(GpuModel {
+            ppf: GpuFoldNet::upload(ctx, &model.ppf)?,
+            pc: GpuFoldNet::upload(ctx, &model.pc)?,
+            relative: upload_all(ctx, &model.relative.layers)?,
+        })
+    }
+}
+
+/// Workspace names of the encoder activations (kept for the skip concatenation).
+const ENCODER_NAMES: [&str; 8] = ["enc0", "enc1", "enc2", "enc3", "enc4", "enc5", "enc6", "enc7"];
+
+/// How many items of `bytes_per_item` (for the largest buffer) fit the buffer cap; an error naming the
+/// limit when not even one does.
+pub fn items_per_chunk(ctx: &GpuContext, bytes_per_item: u64, what: &str) -> Result<usize> {
+    let cap = ctx.max_buffer_bytes();
+    if bytes_per_item > cap {
+        return Err(Error::Gpu(format!(
+            "one {what} needs a {bytes_per_item}-byte buffer, more than the {cap}-byte limit \
+             (max_storage_buffer_binding_size, max_buffer_size or {})",
+            super::context::MAX_BUFFER_ENV
+        )));
+    }
+    Ok((cap / bytes_per_item.max(1)).clamp(1, u64::from(u32::MAX / 2)) as usize)
+}
+
+/// A dense call of `layer` (or of rows `w_row_offset..` of it, for one slice of a concatenated input).
+#[expect(clippy::too_many_arguments, reason = "a layer call is described by these values")]
+fn dense_call<'a>(
+    rec: &mut Recorder<'a>,
+    gpu: &'a Gpu,
+    layer: &GpuLinear,
+    (x, in_dim, w_row_offset): (&wgpu::Buffer, usize, usize),
+    (rows, rows_per_group): (usize, usize),
+    group: Option<&wgpu::Buffer>,
+    (accumulate, relu): (bool, bool),
+    out: &wgpu::Buffer,
+) -> Result<()> {
+    let shape = DenseShape { rows, in_dim, out_dim: layer.out_dim, rows_per_group, accumulate, relu };
+    dense::record(rec, gpu, &DenseParams::new(&shape, w_row_offset, group.is_some())?, x, &layer.weight_t, group, out)
+}
+
+/// `layer(x)` with the bias as the only group term (`model::foldnet::apply`).
+fn apply<'a>(
+    rec: &mut Recorder<'a>,
+    gpu: &'a Gpu,
+    layer: &GpuLinear,
+    x: &wgpu::Buffer,
+    rows: usize,
+    relu: bool,
+    out: &wgpu::Buffer,
+) -> Result<()> {
+    dense_call(rec, gpu, layer, (x, layer.in_dim, 0), (rows, rows.max(1)), Some(&layer.bias), (false, relu), out)
+}
+
+/// Layers `1..` of an MLP whose first layer's output is in `names[0]`: layer i writes `names[i % 2]`, ReLU
+/// on all but the last unless `relu_last`. Returns the buffer holding the output.
+fn tail<'a>(
+    rec: &mut Recorder<'a>,
+    gpu: &'a Gpu,
+    layers: &[GpuLinear],
+    bufs: &[wgpu::Buffer; 2],
+    rows: usize,
+    relu_last: bool,
+) -> Result<wgpu::Buffer> {
+    for (i, layer) in layers.iter().enumerate().skip(1) {
+        let relu = relu_last || i + 1 < layers.len();
+        apply(rec, gpu, layer, &bufs[(i - 1) % 2], rows, relu, &bufs[i % 2])?;
+    }
+    Ok(bufs[(layers.len() - 1) % 2].clone())
+}
+
+/// Two ping-pong buffers named `names` for `rows` rows of the widest layer of `layers`.
+fn ping_pong(
+    ws: &mut Workspace,
+    ctx: &GpuContext,
+    names: [&'static str; 2],
+    layers: &[GpuLinear],
+    rows: usize,
+) -> Result<[wgpu::Buffer; 2]> {
+    let w = layers.iter().map(|l| l.out_dim).max().unwrap_or(1);
+    let bytes = (rows * w * 4) as u64;
+    Ok([ws.buffer(ctx, names[0], bytes)?, ws.buffer(ctx, names[1], bytes)?])
+}
+
+/// Waits for every chunk and concatenates read `index` of each.
+fn collect(gpu: &Gpu, pending: Vec<Pending>, index: usize) -> Result<Vec<u8>> {
+    let mut out = Vec::new();
+    for p in pending {
+        out.extend_from_slice(&p.wait(gpu)?[index]);
+    }
+    Ok(out)
+}
+
+/// Codewords (`patches x codeword`) of `input` (`patches x points x io_width`), as `FoldNet::encode`.
+pub fn encode(
+    gpu: &Gpu,
+    ws: &mut Workspace,
+    f: &GpuFoldNet,
+    input: &[f32],
+    patches: usize,
+    points: usize,
+) -> Result<Vec<f32>> {
+    let width = f.io_width;
+    if input.len() != patches * points * width {
+        return Err(Error::invalid(format!(
+            "encode: input has {} values, expected {patches} patches x {points} points x {width}",
+            input.len()
+        )));
+    }
+    if patches == 0 || points == 0 {
+        return Ok(vec![0.0; 0]);
+    }
+    let ctx = &gpu.context;
+    let widest = f.encoder.iter().chain(&f.head).map(|l| l.out_dim).chain([width]).max().unwrap_or(width);
+    let chunk = items_per_chunk(ctx, (points * widest * 4) as u64, "patch of the encoder")?;
+    let cw = f.codeword_len();
+    let last = f.encoder.last().expect("checked on upload");
+    let head0 = &f.head[0];
+    let concat_offset: usize = f.encoder.iter().map(|l| l.out_dim).sum();
+    let mut pending = Vec::new();
+    for c0 in (0..patches).step_by(chunk) {
+        let cp = chunk.min(patches - c0);
+        let rows = cp * points;
+        let x_in = ws.upload(ctx, "enc_input", &input[c0 * points * width..(c0 + cp) * points * width])?;
+        let mut rec = Recorder::new(gpu, "encode");
+        let mut acts: Vec<(wgpu::Buffer, usize)> = Vec::with_capacity(f.encoder.len());
+        for (i, layer) in f.encoder.iter().enumerate() {
+            let out = ws.buffer(ctx, ENCODER_NAMES[i], (rows * layer.out_dim * 4) as u64)?;
+            let x = acts.last().map_or(&x_in, |(b, _)| b);
+            apply(&mut rec, gpu, layer, x, rows, true, &out)?;
+            acts.push((out, layer.out_dim));
+        }
+        let global = ws.buffer(ctx, "enc_global", (cp * last.out_dim * 4) as u64)?;
+        max_pool::record(
+            &mut rec,
+            gpu,
+            &MaxPoolParams::new(cp, points, last.out_dim)?,
+            &acts[acts.len() - 1].0,
+            &global,
+        )?;
+        // The global slice sits after the encoder slices in head.0's input; it is the per-patch term.
+        let group = ws.buffer(ctx, "enc_group", (cp * head0.out_dim * 4) as u64)?;
+        dense_call(
+            &mut rec,
+            gpu,
+            head0,
+            (&global, last.out_dim, concat_offset),
+            (cp, cp),
+            Some(&head0.bias),
+            (false, false),
+            &group,
+        )?;
+        let bufs = ping_pong(ws, ctx, ["head_a", "head_b"], &f.head, rows)?;
+        let mut offset = 0;
+        for (s, (a, w)) in acts.iter().enumerate() {
+            let first = s == 0;
+            let last_seg = s + 1 == acts.len();
+            let g = first.then_some(&group);
+            dense_call(&mut rec, gpu, head0, (a, *w, offset), (rows, points), g, (!first, last_seg), &bufs[0])?;
+            offset += w;
+        }
+        let h = tail(&mut rec, gpu, &f.head, &bufs, rows, true)?;
+        let codewords = ws.buffer(ctx, "enc_codewords", (cp * cw * 4) as u64)?;
+        max_pool::record(&mut rec, gpu, &MaxPoolParams::new(cp, points, cw)?, &h, &codewords)?;
+        rec.read(&codewords, 0, (cp * cw * 4) as u64);
+        pending.push(rec.submit()?);
+    }
+    Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0)?))
+}
+
+/// One folding MLP over `rows = patches x m` rows: `[codeword | x]` in, as `FoldNet::decode`'s `fold`.
+#[expect(clippy::too_many_arguments, reason = "a folding stage is described by these values")]
+fn fold<'a>(
+    rec: &mut Recorder<'a>,
+    gpu: &'a Gpu,
+    ws: &mut Workspace,
+    layers: &[GpuLinear],
+    (codewords, cw): (&wgpu::Buffer, usize),
+    (x, x_width): (&wgpu::Buffer, usize),
+    (patches, m): (usize, usize),
+    names: [&'static str; 2],
+) -> Result<wgpu::Buffer> {
+    let ctx = &gpu.context;
+    let l0 = &layers[0];
+    let rows = patches * m;
+    let group = ws.buffer(ctx, "fold_group", (patches * l0.out_dim * 4) as u64)?;
+    dense_call(rec, gpu, l0, (codewords, cw, 0), (patches, patches), Some(&l0.bias), (false, false), &group)?;
+    let bufs = ping_pong(ws, ctx, names, layers, rows)?;
+    dense_call(rec, gpu, l0, (x, x_width, cw), (rows, m), Some(&group), (false, layers.len() > 1), &bufs[0])?;
+    tail(rec, gpu, layers, &bufs, rows, false)
+}
+
+/// Reconstructions (`patches x grid_points x io_width`) of codewords (`patches x codeword`), as
+/// `FoldNet::decode`.
+pub fn decode(gpu: &Gpu, ws: &mut Workspace, f: &GpuFoldNet, codewords: &[f32], patches: usize) -> Result<Vec<f32>> {
+    let cw = f.codeword_len();
+    if codewords.len() != patches * cw {
+        return Err(Error::invalid(format!("decode: {} values are not {patches} codewords of {cw}", codewords.len())));
+    }
+    let m = f.grid.len() / 2;
+    if patches == 0 || m == 0 {
+        return Ok(Vec::new());
+    }
+    let ctx = &gpu.context;
+    let d = f.io_width;
+    let widest = f.fold1.iter().chain(&f.fold2).map(|l| l.out_dim).chain([2, d]).max().unwrap_or(d);
+    let chunk = items_per_chunk(ctx, (m * widest * 4) as u64, "patch of the decoder")?;
+    let mut pending = Vec::new();
+    for c0 in (0..patches).step_by(chunk) {
+        let cp = chunk.min(patches - c0);
+        let code = ws.upload(ctx, "dec_codewords", &codewords[c0 * cw..(c0 + cp) * cw])?;
+        let tiled: Vec<f32> = (0..cp).flat_map(|_| f.grid.iter().copied()).collect();
+        let grid = ws.upload(ctx, "dec_grid", &tiled)?;
+        let mut rec = Recorder::new(gpu, "decode");
+        let first = fold(&mut rec, gpu, ws, &f.fold1, (&code, cw), (&grid, 2), (cp, m), ["fold1_a", "fold1_b"])?;
+        let out = fold(&mut rec, gpu, ws, &f.fold2, (&code, cw), (&first, d), (cp, m), ["fold2_a", "fold2_b"])?;
+        rec.read(&out, 0, (cp * m * d * 4) as u64);
+        pending.push(rec.submit()?);
+    }
+    Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0)?))
+}
+
+/// RelativeNet's unit quaternions for `rows` rows of `[source | target]`, as `RelativeNet::predict`.
+pub fn relative(
+    gpu: &Gpu,
+    ws: &mut Workspace,
+    layers: &[GpuLinear],
+    source: &[f32],
+    target: &[f32],
+    rows: usize,
+) -> Result<Vec<[f32; 4]>> {
+    let l0 = &layers[0];
+    let f = l0.in_dim / 2;
+    if source.len() != rows * f || target.len() != rows * f {
+        return Err(Error::invalid(format!("predict_rotations: inputs must be {rows} rows of {f} values")));
+    }
+    let out_w = layers.last().map_or(0, |l| l.out_dim);
+    if out_w != 4 {
+        return Err(Error::invalid(format!("RelativeNet's last layer has width {out_w}, expected 4")));
+    }
+    if rows == 0 {
+        return Ok(Vec::new());
+    }
+    let ctx = &gpu.context;
+    let widest = layers.iter().map(|l| l.out_dim).chain([f]).max().unwrap_or(f);
+    let chunk = items_per_chunk(ctx, (widest * 4) as u64, "RelativeNet row")?;
+    let mut pending = Vec::new();
+    for r0 in (0..rows).step_by(chunk) {
+        let n = chunk.min(rows - r0);
+        let s = ws.upload(ctx, "rel_source", &source[r0 * f..(r0 + n) * f])?;
+        let t = ws.upload(ctx, "rel_target", &target[r0 * f..(r0 + n) * f])?;
+        let mut rec = Recorder::new(gpu, "predict_rotations");
+        let bufs = ping_pong(ws, ctx, ["rel_a", "rel_b"], layers, n)?;
+        let relu0 = layers.len() > 1;
+        dense_call(&mut rec, gpu, l0, (&s, f, 0), (n, n), Some(&l0.bias), (false, false), &bufs[0])?;
+        dense_call(&mut rec, gpu, l0, (&t, f, f), (n, n), None, (true, relu0), &bufs[0])?;
+        let raw = tail(&mut rec, gpu, layers, &bufs, n, false)?;
+        let quats = ws.buffer(ctx, "rel_quaternions", (n * 16) as u64)?;
+        normalize_quaternion::record(&mut rec, gpu, n, &raw, &quats)?;
+        rec.read(&quats, 0, (n * 16) as u64);
+        pending.push(rec.submit()?);
+    }
+    Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0)?))
+}

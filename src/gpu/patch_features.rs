@@ -1,0 +1,132 @@
+//! Host side of `shaders/patch_features.wgsl`: PPF and PC network inputs of gathered patches, one invocation
+//! per patch point. CPU twin: [`crate::cpu::patch_features`].
+
+use super::kernel::{BindKind, KernelSpec, ParamsLayout, gpu_params};
+use super::recorder::Recorder;
+use super::{Gpu, to_u32, workgroups};
+use crate::error::{Error, Result};
+
+gpu_params! {
+    /// Mirrors `struct PatchFeaturesParams` in shaders/patch_features.wgsl.
+    pub struct PatchFeaturesParams {
+        /// Points in the dispatch (patches x points_per_patch).
+        pub rows: u32,
+        /// Points per patch (N).
+        pub points_per_patch: u32,
+        /// Patch radius r.
+        pub radius: f32,
+        /// Padding.
+        pub _pad: u32,
+    }
+}
+
+/// Invocations per workgroup (`WG_SIZE` in the shader).
+pub const WG_SIZE: u32 = 64;
+
+/// The kernel's registry entry.
+pub const SPEC: KernelSpec = KernelSpec {
+    name: "patch_features",
+    source: include_str!("../../shaders/patch_features.wgsl"),
+    binds: &[
+        BindKind::Uniform,
+        BindKind::ReadOnly,
+        BindKind::ReadOnly,
+        BindKind::ReadOnly,
+        BindKind::ReadOnly,
+        BindKind::ReadWrite,
+        BindKind::ReadWrite,
+    ],
+    workgroup_size: WG_SIZE,
+    params: ParamsLayout::of::<PatchFeaturesParams>(),
+};
+
+/// Input and output buffers: centres and centre normals (xyz per patch), points and normals (xyz per point),
+/// ppf (4 per point) and pc (3 per point).
+pub struct PatchFeaturesBuffers<'b> {
+    /// Patch centres.
+    pub centers: &'b wgpu::Buffer,
+    /// Patch centre normals.
+    pub center_normals: &'b wgpu::Buffer,
+    /// Neighbour points.
+    pub points: &'b wgpu::Buffer,
+    /// Neighbour normals.
+    pub normals: &'b wgpu::Buffer,
+    /// PPF output.
+    pub ppf: &'b wgpu::Buffer,
+    /// PC output.
+    pub pc: &'b wgpu::Buffer,
+}
+
+/// Records one dispatch over `params.rows` points.
+pub fn record<'a>(
+    rec: &mut Recorder<'a>,
+    gpu: &'a Gpu,
+    params: &PatchFeaturesParams,
+    b: &PatchFeaturesBuffers<'_>,
+) -> Result<()> {
+    rec.dispatch(
+        &gpu.kernels.patch_features,
+        params,
+        &[b.centers, b.center_normals, b.points, b.normals, b.ppf, b.pc],
+        workgroups(params.rows as usize, WG_SIZE),
+    )
+}
+
+/// Runs the kernel on slices in one dispatch (the inputs must fit the buffer cap). `ppf` and `pc` hold the
+/// initial buffer contents (a sentinel in tests) and receive the result, as the twin's outputs.
+#[expect(clippy::too_many_arguments, reason = "mirrors the CPU twin's argument list plus the outputs")]
+pub fn run(
+    gpu: &Gpu,
+    centers: &[[f32; 3]],
+    center_normals: &[[f32; 3]],
+    points: &[[f32; 3]],
+    normals: &[[f32; 3]],
+    points_per_patch: usize,
+    radius: f32,
+    ppf: &mut [f32],
+    pc: &mut [f32],
+) -> Result<()> {
+    let rows = points.len();
+    let patches = centers.len();
+    if points_per_patch == 0
+        || normals.len() != rows
+        || center_normals.len() != patches
+        || rows != patches * points_per_patch
+        || ppf.len() != rows * 4
+        || pc.len() != rows * 3
+    {
+        return Err(Error::invalid("patch_features: inconsistent input or output lengths"));
+    }
+    let ctx = &gpu.context;
+    let up = |label, data: &[[f32; 3]]| super::buffer::GpuBuffer::from_slice(ctx, label, data);
+    let (c, cn, p, n) = (
+        up("centers", centers)?,
+        up("center_normals", center_normals)?,
+        up("points", points)?,
+        up("normals", normals)?,
+    );
+    let ppf_buf = super::buffer::GpuBuffer::from_slice(ctx, "ppf", ppf)?;
+    let pc_buf = super::buffer::GpuBuffer::from_slice(ctx, "pc", pc)?;
+    let params = PatchFeaturesParams {
+        rows: to_u32(rows, "patch points")?,
+        points_per_patch: to_u32(points_per_patch, "points per patch")?,
+        radius,
+        _pad: 0,
+    };
+    let mut rec = Recorder::new(gpu, "patch_features");
+    let buffers = PatchFeaturesBuffers {
+        centers: c.raw(),
+        center_normals: cn.raw(),
+        points: p.raw(),
+        normals: n.raw(),
+        ppf: ppf_buf.raw(),
+        pc: pc_buf.raw(),
+    };
+    record(&mut rec, gpu, &params, &buffers)?;
+    let a = rec.read(ppf_buf.raw(), 0, (ppf.len() * 4) as u64);
+    let b = rec.read(pc_buf.raw(), 0, (pc.len() * 4) as u64);
+    let out = rec.finish()?;
+    ppf.copy_from_slice(bytemuck::cast_slice(&out[a]));
+    pc.copy_from_slice(bytemuck::cast_slice(&out[b]));
+    Ok(())
+}

@@ -1,0 +1,352 @@
+//! Training pairs of corresponding patches from registered fragment pairs.
+//!
+//! Sources: any layout `crate::eval::dataset::load_dataset` reads — 3DMatch scene folders (`cloud_bin_k.ply` +
+//! `gt.log`, record `i j` maps fragment j into fragment i, so j is the source and i the target), folders of
+//! such scenes, or a pairs file (`source target` + 16 numbers, p_target = T p_source).
+//!
+//! Each fragment is prepared once and cached: voxel downsampling, PCA normals facing the origin (the sensor of
+//! a 3DMatch fragment), a k-d tree, and a flag per point telling whether its patch would have enough points.
+//! Each fragment pair gets, once, its list of matches: every usable source point whose mapped position has a
+//! usable target point within `match_distance` (the target keypoint is that nearest point).
+//!
+//! A sample draws a pair, a match, two patch seeds and two rotations from the step's random stream, then builds
+//! both patches with `crate::preprocess`. Augmentation rotates the source fragment about the origin by a
+//! uniform random rotation R_s (and, when enabled, the target fragment by R_t); the label is the rotation of
+//! the augmented target_from_source, R_t R R_s^T, which is uniform over SO(3) when R_s is. Rotating about the
+//! origin rather than the keypoint only changes the translation, which the centred patch inputs cancel; the
+//! normals are rotated with the points (their viewpoint, the origin, is fixed by the rotation).
+
+use super::objective::PairSample;
+use crate::cloud::PointCloud;
+use crate::error::{Error, Result};
+use crate::io::{LoadOptions, read_cloud};
+use crate::model::ModelConfig;
+use crate::preprocess::{GatheredPatches, estimate_normals, extract_patches, gather, voxel_downsample};
+use crate::rng::Rng;
+use crate::spatial::PointIndex;
+use nalgebra::{Matrix3, Matrix4, Quaternion, Rotation3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// How training pairs are drawn.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DataSettings {
+    /// Voxel size for downsampling each fragment (cloud units); 0 keeps every point.
+    pub voxel: f32,
+    /// Neighbours for PCA normals.
+    pub normal_neighbors: usize,
+    /// A source point has a correspondence when a target point lies within this distance of its mapped
+    /// position.
+    pub match_distance: f32,
+    /// A keypoint is usable when at least this many other points lie within the patch radius.
+    pub min_patch_points: usize,
+    /// Rotate the source fragment by a uniform random rotation.
+    pub rotate_source: bool,
+    /// Rotate the target fragment too (independently).
+    pub rotate_target: bool,
+}
+
+impl Default for DataSettings {
+    /// 2.5 cm voxels, 30 normal neighbours (as inference), 3 cm matches, at least 32 points per patch,
+    /// source rotation only.
+    fn default() -> Self {
+        DataSettings {
+            voxel: 0.025,
+            normal_neighbors: 30,
+            match_distance: 0.03,
+            min_patch_points: 32,
+            rotate_source: true,
+            rotate_target: false,
+        }
+    }
+}
+
+/// Two registered fragments.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FragmentPair {
+    /// The source fragment's file.
+    pub source: PathBuf,
+    /// The target fragment's file.
+    pub target: PathBuf,
+    /// p_target = target_from_source p_source.
+    pub target_from_source: Matrix4<f64>,
+}
+
+/// Every registered fragment pair under `paths` (each a dataset folder, scene folder, gt.log or pairs file).
+pub fn discover_pairs(paths: &[PathBuf]) -> Result<Vec<FragmentPair>> {
+    let mut out = Vec::new();
+    for path in paths {
+        for scene in crate::eval::dataset::load_dataset(path)? {
+            for e in &scene.gt {
+                let file = |k: usize| {
+                    scene.files.get(k).cloned().ok_or_else(|| {
+                        Error::invalid(format!("{}: pair ({}, {}) names a fragment that does not exist", scene.dir.display(), e.i, e.j))
+                    })
+                };
+                out.push(FragmentPair { source: file(e.j)?, target: file(e.i)?, target_from_source: e.transform });
+            }
+        }
+    }
+    if out.is_empty() {
+        return Err(Error::invalid("no registered fragment pairs found in the training data"));
+    }
+    Ok(out)
+}
+
+/// A fragment prepared for sampling.
+pub struct Fragment {
+    /// Downsampled points.
+    pub points: Vec<[f32; 3]>,
+    /// Their normals.
+    pub normals: Vec<[f32; 3]>,
+    /// Index over `points`.
+    pub index: PointIndex,
+    /// Whether each point has at least `min_patch_points` others within the radius.
+    pub usable: Vec<bool>,
+}
+
+impl Fragment {
+    /// Loads and prepares `path`.
+    pub fn load(path: &Path, settings: &DataSettings, radius: f32) -> Result<Fragment> {
+        let (cloud, _) = read_cloud(path, &LoadOptions::default())?;
+        Fragment::prepare(&cloud, settings, radius).map_err(|e| Error::invalid(format!("{}: {e}", path.display())))
+    }
+
+    /// Prepares a cloud already in memory.
+    pub fn prepare(cloud: &PointCloud, settings: &DataSettings, radius: f32) -> Result<Fragment> {
+        let cloud = if settings.voxel > 0.0 { voxel_downsample(cloud, settings.voxel)? } else { cloud.clone() };
+        if cloud.len() < 2 {
+            return Err(Error::invalid(format!("fragment has {} points after downsampling", cloud.len())));
+        }
+        let index = PointIndex::new(&cloud.points)?;
+        let normals = estimate_normals(&cloud.points, &index, settings.normal_neighbors, [0.0; 3]);
+        let k = settings.min_patch_points + 1;
+        let usable = cloud
+            .points
+            .par_iter()
+            .map(|p| {
+                let nn = index.nearest_n(p, k);
+                nn.len() == k && nn[k - 1].distance_squared <= radius * radius
+            })
+            .collect();
+        Ok(Fragment { points: cloud.points, normals, index, usable })
+    }
+}
+
+/// A pair's correspondences: (source point, target point) indices into the prepared fragments.
+type Matches = Arc<Vec<(u32, u32)>>;
+
+/// Where one sample comes from: everything random about it, drawn in the sequential phase.
+#[derive(Clone, Copy, Debug)]
+struct Plan {
+    pair: usize,
+    source_point: u32,
+    target_point: u32,
+    seeds: [u64; 2],
+    rotations: [[f64; 4]; 2],
+}
+
+/// Draws training samples; deterministic given (seed, step).
+pub struct Sampler {
+    pairs: Vec<FragmentPair>,
+    /// Fragment id of each pair's (source, target).
+    pair_fragments: Vec<(usize, usize)>,
+    files: Vec<PathBuf>,
+    fragments: Vec<Option<Arc<Fragment>>>,
+    matches: Vec<Option<Matches>>,
+    settings: DataSettings,
+    radius: f32,
+    points_per_patch: usize,
+}
+
+/// Pair draws per sample before giving up (pairs without any match are skipped).
+const MAX_DRAWS: usize = 1000;
+
+fn rotation(q: [f64; 4]) -> Matrix3<f64> {
+    UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3])).to_rotation_matrix().into_inner()
+}
+
+/// `[w, x, y, z]` of a rotation matrix. The matrix is first projected onto SO(3) (the nearest rotation, by
+/// SVD), so slightly non-orthonormal ground truth is fine.
+pub fn quaternion_of(r: &Matrix3<f64>) -> [f64; 4] {
+    let svd = r.svd(true, true);
+    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else { return [1.0, 0.0, 0.0, 0.0] };
+    let d = (u * v_t).determinant().signum();
+    let rot = u * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * v_t;
+    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(rot));
+    [q.w, q.i, q.j, q.k]
+}
+
+fn rotate(r: &Matrix3<f64>, v: [f32; 3]) -> [f32; 3] {
+    let w = r * Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64);
+    [w.x as f32, w.y as f32, w.z as f32]
+}
+
+impl Sampler {
+    /// A sampler over `pairs` for patches of `config`'s radius and size.
+    pub fn new(pairs: Vec<FragmentPair>, settings: DataSettings, config: &ModelConfig) -> Result<Sampler> {
+        if pairs.is_empty() {
+            return Err(Error::invalid("no training pairs"));
+        }
+        let voxel_ok = settings.voxel.is_finite() && settings.voxel >= 0.0;
+        let match_ok = settings.match_distance.is_finite() && settings.match_distance > 0.0;
+        if !(voxel_ok && match_ok) {
+            return Err(Error::invalid(format!("data settings out of range: {settings:?}")));
+        }
+        let mut ids: HashMap<PathBuf, usize> = HashMap::new();
+        let mut files = Vec::new();
+        let mut id = |p: &PathBuf| {
+            *ids.entry(p.clone()).or_insert_with(|| {
+                files.push(p.clone());
+                files.len() - 1
+            })
+        };
+        let pair_fragments = pairs.iter().map(|p| (id(&p.source), id(&p.target))).collect();
+        let n_files = files.len();
+        Ok(Sampler {
+            matches: vec![None; pairs.len()],
+            pairs,
+            pair_fragments,
+            files,
+            fragments: vec![None; n_files],
+            settings,
+            radius: config.radius,
+            points_per_patch: config.points_per_patch,
+        })
+    }
+
+    /// Number of fragment pairs.
+    pub fn pair_count(&self) -> usize {
+        self.pairs.len()
+    }
+
+    /// Number of distinct fragments.
+    pub fn fragment_count(&self) -> usize {
+        self.files.len()
+    }
+
+    /// Prepares every fragment and every pair's matches now, in parallel (otherwise this happens the first
+    /// time a pair is drawn). Returns the number of pairs with at least one match.
+    pub fn preload(&mut self) -> Result<usize> {
+        let todo: Vec<usize> = (0..self.files.len()).filter(|&i| self.fragments[i].is_none()).collect();
+        let loaded: Vec<Result<Fragment>> =
+            todo.par_iter().map(|&i| Fragment::load(&self.files[i], &self.settings, self.radius)).collect();
+        for (i, f) in todo.into_iter().zip(loaded) {
+            self.fragments[i] = Some(Arc::new(f?));
+        }
+        let todo: Vec<usize> = (0..self.pairs.len()).filter(|&i| self.matches[i].is_none()).collect();
+        let found: Vec<Vec<(u32, u32)>> = todo.par_iter().map(|&i| self.compute_matches(i)).collect();
+        for (i, m) in todo.into_iter().zip(found) {
+            self.matches[i] = Some(Arc::new(m));
+        }
+        Ok(self.matches.iter().filter(|m| m.as_ref().is_some_and(|m| !m.is_empty())).count())
+    }
+
+    fn fragment(&mut self, id: usize) -> Result<Arc<Fragment>> {
+        if let Some(f) = &self.fragments[id] {
+            return Ok(f.clone());
+        }
+        let f = Arc::new(Fragment::load(&self.files[id], &self.settings, self.radius)?);
+        self.fragments[id] = Some(f.clone());
+        Ok(f)
+    }
+
+    /// Matches of pair `i`; both fragments must be loaded.
+    fn compute_matches(&self, i: usize) -> Vec<(u32, u32)> {
+        let (s, t) = self.pair_fragments[i];
+        let (Some(src), Some(tgt)) = (&self.fragments[s], &self.fragments[t]) else { return Vec::new() };
+        let t_mat = self.pairs[i].target_from_source;
+        let r = t_mat.fixed_view::<3, 3>(0, 0).into_owned();
+        let tr = t_mat.fixed_view::<3, 1>(0, 3).into_owned();
+        let max_d2 = self.settings.match_distance * self.settings.match_distance;
+        src.points
+            .iter()
+            .enumerate()
+            .filter(|&(k, _)| src.usable[k])
+            .filter_map(|(k, p)| {
+                let q = r * Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64) + tr;
+                let nn = tgt.index.nearest_one(&[q.x as f32, q.y as f32, q.z as f32]);
+                (nn.distance_squared <= max_d2 && tgt.usable[nn.index]).then_some((k as u32, nn.index as u32))
+            })
+            .collect()
+    }
+
+    fn pair_matches(&mut self, i: usize) -> Result<Matches> {
+        if let Some(m) = &self.matches[i] {
+            return Ok(m.clone());
+        }
+        let (s, t) = self.pair_fragments[i];
+        self.fragment(s)?;
+        self.fragment(t)?;
+        let m = Arc::new(self.compute_matches(i));
+        self.matches[i] = Some(m.clone());
+        Ok(m)
+    }
+
+    /// The `batch` samples of training step `step` under `seed`.
+    pub fn batch(&mut self, seed: u64, step: u64, batch: usize) -> Result<Vec<PairSample>> {
+        let mut rng = Rng::derived(seed, step);
+        let mut plans = Vec::with_capacity(batch);
+        for _ in 0..batch {
+            let mut plan = None;
+            for _ in 0..MAX_DRAWS {
+                let pair = rng.below(self.pairs.len());
+                let matches = self.pair_matches(pair)?;
+                if matches.is_empty() {
+                    continue;
+                }
+                let (source_point, target_point) = matches[rng.below(matches.len())];
+                let seeds = [rng.next_u64(), rng.next_u64()];
+                let rotations = [rng.unit_quaternion(), rng.unit_quaternion()];
+                plan = Some(Plan { pair, source_point, target_point, seeds, rotations });
+                break;
+            }
+            plans.push(plan.ok_or_else(|| {
+                Error::invalid(format!(
+                    "no corresponding patches found in {MAX_DRAWS} draws: do the training pairs overlap (match \
+                     distance {}, at least {} points per patch)?",
+                    self.settings.match_distance, self.settings.min_patch_points
+                ))
+            })?);
+        }
+        plans.par_iter().map(|p| self.build(p)).collect()
+    }
+
+    /// Builds one sample from its plan.
+    fn build(&self, plan: &Plan) -> Result<PairSample> {
+        let (s, t) = self.pair_fragments[plan.pair];
+        let missing = || Error::invalid("internal: fragment not loaded");
+        let src = self.fragments[s].as_ref().ok_or_else(missing)?;
+        let tgt = self.fragments[t].as_ref().ok_or_else(missing)?;
+        let identity = Matrix3::identity();
+        let r_s = if self.settings.rotate_source { rotation(plan.rotations[0]) } else { identity };
+        let r_t = if self.settings.rotate_target { rotation(plan.rotations[1]) } else { identity };
+        let (n, radius) = (self.points_per_patch, self.radius);
+        let mut ppf = Vec::with_capacity(2 * n * 4);
+        let mut pc = Vec::with_capacity(2 * n * 3);
+        for (frag, point, seed, r) in
+            [(src, plan.source_point, plan.seeds[0], &r_s), (tgt, plan.target_point, plan.seeds[1], &r_t)]
+        {
+            let patches = extract_patches(&frag.points, &frag.index, &[point as usize], radius, n, seed);
+            if patches.keypoints.len() != 1 {
+                return Err(Error::invalid("internal: a usable keypoint gave an empty patch"));
+            }
+            let g = gather(&frag.points, &frag.normals, &patches);
+            let g = GatheredPatches {
+                centers: g.centers.iter().map(|&v| rotate(r, v)).collect(),
+                center_normals: g.center_normals.iter().map(|&v| rotate(r, v)).collect(),
+                points: g.points.iter().map(|&v| rotate(r, v)).collect(),
+                normals: g.normals.iter().map(|&v| rotate(r, v)).collect(),
+            };
+            let (f, c) = g.features(n, radius);
+            ppf.extend(f);
+            pc.extend(c);
+        }
+        let r = self.pairs[plan.pair].target_from_source.fixed_view::<3, 3>(0, 0).into_owned();
+        let label = quaternion_of(&(r_t * r * r_s.transpose()));
+        Ok(PairSample { ppf, pc, label })
+    }
+}

@@ -1,0 +1,188 @@
+//! The training loop: sample a batch, compute the loss and its gradient, take one Adam step.
+//!
+//! Everything random in step `s` comes from the stream `Rng::derived(seed, s)`, so the whole state of a run is
+//! the weights, the Adam moments and the step count: that is what a checkpoint holds, and resuming from it
+//! continues bit-identically.
+
+use super::adam::{Adam, AdamSettings, Param};
+use super::data::{DataSettings, FragmentPair, Sampler, discover_pairs};
+use super::objective::{LossSettings, Losses, PairSample, batch_objective};
+use crate::error::{Error, Result};
+use crate::model::params::tensor_specs;
+use crate::model::{ModelConfig, Weights};
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::path::PathBuf;
+
+/// Everything that defines a training run besides the model sizes.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrainSettings {
+    /// Dataset folders, scene folders, gt.log or pairs files.
+    pub data: Vec<PathBuf>,
+    /// Pairs per step.
+    pub batch: usize,
+    /// Seed of the initial weights and of every sample.
+    pub seed: u64,
+    /// Loss terms and weights.
+    pub loss: LossSettings,
+    /// Optimiser.
+    pub adam: AdamSettings,
+    /// Pair sampling.
+    pub sampling: DataSettings,
+}
+
+impl Default for TrainSettings {
+    fn default() -> Self {
+        TrainSettings {
+            data: Vec::new(),
+            batch: 32,
+            seed: 0,
+            loss: LossSettings::default(),
+            adam: AdamSettings::default(),
+            sampling: DataSettings::default(),
+        }
+    }
+}
+
+impl TrainSettings {
+    /// Checks the values are usable.
+    pub fn validate(&self) -> Result<()> {
+        if self.batch == 0 {
+            return Err(Error::invalid("batch must be at least 1"));
+        }
+        let l = &self.loss;
+        if !(l.lambda_pose.is_finite() && l.lambda_pose >= 0.0 && l.lambda_feat.is_finite() && l.lambda_feat >= 0.0) {
+            return Err(Error::invalid(format!("loss weights must be finite and non-negative: {l:?}")));
+        }
+        if !(l.rec || l.pose || l.feat) {
+            return Err(Error::invalid("every loss term is disabled: nothing to train"));
+        }
+        self.adam.validate()
+    }
+}
+
+/// A training run in progress.
+pub struct Trainer {
+    settings: TrainSettings,
+    weights: Weights,
+    adam: Adam,
+    step: u64,
+    sampler: Sampler,
+}
+
+/// Parameter tensor names in `tensor_specs` order, with whether weight decay applies (weights, not biases).
+pub(crate) fn tensor_order(config: &ModelConfig) -> Vec<(String, usize, bool)> {
+    tensor_specs(config)
+        .into_iter()
+        .map(|(name, shape)| {
+            let decay = name.ends_with(".weight");
+            (name, shape.iter().product(), decay)
+        })
+        .collect()
+}
+
+impl Trainer {
+    /// A fresh run: weights initialised from `settings.seed`, pairs discovered under `settings.data`.
+    pub fn new(config: ModelConfig, settings: TrainSettings) -> Result<Trainer> {
+        let pairs = discover_pairs(&settings.data)?;
+        Trainer::with_pairs(Weights::init(&config, settings.seed)?, settings, pairs)
+    }
+
+    /// A fresh run from given initial weights and fragment pairs (the configuration is the weights').
+    pub fn with_pairs(weights: Weights, settings: TrainSettings, pairs: Vec<FragmentPair>) -> Result<Trainer> {
+        settings.validate()?;
+        weights.config.validate()?;
+        let sizes: Vec<usize> = tensor_order(&weights.config).iter().map(|t| t.1).collect();
+        let adam = Adam::new(settings.adam, &sizes);
+        let sampler = Sampler::new(pairs, settings.sampling.clone(), &weights.config)?;
+        Ok(Trainer { settings, weights, adam, step: 0, sampler })
+    }
+
+    /// Rebuilds a run from its saved state (see `checkpoint::read_checkpoint`): weights, settings, the fragment
+    /// pairs, the optimiser state and the steps completed.
+    pub fn from_checkpoint_parts(
+        weights: Weights,
+        settings: TrainSettings,
+        pairs: Vec<FragmentPair>,
+        adam: Adam,
+        step: u64,
+    ) -> Result<Trainer> {
+        let mut t = Trainer::with_pairs(weights, settings, pairs)?;
+        let sizes_ok = adam.m.len() == t.adam.m.len() && adam.m.iter().zip(&t.adam.m).all(|(a, b)| a.len() == b.len());
+        if !sizes_ok || adam.v.len() != adam.m.len() {
+            return Err(Error::invalid("checkpoint: optimiser state does not match the model"));
+        }
+        t.adam = adam;
+        t.step = step;
+        Ok(t)
+    }
+
+    /// The settings of this run.
+    pub fn settings(&self) -> &TrainSettings {
+        &self.settings
+    }
+
+    /// The current weights.
+    pub fn weights(&self) -> &Weights {
+        &self.weights
+    }
+
+    /// The optimiser state.
+    pub fn adam(&self) -> &Adam {
+        &self.adam
+    }
+
+    /// Steps completed.
+    pub fn step_count(&self) -> u64 {
+        self.step
+    }
+
+    /// The pair sampler (e.g. to preload the data).
+    pub fn sampler_mut(&mut self) -> &mut Sampler {
+        &mut self.sampler
+    }
+
+    /// The learning rate the next step will use.
+    pub fn learning_rate(&self) -> f64 {
+        self.adam.settings.lr_at(self.adam.steps)
+    }
+
+    /// The batch the next step will train on.
+    pub fn next_batch(&mut self) -> Result<Vec<PairSample>> {
+        self.sampler.batch(self.settings.seed, self.step, self.settings.batch)
+    }
+
+    /// One training step; returns the batch's losses (before the update).
+    pub fn step(&mut self) -> Result<Losses> {
+        let batch = self.next_batch()?;
+        let (losses, grads) = batch_objective(&self.weights, &batch, &self.settings.loss)?;
+        if !losses.total.is_finite() {
+            return Err(Error::invalid(format!("the loss is not finite at step {} ({losses:?})", self.step)));
+        }
+        let order = tensor_order(&self.weights.config);
+        let index: HashMap<&str, usize> = order.iter().enumerate().map(|(i, t)| (t.0.as_str(), i)).collect();
+        // Tensors in spec order; gradient k of `grads.layers[i]` is weight (k = 0) or bias (k = 1).
+        let mut slots: Vec<Option<Param<'_>>> = (0..order.len()).map(|_| None).collect();
+        for (name, value) in self.weights.tensors.iter_mut() {
+            let Some(&i) = index.get(name.as_str()) else {
+                return Err(Error::invalid(format!("weights have an unexpected tensor '{name}'")));
+            };
+            let layer = &grads.layers[i / 2];
+            let grad = if i % 2 == 0 { &layer.weight } else { &layer.bias };
+            slots[i] = Some(Param { value, grad, decay: order[i].2 });
+        }
+        let mut params: Vec<Param<'_>> = slots.into_iter().collect::<Option<_>>().ok_or_else(|| {
+            Error::invalid("weights are missing a tensor of the model configuration")
+        })?;
+        self.adam.step(&mut params)?;
+        self.step += 1;
+        Ok(losses)
+    }
+
+    /// Replaces the fragment pairs (e.g. when resuming with the data at another path). The pairs must be the
+    /// same for the run to continue identically.
+    pub fn set_pairs(&mut self, pairs: Vec<FragmentPair>) -> Result<()> {
+        self.sampler = Sampler::new(pairs, self.settings.sampling.clone(), &self.weights.config)?;
+        Ok(())
+    }
+}

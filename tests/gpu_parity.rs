@@ -1,0 +1,666 @@
+//! Every WGSL kernel against its CPU twin, and the networks end to end (GPU backend vs CPU reference).
+//!
+//! Inputs are seeded (`DPR_SEED` overrides; the seed is in every failure message) and adversarial: sizes
+//! that miss the workgroup and tile sizes, dispatches past 65,535 workgroups in one dimension, degenerate
+//! geometry, heavy ties, and outputs pre-filled with a NaN / 0xDEADBEEF sentinel so an element a kernel
+//! never writes fails the comparison. Without a Vulkan adapter every test prints `SKIPPED (no GPU adapter)`
+//! and passes, unless `CI=true` or `DPR_GPU_REQUIRE_ADAPTER=1` (then it fails); see `dpr_gpu::gpu::testing`.
+//!
+//! Tolerances are named constants below, each with the reason it is not zero. Kernels whose result does not
+//! depend on float rounding (max_pool, mutual_knn on a given matrix, inlier counts away from the threshold)
+//! must match exactly.
+
+use dpr_gpu::backend::{Backend, CpuBackend};
+use dpr_gpu::cpu::dense::DenseShape;
+use dpr_gpu::cpu::hypotheses::{Hypothesis, hypotheses as cpu_hypotheses};
+use dpr_gpu::cpu::score_hypotheses::{HypothesisScore, score_hypotheses as cpu_score, squared_residual};
+use dpr_gpu::cpu::{self, mutual_knn::Match};
+use dpr_gpu::gpu::testing::{gpu_or_skip as gpu, new_gpu_or_skip};
+use dpr_gpu::gpu::{self, Gpu, GpuBackend};
+use dpr_gpu::model::relativenet::normalize_quaternion;
+use dpr_gpu::model::{Model, ModelConfig, Net, Weights};
+use dpr_gpu::preprocess::GatheredPatches;
+use dpr_gpu::rng::Rng;
+use dpr_gpu::settings::MatchMode;
+use std::sync::Arc;
+
+const EPS: f32 = f32::EPSILON;
+
+/// dense / codeword_distance: both sides sum the same terms in the same order, but a GPU may contract
+/// `a * b + c` into an FMA and so round differently at each step; the sequential-sum error bound is
+/// `n * eps * sum |terms|` for each side, so allow twice that (`n` = terms + 2).
+const SUM_ERROR_FACTOR: f32 = 2.0;
+
+/// patch_features angles (in units of pi): WGSL's `atan2` and `sqrt` are not correctly rounded (the
+/// spec allows thousands of ulp for atan2); 2e-5 is ~2^-15.6 of the [0, 1] range, far below feature noise.
+const PPF_ANGLE_ATOL: f32 = 2e-5;
+
+/// patch_features distances and PC coordinates: one `sqrt` / division, each a few ulp on a GPU.
+const PPF_LENGTH_RTOL: f32 = 8.0 * EPS;
+
+/// normalize_quaternion: four squares, a `sqrt` and a division, each a few ulp on a GPU.
+const QUATERNION_ATOL: f32 = 16.0 * EPS;
+
+/// hypotheses: R from products of quaternion components (FMA-contractible), t = p_t - R p_s; errors are a
+/// few ulp of the largest term.
+const HYPOTHESIS_ULPS: f32 = 16.0;
+
+/// score_hypotheses: the GPU sums residuals in a tree, the twin sequentially; both within
+/// `n * eps * sum` of the exact sum.
+const RESIDUAL_SUM_ULPS_PER_TERM: f32 = 2.0;
+
+/// score_hypotheses: a residual this close (relative) to the threshold may be classified differently when
+/// the GPU rounds the residual differently; the count may differ by at most the number of such pairs.
+const BORDERLINE_RTOL: f64 = 1e-5;
+
+/// End to end (encode, decode, RelativeNet): several layers of the dense tolerance compound, and max-pool
+/// may pick a different (nearly equal) maximum; relative to the largest output magnitude.
+const NETWORK_RTOL: f32 = 1e-4;
+
+// ---------------------------------------------------------------------------------------------- helpers
+
+/// Sentinel every float output is pre-filled with: an element the kernel never writes stays NaN and fails.
+const SENTINEL: f32 = f32::NAN;
+
+/// Sentinel for integer outputs.
+const SENTINEL_U32: u32 = 0xDEAD_BEEF;
+
+/// The test seed: `DPR_SEED` or `default`.
+fn seed(default: u64) -> u64 {
+    std::env::var("DPR_SEED").ok().and_then(|s| s.parse().ok()).unwrap_or(default)
+}
+
+/// `n` standard normal floats.
+fn normals(rng: &mut Rng, n: usize) -> Vec<f32> {
+    (0..n).map(|_| rng.normal() as f32).collect()
+}
+
+/// `n` points uniform in [-extent, extent]^3.
+fn points(rng: &mut Rng, n: usize, extent: f64) -> Vec<[f32; 3]> {
+    (0..n).map(|_| [0; 3].map(|_: i32| rng.uniform(-extent, extent) as f32)).collect()
+}
+
+/// Asserts `|a - e| <= tol(i)` elementwise (NaN equals NaN; infinities must match), naming the kernel, the
+/// first bad index, both values, the tolerance, the seed and how many elements are off.
+fn assert_close(kernel: &str, seed: u64, actual: &[f32], expected: &[f32], tol: impl Fn(usize) -> f32) {
+    assert_eq!(actual.len(), expected.len(), "{kernel}: length differs (seed {seed})");
+    let bad: Vec<usize> = (0..actual.len())
+        .filter(|&i| {
+            let (a, e) = (actual[i], expected[i]);
+            if !a.is_finite() || !e.is_finite() {
+                return !(a.is_nan() && e.is_nan() || a == e);
+            }
+            (a - e).abs() > tol(i)
+        })
+        .collect();
+    if let Some(&i) = bad.first() {
+        panic!(
+            "{kernel}: {} of {} elements differ (seed {seed}); first at {i}: gpu {} vs cpu {} (diff {:e}, tol {:e})",
+            bad.len(),
+            actual.len(),
+            actual[i],
+            expected[i],
+            (actual[i] - expected[i]).abs(),
+            tol(i)
+        );
+    }
+}
+
+/// `sum |terms|` of each dense output, the scale of its rounding error.
+fn dense_scale(s: &DenseShape, x: &[f32], w: &[f32], g: &[f32], init: &[f32]) -> Vec<f32> {
+    (0..s.rows * s.out_dim)
+        .map(|i| {
+            let (r, o) = (i / s.out_dim, i % s.out_dim);
+            let mut v = if s.accumulate { init[i].abs() } else { 0.0 };
+            if !g.is_empty() {
+                v += g[(r / s.rows_per_group) * s.out_dim + o].abs();
+            }
+            v + (0..s.in_dim).map(|k| (x[r * s.in_dim + k] * w[k * s.out_dim + o]).abs()).sum::<f32>()
+        })
+        .collect()
+}
+
+fn unit(rng: &mut Rng) -> [f32; 3] {
+    loop {
+        let v = [0; 3].map(|_: i32| rng.normal() as f32);
+        let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        if n > 1e-3 {
+            return v.map(|c| c / n);
+        }
+    }
+}
+
+/// A small model (ragged widths, a 5 x 7 grid) with random weights and non-zero biases, so every group
+/// term and concatenation slice is exercised.
+fn small_model(seed: u64) -> Model {
+    random_model(small_config(), seed)
+}
+
+fn small_config() -> ModelConfig {
+    ModelConfig {
+        radius: 0.3,
+        points_per_patch: 32,
+        encoder_widths: vec![16, 24, 40],
+        head_widths: vec![48, 36],
+        fold_widths: vec![32, 16],
+        grid: [5, 7],
+        grid_extent: 0.3,
+        relative_widths: vec![40, 24],
+    }
+}
+
+/// `config` with Xavier weights and random (non-zero) biases.
+fn random_model(config: ModelConfig, seed: u64) -> Model {
+    let mut w = Weights::init(&config, seed).expect("valid config");
+    let mut rng = Rng::new(seed ^ 0xB1A5);
+    for (name, t) in w.tensors.iter_mut() {
+        if name.ends_with(".bias") {
+            t.iter_mut().for_each(|v| *v = (rng.normal() * 0.1) as f32);
+        }
+    }
+    Model::from_weights(&w).expect("model")
+}
+
+fn backends(g: Arc<Gpu>, seed: u64) -> (GpuBackend, CpuBackend) {
+    backends_for(g, small_model(seed))
+}
+
+fn backends_for(g: Arc<Gpu>, model: Model) -> (GpuBackend, CpuBackend) {
+    let gpu = GpuBackend::with_gpu(g, model.clone()).expect("GPU backend");
+    gpu.set_poison(Some(SENTINEL)).unwrap();
+    (gpu, CpuBackend::new(model))
+}
+
+fn max_abs(v: &[f32]) -> f32 {
+    v.iter().fold(0f32, |m, x| m.max(x.abs()))
+}
+
+fn gathered(rng: &mut Rng, patches: usize, n: usize, radius: f32) -> GatheredPatches {
+    let centers = points(rng, patches, 5.0);
+    let mut pts = Vec::new();
+    for c in &centers {
+        for _ in 0..n {
+            let d = unit(rng);
+            let r = rng.uniform(0.0, radius as f64) as f32;
+            pts.push([c[0] + d[0] * r, c[1] + d[1] * r, c[2] + d[2] * r]);
+        }
+    }
+    GatheredPatches {
+        center_normals: (0..patches).map(|_| unit(rng)).collect(),
+        normals: (0..patches * n).map(|_| unit(rng)).collect(),
+        centers,
+        points: pts,
+    }
+}
+
+fn check_patch_features(kernel: &str, seed: u64, got: (&[f32], &[f32]), want: (&[f32], &[f32])) {
+    assert_close(&format!("{kernel} ppf"), seed, got.0, want.0, |i| {
+        if i % 4 == 3 { PPF_LENGTH_RTOL * want.0[i].abs() + 1e-30 } else { PPF_ANGLE_ATOL }
+    });
+    assert_close(&format!("{kernel} pc"), seed, got.1, want.1, |i| PPF_LENGTH_RTOL * want.1[i].abs() + 1e-30);
+}
+
+// ----------------------------------------------------------------------------------------- patch_features
+
+#[test]
+fn patch_features_matches_cpu_ragged() {
+    let Some(g) = gpu() else { return };
+    let s = seed(11);
+    let mut rng = Rng::new(s);
+    let (patches, n, radius) = (7, 37, 0.3); // 259 points: not a multiple of 64
+    let p = gathered(&mut rng, patches, n, radius);
+    let (want_ppf, want_pc) =
+        cpu::patch_features::patch_features(&p.centers, &p.center_normals, &p.points, &p.normals, n, radius);
+    let (mut ppf, mut pc) = (vec![SENTINEL; want_ppf.len()], vec![SENTINEL; want_pc.len()]);
+    gpu::patch_features::run(&g, &p.centers, &p.center_normals, &p.points, &p.normals, n, radius, &mut ppf, &mut pc)
+        .unwrap();
+    check_patch_features("patch_features", s, (&ppf, &pc), (&want_ppf, &want_pc));
+}
+
+#[test]
+fn patch_features_matches_cpu_degenerate() {
+    let Some(g) = gpu() else { return };
+    let s = seed(12);
+    let mut rng = Rng::new(s);
+    let c = [1.0e3, -2.0e3, 0.5];
+    let n_c = [0.0, 0.0, 1.0];
+    let up = [0.0, 0.0, 1.0];
+    // (point, normal) per row; every row is a degenerate case of the angle or distance.
+    let rows: Vec<([f32; 3], [f32; 3])> = vec![
+        (c, up),                                          // coincident with the centre: d = 0
+        (c, [0.0, 0.0, 0.0]),                             // coincident and zero normal
+        ([c[0] + 0.1, c[1], c[2]], [0.0; 3]),             // zero neighbour normal
+        ([c[0] + 0.1, c[1], c[2]], up),                   // normals parallel
+        ([c[0] + 0.1, c[1], c[2]], [0.0, 0.0, -1.0]),     // normals antiparallel
+        ([c[0], c[1], c[2] + 0.2], up),                   // d parallel to both normals
+        ([c[0], c[1], c[2] - 0.2], [0.0, 0.0, -1.0]),     // d antiparallel to n_r
+        ([c[0] + 0.3, c[1] - 0.3, c[2]], unit(&mut rng)), // on the radius
+    ];
+    let n = rows.len();
+    let mut centers = vec![c, c];
+    let mut center_normals = vec![n_c, [0.0; 3]]; // second patch: zero centre normal
+    let mut pts: Vec<[f32; 3]> = rows.iter().map(|r| r.0).collect();
+    let mut nrm: Vec<[f32; 3]> = rows.iter().map(|r| r.1).collect();
+    pts.extend(pts.clone());
+    nrm.extend(nrm.clone());
+    centers.truncate(2);
+    center_normals.truncate(2);
+    let (want_ppf, want_pc) = cpu::patch_features::patch_features(&centers, &center_normals, &pts, &nrm, n, 0.3);
+    let (mut ppf, mut pc) = (vec![SENTINEL; want_ppf.len()], vec![SENTINEL; want_pc.len()]);
+    gpu::patch_features::run(&g, &centers, &center_normals, &pts, &nrm, n, 0.3, &mut ppf, &mut pc).unwrap();
+    assert!(want_ppf.iter().all(|v| v.is_finite()), "twin gives finite features on degenerate input");
+    check_patch_features("patch_features (degenerate)", s, (&ppf, &pc), (&want_ppf, &want_pc));
+    // The zero-vector branch (atan2(0, 0) -> 0) must be taken identically: exact zeros where the twin has one
+    // because a vector is exactly zero.
+    for (i, (&a, &e)) in ppf.iter().zip(&want_ppf).enumerate() {
+        let (row, comp) = (i / 4 % n, i % 4);
+        let zero_vector = row <= 1 || (row == 2 && comp != 0) || i / 4 >= n && comp != 1;
+        if zero_vector && comp < 3 {
+            assert_eq!(a, e, "patch_features (degenerate): element {i} (row {row}, component {comp}) seed {s}");
+        }
+    }
+}
+
+// ------------------------------------------------------------------------------------------------- dense
+
+#[test]
+fn dense_matches_cpu_ragged() {
+    let Some(g) = gpu() else { return };
+    let s = seed(21);
+    let mut rng = Rng::new(s);
+    // (rows, in_dim, out_dim, rows_per_group, accumulate, relu, group term): sizes around the 64 x 64 x 16
+    // tiles, a single element, widths of the real layers.
+    let cases = [
+        (1, 1, 1, 1, false, false, true),
+        (1, 1, 1, 1, true, true, false),
+        (63, 3, 65, 63, false, true, true),
+        (65, 17, 64, 5, true, true, true),
+        (130, 70, 130, 13, true, false, false),
+        (257, 4, 3, 32, false, false, true),
+        (77, 129, 33, 77, true, true, true),
+        (128, 16, 128, 1, false, true, true),
+    ];
+    for (rows, in_dim, out_dim, rpg, accumulate, relu, group) in cases {
+        let shape = DenseShape { rows, in_dim, out_dim, rows_per_group: rpg, accumulate, relu };
+        let x = normals(&mut rng, rows * in_dim);
+        let w = normals(&mut rng, in_dim * out_dim);
+        let gt = if group { normals(&mut rng, rows.div_ceil(rpg) * out_dim) } else { Vec::new() };
+        // Without accumulation the initial contents must be ignored: use the sentinel.
+        let init = if accumulate { normals(&mut rng, rows * out_dim) } else { vec![SENTINEL; rows * out_dim] };
+        let mut want = init.clone();
+        cpu::dense::dense(&shape, &x, &w, &gt, &mut want);
+        let mut got = init.clone();
+        gpu::dense::run(&g, &shape, &x, &w, &gt, &mut got).unwrap();
+        let init_for_scale = if accumulate { init.clone() } else { vec![0.0; init.len()] };
+        let scale = dense_scale(&shape, &x, &w, &gt, &init_for_scale);
+        let tol = |i: usize| SUM_ERROR_FACTOR * (in_dim + 2) as f32 * EPS * scale[i] + f32::MIN_POSITIVE;
+        assert_close(&format!("dense {shape:?}"), s, &got, &want, tol);
+    }
+}
+
+// ---------------------------------------------------------------------------------------------- max_pool
+
+#[test]
+fn max_pool_matches_cpu_ragged() {
+    let Some(g) = gpu() else { return };
+    let s = seed(31);
+    let mut rng = Rng::new(s);
+    for (groups, rows, channels) in [(1, 1, 1), (5, 37, 67), (3, 1, 130), (2, 300, 5)] {
+        // All negative in one group: the -inf start value matters.
+        let mut x = normals(&mut rng, groups * rows * channels);
+        x[..rows * channels].iter_mut().for_each(|v| *v = -v.abs() - 1.0);
+        let want = cpu::max_pool::max_pool(&x, groups, rows, channels);
+        let mut got = vec![SENTINEL; groups * channels];
+        gpu::max_pool::run(&g, &x, groups, rows, channels, &mut got).unwrap();
+        assert_close(&format!("max_pool {groups}x{rows}x{channels}"), s, &got, &want, |_| 0.0);
+    }
+}
+
+#[test]
+fn max_pool_matches_cpu_past_65535_workgroups() {
+    let Some(g) = gpu() else { return };
+    let s = seed(32);
+    // 65,600 x 64 outputs: 65,600 workgroups of 64, folded into a 2-D grid; one row per group keeps it cheap.
+    let groups = 65_600 * gpu::max_pool::WG_SIZE as usize + 17;
+    let mut rng = Rng::new(s);
+    let x: Vec<f32> = (0..groups).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
+    let want = cpu::max_pool::max_pool(&x, groups, 1, 1);
+    let mut got = vec![SENTINEL; groups];
+    gpu::max_pool::run(&g, &x, groups, 1, 1, &mut got).unwrap();
+    assert_close("max_pool (2-D dispatch)", s, &got, &want, |_| 0.0);
+}
+
+// ------------------------------------------------------------------------------ codeword_distance + knn
+
+#[test]
+fn codeword_distance_matches_cpu_ragged() {
+    let Some(g) = gpu() else { return };
+    let s = seed(41);
+    let mut rng = Rng::new(s);
+    for (ns, nt, dim) in [(1, 1, 1), (37, 53, 70), (17, 16, 33), (5, 300, 4)] {
+        let a = normals(&mut rng, ns * dim);
+        let b = normals(&mut rng, nt * dim);
+        let want = cpu::mutual_knn::codeword_distance(&a, &b, dim);
+        let mut got = vec![SENTINEL; ns * nt];
+        gpu::codeword_distance::run(&g, &a, &b, dim, &mut got).unwrap();
+        // All terms are non-negative, so sum |terms| is the value itself.
+        let tol = |i: usize| SUM_ERROR_FACTOR * (dim + 2) as f32 * EPS * want[i] + f32::MIN_POSITIVE;
+        assert_close(&format!("codeword_distance {ns}x{nt}x{dim}"), s, &got, &want, tol);
+    }
+}
+
+const MODES: [MatchMode; 5] =
+    [MatchMode::Closest, MatchMode::Mutual(1), MatchMode::Mutual(2), MatchMode::Mutual(3), MatchMode::Mutual(4)];
+
+fn check_knn(g: &Gpu, s: u64, d: &[f32], ns: usize, nt: usize, what: &str) {
+    for mode in MODES {
+        let want = cpu::mutual_knn::mutual_knn(d, ns, nt, mode);
+        let got = gpu::mutual_knn::run(g, d, ns, nt, mode).unwrap();
+        assert_eq!(got, want, "mutual_knn {what} {ns}x{nt} {mode:?} (seed {s})");
+    }
+}
+
+#[test]
+fn mutual_knn_matches_cpu_random() {
+    let Some(g) = gpu() else { return };
+    let s = seed(42);
+    let mut rng = Rng::new(s);
+    for (ns, nt) in [(1, 1), (1, 5), (5, 1), (2, 3), (67, 71), (130, 3)] {
+        let d: Vec<f32> = (0..ns * nt).map(|_| rng.uniform(0.0, 10.0) as f32).collect();
+        check_knn(&g, s, &d, ns, nt, "random");
+    }
+}
+
+#[test]
+fn mutual_knn_matches_cpu_with_ties() {
+    let Some(g) = gpu() else { return };
+    let s = seed(43);
+    let mut rng = Rng::new(s);
+    // Few distinct values: most comparisons are ties, broken towards the lower index on both sides.
+    for (ns, nt, levels) in [(4, 4, 1), (9, 13, 2), (65, 66, 3), (3, 2, 2)] {
+        let d: Vec<f32> = (0..ns * nt).map(|_| rng.below(levels) as f32).collect();
+        check_knn(&g, s, &d, ns, nt, "ties");
+    }
+}
+
+// ----------------------------------------------------------------------- quaternions, hypotheses, scores
+
+#[test]
+fn normalize_quaternion_matches_cpu() {
+    let Some(g) = gpu() else { return };
+    let s = seed(51);
+    let mut rng = Rng::new(s);
+    let mut raw: Vec<[f32; 4]> = (0..131)
+        .map(|i| {
+            let scale = 10f32.powi(i % 7 - 3);
+            [0; 4].map(|_: i32| rng.normal() as f32 * scale)
+        })
+        .collect();
+    // Degenerate: zero, below the minimum norm (identity), just above it, one-hot.
+    raw.extend([[0.0; 4], [1e-13, 0.0, 0.0, 0.0], [0.0, 0.0, 2e-12, 0.0], [0.0, -3.0, 0.0, 0.0]]);
+    let want: Vec<f32> = raw.iter().flat_map(|&q| normalize_quaternion(q)).collect();
+    let mut got = vec![[SENTINEL; 4]; raw.len()];
+    gpu::normalize_quaternion::run(&g, &raw, &mut got).unwrap();
+    assert_close("normalize_quaternion", s, got.as_flattened(), &want, |_| QUATERNION_ATOL);
+}
+
+/// Quaternions with source and target points, one per correspondence.
+type QuaternionProblem = (Vec<[f32; 4]>, Vec<[f32; 3]>, Vec<[f32; 3]>);
+
+fn random_hypotheses(rng: &mut Rng, n: usize, extent: f64) -> QuaternionProblem {
+    let q = (0..n).map(|_| rng.unit_quaternion().map(|v| v as f32)).collect();
+    (q, points(rng, n, extent), points(rng, n, extent))
+}
+
+#[test]
+fn hypotheses_matches_cpu() {
+    let Some(g) = gpu() else { return };
+    let s = seed(52);
+    let mut rng = Rng::new(s);
+    let (q, ps, pt) = random_hypotheses(&mut rng, 131, 20.0);
+    let want = cpu_hypotheses(&q, &ps, &pt);
+    let sentinel = Hypothesis { rotation: [SENTINEL; 9], translation: [SENTINEL; 3] };
+    let mut got = vec![sentinel; q.len()];
+    gpu::hypotheses::run(&g, &q, &ps, &pt, &mut got).unwrap();
+    let flat = |h: &[Hypothesis]| h.iter().flat_map(gpu::hypotheses::to_row).collect::<Vec<f32>>();
+    let scale: Vec<f32> = (0..q.len())
+        .flat_map(|i| {
+            let p = ps[i].iter().chain(&pt[i]).fold(1f32, |m, v| m.max(v.abs()));
+            [[1.0; 9].as_slice(), [p; 3].as_slice()].concat()
+        })
+        .collect();
+    assert_close("hypotheses", s, &flat(&got), &flat(&want), |i| HYPOTHESIS_ULPS * EPS * scale[i]);
+}
+
+/// Correspondences with about 60% inliers of a random pose, and hypotheses near that pose.
+fn scoring_problem(rng: &mut Rng, hyps: usize, corr: usize) -> (Vec<Hypothesis>, Vec<[f32; 3]>, Vec<[f32; 3]>) {
+    let (q, ps, _) = random_hypotheses(rng, 1, 1.0);
+    let truth = cpu_hypotheses(&q, &ps, &points(rng, 1, 2.0))[0];
+    let source = points(rng, corr, 3.0);
+    let target = source
+        .iter()
+        .map(|&p| {
+            let rp = dpr_gpu::cpu::hypotheses::rotate(&truth.rotation, p);
+            let noise = if rng.unit_f64() < 0.6 { 0.05 } else { 2.0 };
+            [0, 1, 2].map(|a| rp[a] + truth.translation[a] + (rng.normal() * noise) as f32)
+        })
+        .collect();
+    // Small translations of the truth, and every fifth an unrelated pose.
+    let (hq, hs, ht) = random_hypotheses(rng, hyps, 0.02);
+    let hypotheses = (0..hyps)
+        .map(|i| {
+            if i % 5 == 4 {
+                return cpu_hypotheses(&[hq[i]], &[hs[i]], &[ht[i]])[0];
+            }
+            let mut h = truth;
+            for (a, v) in h.translation.iter_mut().enumerate() {
+                *v += hs[i][a] + ht[i][a];
+            }
+            h
+        })
+        .collect();
+    (hypotheses, source, target)
+}
+
+fn check_scores(s: u64, h: &[Hypothesis], src: &[[f32; 3]], tgt: &[[f32; 3]], thr: f32, got: &[HypothesisScore]) {
+    let want = cpu_score(h, src, tgt, thr);
+    assert_eq!(got.len(), want.len());
+    let t2 = f64::from(thr) * f64::from(thr);
+    for (i, (a, e)) in got.iter().zip(&want).enumerate() {
+        let r2: Vec<f64> = src.iter().zip(tgt).map(|(&p, &q)| f64::from(squared_residual(&h[i], p, q))).collect();
+        let borderline = r2.iter().filter(|&&r| (r - t2).abs() <= BORDERLINE_RTOL * t2).count();
+        let dc = a.inliers.abs_diff(e.inliers) as usize;
+        assert!(
+            dc <= borderline,
+            "score_hypotheses[{i}] inliers gpu {} vs cpu {} ({borderline} borderline, seed {s})",
+            a.inliers,
+            e.inliers
+        );
+        let tol = RESIDUAL_SUM_ULPS_PER_TERM * (e.inliers as f32 + 2.0) * EPS * e.residual_sum
+            + borderline as f32 * thr * thr;
+        assert!(
+            (a.residual_sum - e.residual_sum).abs() <= tol,
+            "score_hypotheses[{i}] residual sum gpu {} vs cpu {} (tol {tol:e}, seed {s})",
+            a.residual_sum,
+            e.residual_sum
+        );
+    }
+}
+
+#[test]
+fn score_hypotheses_matches_cpu() {
+    let Some(g) = gpu() else { return };
+    let s = seed(53);
+    let mut rng = Rng::new(s);
+    for (hyps, corr) in [(1, 1), (37, 200), (5, 64), (3, 65), (70, 0)] {
+        let (h, src, tgt) = scoring_problem(&mut rng, hyps, corr);
+        let mut got = vec![HypothesisScore { inliers: SENTINEL_U32, residual_sum: SENTINEL }; h.len()];
+        gpu::score_hypotheses::run(&g, &h, &src, &tgt, 0.1, &mut got).unwrap();
+        check_scores(s, &h, &src, &tgt, 0.1, &got);
+    }
+}
+
+#[test]
+fn score_hypotheses_matches_cpu_past_65535_workgroups() {
+    let Some(g) = gpu() else { return };
+    let s = seed(54);
+    let mut rng = Rng::new(s);
+    // One workgroup per hypothesis: 65,600 of them need a 2-D grid; two correspondences keep it cheap.
+    let (h, src, tgt) = scoring_problem(&mut rng, 65_600, 2);
+    let mut got = vec![HypothesisScore { inliers: SENTINEL_U32, residual_sum: SENTINEL }; h.len()];
+    gpu::score_hypotheses::run(&g, &h, &src, &tgt, 0.5, &mut got).unwrap();
+    check_scores(s, &h, &src, &tgt, 0.5, &got);
+}
+
+#[test]
+fn inlier_mask_matches_cpu() {
+    let Some(g) = gpu() else { return };
+    let s = seed(55);
+    let mut rng = Rng::new(s);
+    let (h, src, tgt) = scoring_problem(&mut rng, 1, 333);
+    let mut mask = vec![SENTINEL_U32; src.len()];
+    gpu::score_hypotheses::inlier_mask(&g, &h[0], &src, &tgt, 0.1, &mut mask).unwrap();
+    let t2 = 0.1f32 * 0.1;
+    for (c, (&p, &q)) in src.iter().zip(&tgt).enumerate() {
+        let r2 = squared_residual(&h[0], p, q);
+        let borderline = (f64::from(r2) - f64::from(t2)).abs() <= BORDERLINE_RTOL * f64::from(t2);
+        assert!(mask[c] <= 1, "inlier_mask[{c}] = {:#x} was not written (seed {s})", mask[c]);
+        if !borderline {
+            assert_eq!(mask[c] == 1, r2 < t2, "inlier_mask[{c}] (r2 {r2}, seed {s})");
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------- the backend, e2e
+
+#[test]
+fn backend_patch_features_and_encode_match_cpu() {
+    let Some(g) = gpu() else { return };
+    let s = seed(61);
+    let (gpu_b, cpu_b) = backends(g, s);
+    let n = cpu_b.model().config.points_per_patch;
+    let mut rng = Rng::new(s);
+    let p = gathered(&mut rng, 13, n, 0.3);
+    let want = cpu_b.patch_features(&p, 0.3).unwrap();
+    let got = gpu_b.patch_features(&p, 0.3).unwrap();
+    check_patch_features("backend patch_features", s, (&got.0, &got.1), (&want.0, &want.1));
+    for (net, input) in [(Net::Ppf, &want.0), (Net::Pc, &want.1)] {
+        let want_cw = cpu_b.encode(net, input, 13).unwrap();
+        let got_cw = gpu_b.encode(net, input, 13).unwrap();
+        let tol = NETWORK_RTOL * max_abs(&want_cw);
+        assert_close(&format!("encode {net:?}"), s, &got_cw, &want_cw, |_| tol);
+    }
+}
+
+#[test]
+fn networks_match_cpu_at_default_widths() {
+    let Some(g) = gpu() else { return };
+    let s = seed(66);
+    // The shipped widths (full 64-wide tiles, 704-wide concatenation, 512-wide codewords), few points.
+    let config = ModelConfig { points_per_patch: 48, grid: [6, 6], ..ModelConfig::default() };
+    let (gpu_b, cpu_b) = backends_for(g, random_model(config, s));
+    let n = cpu_b.model().config.points_per_patch;
+    let mut rng = Rng::new(s);
+    let p = gathered(&mut rng, 3, n, 0.3);
+    let (ppf, pc) = cpu_b.patch_features(&p, 0.3).unwrap();
+    let mut codewords = Vec::new();
+    for (net, input) in [(Net::Ppf, &ppf), (Net::Pc, &pc)] {
+        let want = cpu_b.encode(net, input, 3).unwrap();
+        let got = gpu_b.encode(net, input, 3).unwrap();
+        let tol = NETWORK_RTOL * max_abs(&want);
+        assert_close(&format!("encode {net:?} (default widths)"), s, &got, &want, |_| tol);
+        let f = if net == Net::Ppf { &cpu_b.model().ppf } else { &cpu_b.model().pc };
+        let want_rec = f.decode(&want, 3);
+        let got_rec = gpu_b.decode(net, &want, 3).unwrap();
+        let tol = NETWORK_RTOL * max_abs(&want_rec);
+        assert_close(&format!("decode {net:?} (default widths)"), s, &got_rec, &want_rec, |_| tol);
+        codewords.push(want);
+    }
+    let pose: Vec<f32> = codewords[1].iter().zip(&codewords[0]).map(|(a, b)| a - b).collect();
+    let want = cpu_b.predict_rotations(&pose, &pose, 3).unwrap();
+    let got = gpu_b.predict_rotations(&pose, &pose, 3).unwrap();
+    assert_close("predict_rotations (default widths)", s, got.as_flattened(), want.as_flattened(), |_| NETWORK_RTOL);
+}
+
+#[test]
+fn encode_and_matching_match_cpu_when_chunked() {
+    // A device of its own: the buffer cap is shrunk so encode and matching run in many chunks.
+    let Some(g) = new_gpu_or_skip().map(Arc::new) else { return };
+    let s = seed(62);
+    let (gpu_b, cpu_b) = backends(Arc::clone(&g), s);
+    let n = cpu_b.model().config.points_per_patch;
+    let mut rng = Rng::new(s);
+    let input: Vec<f32> = (0..11 * n * 4).map(|_| rng.unit_f64() as f32).collect();
+    g.context.set_max_buffer_bytes(8 << 10); // one 32-point patch x 48 channels per chunk
+    let want = cpu_b.encode(Net::Ppf, &input, 11).unwrap();
+    let got = gpu_b.encode(Net::Ppf, &input, 11).unwrap();
+    let tol = NETWORK_RTOL * max_abs(&want);
+    assert_close("encode (chunked)", s, &got, &want, |_| tol);
+
+    let (ns, nt, dim) = (120, 37, 16); // 55 distance rows per 8 KiB chunk: 3 chunks
+    let a = normals(&mut rng, ns * dim);
+    let b = normals(&mut rng, nt * dim);
+    for mode in MODES {
+        let want = cpu_b.match_codewords(&a, &b, dim, mode).unwrap();
+        let got = gpu_b.match_codewords(&a, &b, dim, mode).unwrap();
+        let pairs = |m: &[Match]| m.iter().map(|m| (m.source, m.target)).collect::<Vec<_>>();
+        assert_eq!(pairs(&got), pairs(&want), "match_codewords (chunked) {mode:?} seed {s}");
+        let (gd, wd): (Vec<f32>, Vec<f32>) =
+            (got.iter().map(|m| m.distance).collect(), want.iter().map(|m| m.distance).collect());
+        assert_close("match_codewords distances", s, &gd, &wd, |i| SUM_ERROR_FACTOR * (dim + 2) as f32 * EPS * wd[i]);
+    }
+    assert!(gpu_b.workspace_bytes().unwrap() <= 40 * (8 << 10), "workspace stays within the chunk sizes");
+}
+
+#[test]
+fn decode_matches_cpu() {
+    let Some(g) = gpu() else { return };
+    let s = seed(63);
+    let (gpu_b, cpu_b) = backends(g, s);
+    let model = cpu_b.model();
+    let cw = model.config.codeword();
+    let mut rng = Rng::new(s);
+    let codewords: Vec<f32> = (0..9 * cw).map(|_| rng.unit_f64() as f32).collect();
+    for (net, f) in [(Net::Ppf, &model.ppf), (Net::Pc, &model.pc)] {
+        let want = f.decode(&codewords, 9);
+        let got = gpu_b.decode(net, &codewords, 9).unwrap();
+        let tol = NETWORK_RTOL * max_abs(&want);
+        assert_close(&format!("decode {net:?}"), s, &got, &want, |_| tol);
+    }
+}
+
+#[test]
+fn relativenet_hypotheses_and_scores_match_cpu() {
+    let Some(g) = gpu() else { return };
+    let s = seed(64);
+    let (gpu_b, cpu_b) = backends(g, s);
+    let cw = cpu_b.model().config.codeword();
+    let rows = 77;
+    let mut rng = Rng::new(s);
+    let (src, tgt) = (normals(&mut rng, rows * cw), normals(&mut rng, rows * cw));
+    let want = cpu_b.predict_rotations(&src, &tgt, rows).unwrap();
+    let got = gpu_b.predict_rotations(&src, &tgt, rows).unwrap();
+    assert_close("predict_rotations", s, got.as_flattened(), want.as_flattened(), |_| NETWORK_RTOL);
+
+    let (ps, pt) = (points(&mut rng, rows, 2.0), points(&mut rng, rows, 2.0));
+    let want_h = cpu_b.hypotheses(&want, &ps, &pt).unwrap();
+    let got_h = gpu_b.hypotheses(&want, &ps, &pt).unwrap();
+    let flat = |h: &[Hypothesis]| h.iter().flat_map(gpu::hypotheses::to_row).collect::<Vec<f32>>();
+    assert_close("backend hypotheses", s, &flat(&got_h), &flat(&want_h), |_| HYPOTHESIS_ULPS * EPS * 4.0);
+    let got_s = gpu_b.score_hypotheses(&want_h, &ps, &pt, 0.5).unwrap();
+    check_scores(s, &want_h, &ps, &pt, 0.5, &got_s);
+}
+
+#[test]
+fn invalid_calls_are_errors_not_panics() {
+    let Some(g) = gpu() else { return };
+    let (gpu_b, _) = backends(Arc::clone(&g), seed(65));
+    assert!(gpu_b.match_codewords(&[0.0; 8], &[0.0; 8], 4, MatchMode::Mutual(5)).is_err());
+    assert!(gpu_b.encode(Net::Ppf, &[0.0; 7], 1).is_err());
+    let shape = DenseShape { rows: 2, in_dim: 2, out_dim: 2, rows_per_group: 1, accumulate: false, relu: false };
+    assert!(gpu::dense::run(&g, &shape, &[0.0; 3], &[0.0; 4], &[], &mut [0.0; 4]).is_err());
+    // Larger than the buffer cap: a clear Error::Gpu naming the limit.
+    let big = vec![0.0f32; (g.context.max_buffer_bytes() / 4 + 1) as usize];
+    let err = gpu::max_pool::run(&g, &big, 1, big.len(), 1, &mut [0.0]).unwrap_err().to_string();
+    assert!(err.contains("max_storage_buffer_binding_size"), "{err}");
+}
