@@ -66,9 +66,10 @@ fn assert_close(what: &str, analytic: f64, numeric: f64, atol: f64, rtol: f64) {
 /// Checks d f / d x against `grad` at every element, with `f` evaluated on an f64 copy.
 fn check_all(what: &str, x: &[f32], grad: &[f32], f: &dyn Fn(&[f64]) -> f64) {
     let mut xd: Vec<f64> = x.iter().map(|&v| v as f64).collect();
-    for i in 0..x.len() {
+    assert_eq!(x.len(), grad.len(), "{what}: gradient size");
+    for (i, &g) in grad.iter().enumerate() {
         let num = central(&mut xd, i, 1e-6, f);
-        assert_close(&format!("{what}[{i}]"), grad[i] as f64, num, 1e-6, 1e-4);
+        assert_close(&format!("{what}[{i}]"), g as f64, num, 1e-6, 1e-4);
     }
 }
 
@@ -190,9 +191,7 @@ fn chamfer64(x: &[f64], y: &[f64], dim: usize) -> f64 {
     let d = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| (p - q) * (p - q)).sum::<f64>().sqrt();
     let one_way = |a: &[f64], b: &[f64]| {
         let n = a.len() / dim;
-        (0..n)
-            .map(|i| b.chunks(dim).map(|q| d(&a[i * dim..][..dim], q)).fold(f64::INFINITY, f64::min))
-            .sum::<f64>()
+        (0..n).map(|i| b.chunks(dim).map(|q| d(&a[i * dim..][..dim], q)).fold(f64::INFINITY, f64::min)).sum::<f64>()
             / n as f64
     };
     one_way(x, y).max(one_way(y, x))
@@ -393,12 +392,14 @@ fn adam_minimises_a_quadratic() {
     let t = [3.0f32, -2.0, 0.5, 1.0];
     let mut x = vec![0.0f32; 4];
     let mut bias = vec![5.0f32];
-    let settings = AdamSettings { lr: 0.05, weight_decay: 0.0, lr_decay: 0.5, lr_decay_every: 300, ..AdamSettings::default() };
+    let settings =
+        AdamSettings { lr: 0.05, weight_decay: 0.0, lr_decay: 0.5, lr_decay_every: 300, ..AdamSettings::default() };
     let mut adam = Adam::new(settings, &[4, 1]);
     for _ in 0..2000 {
         let g: Vec<f32> = (0..4).map(|i| 2.0 * c[i] * (x[i] - t[i])).collect();
         let gb = vec![2.0 * (bias[0] + 1.0)];
-        let mut params = [Param { value: &mut x, grad: &g, decay: true }, Param { value: &mut bias, grad: &gb, decay: false }];
+        let mut params =
+            [Param { value: &mut x, grad: &g, decay: true }, Param { value: &mut bias, grad: &gb, decay: false }];
         adam.step(&mut params).unwrap();
     }
     for i in 0..4 {
@@ -450,7 +451,11 @@ fn corner_scene(seed: u64) -> Vec<[f64; 3]> {
     for i in 0..20 {
         for j in 0..40 {
             let (th, ph) = (std::f64::consts::PI * (i as f64 + 0.5) / 20.0, std::f64::consts::TAU * j as f64 / 40.0);
-            pts.push(jitter([0.3 + 0.15 * th.sin() * ph.cos(), 0.9 + 0.15 * th.sin() * ph.sin(), 0.15 + 0.15 * th.cos()]));
+            pts.push(jitter([
+                0.3 + 0.15 * th.sin() * ph.cos(),
+                0.9 + 0.15 * th.sin() * ph.sin(),
+                0.15 + 0.15 * th.cos(),
+            ]));
         }
     }
     pts
@@ -472,7 +477,10 @@ fn apply(m: &Matrix4<f64>, p: [f64; 3]) -> [f32; 3] {
 }
 
 fn matrix_rows(m: &Matrix4<f64>) -> String {
-    (0..4).map(|r| (0..4).map(|c| format!("{:.12}", m[(r, c)])).collect::<Vec<_>>().join(" ")).collect::<Vec<_>>().join("\n")
+    (0..4)
+        .map(|r| (0..4).map(|c| format!("{:.12}", m[(r, c)])).collect::<Vec<_>>().join(" "))
+        .collect::<Vec<_>>()
+        .join("\n")
 }
 
 /// A 3DMatch-layout scene: three overlapping crops of the corner, each in its own random frame
@@ -596,7 +604,8 @@ fn loss_decreases_on_a_tiny_dataset() {
     let mut trainer = Trainer::new(config.clone(), settings.clone()).unwrap();
     // A fixed held-out batch (a step index training never reaches).
     let pairs = dpr_gpu::train::data::discover_pairs(&settings.data).unwrap();
-    let eval = Sampler::new(pairs, settings.sampling.clone(), &config).unwrap().batch(settings.seed, 1 << 40, 32).unwrap();
+    let eval =
+        Sampler::new(pairs, settings.sampling.clone(), &config).unwrap().batch(settings.seed, 1 << 40, 32).unwrap();
     let before = batch_loss(trainer.weights(), &eval, &settings.loss).unwrap();
     for _ in 0..40 {
         trainer.step().unwrap();

@@ -366,16 +366,20 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         write_data(&dir);
         let d = dir.display();
-        let common = format!("--data {d}/pairs.txt --points 8 --grid 3 --batch 2 --voxel 0.03 --checkpoint-every 2");
+        let common = format!(
+            "--data {d}/pairs.txt --points 8 --grid 3 --batch 2 --voxel 0.03 --checkpoint-every 2 --lr-decay-every 3"
+        );
         run(parse(&format!("{common} --out {d}/a.safetensors --steps 4 --log {d}/a.csv"))).unwrap();
         // Resuming may not change the run.
-        let clash = run(parse(&format!("{common} --out {d}/a.safetensors --steps 6 --resume {d}/a.ckpt.safetensors --batch 3")));
-        assert!(clash.unwrap_err().to_string().contains("--batch"));
-        run(parse(&format!("--out {d}/a.safetensors --steps 6 --log {d}/a.csv --resume {d}/a.ckpt.safetensors"))).unwrap();
+        let clash =
+            run(parse(&format!("{common} --out {d}/a.safetensors --steps 6 --resume {d}/a.ckpt.safetensors --lr 0.5")));
+        assert!(clash.unwrap_err().to_string().contains("--lr"));
+        run(parse(&format!("--out {d}/a.safetensors --steps 6 --log {d}/a.csv --resume {d}/a.ckpt.safetensors")))
+            .unwrap();
         run(parse(&format!("{common} --out {d}/b.safetensors --steps 6"))).unwrap();
         let a = Weights::load(&dir.join("a.safetensors")).unwrap();
         let b = Weights::load(&dir.join("b.safetensors")).unwrap();
-        assert_eq!(a.tensors, b.tensors, "resumed run differs from the uninterrupted one");
+        assert!(a.tensors == b.tensors, "resumed run differs from the uninterrupted one");
         assert_eq!(a.notes["dpr_gpu.train.steps"], "6");
         assert!(a.notes.contains_key("dpr_gpu.train.command") && a.notes.contains_key("dpr_gpu.train.final_losses"));
         let log = std::fs::read_to_string(dir.join("a.csv")).unwrap();

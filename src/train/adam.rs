@@ -31,7 +31,15 @@ pub struct AdamSettings {
 impl Default for AdamSettings {
     /// lr 1e-3, betas (0.9, 0.999), eps 1e-8, weight decay 1e-6, no learning-rate decay.
     fn default() -> Self {
-        AdamSettings { lr: 1e-3, beta1: 0.9, beta2: 0.999, eps: 1e-8, weight_decay: 1e-6, lr_decay: 0.5, lr_decay_every: 0 }
+        AdamSettings {
+            lr: 1e-3,
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+            weight_decay: 1e-6,
+            lr_decay: 0.5,
+            lr_decay_every: 0,
+        }
     }
 }
 

@@ -4,9 +4,9 @@
 
 use super::forward::{DecodeTape, EncodeTape, tiled_grid};
 use super::grad::{DenseGrads, DenseLayer, Segment, dense_backward, max_pool_backward, max_pool_backward_acc};
+use crate::error::Result;
 use crate::model::params::{LayerSpec, all_layers};
 use crate::model::{FoldNet, ModelConfig, RelativeNet, Weights, linear::Linear};
-use crate::error::Result;
 
 /// The gradient of one linear layer, in the `Weights` layout.
 #[derive(Clone, Debug, PartialEq)]
@@ -183,7 +183,19 @@ pub fn encode_backward(
         let group = Segment { x: &tape.global, width: last_w, offset };
         let d_segs = d_enc.iter_mut().map(|d| Some(d.as_mut_slice())).collect();
         let out = &tape.head[0];
-        layer_backward(w, grads, ix.head, true, rows, points, out, &d_head0, Some((group, Some(&mut d_global))), &segments, d_segs);
+        layer_backward(
+            w,
+            grads,
+            ix.head,
+            true,
+            rows,
+            points,
+            out,
+            &d_head0,
+            Some((group, Some(&mut d_global))),
+            &segments,
+            d_segs,
+        );
     }
     // The global max-pool routes its gradient to the argmax rows of the last encoder output.
     let enc_last = tape.encoder.last().expect("encoder has layers");
@@ -192,7 +204,11 @@ pub fn encode_backward(
     // Encoder layers, last to first; each adds into the gradient of the previous layer's output.
     for i in (0..net.encoder.len()).rev() {
         let d = std::mem::take(&mut d_enc[i]);
-        let (x, width) = if i == 0 { (input, net.encoder[0].in_dim) } else { (tape.encoder[i - 1].as_slice(), net.encoder[i].in_dim) };
+        let (x, width) = if i == 0 {
+            (input, net.encoder[0].in_dim)
+        } else {
+            (tape.encoder[i - 1].as_slice(), net.encoder[i].in_dim)
+        };
         let seg = [Segment { x, width, offset: 0 }];
         let d_segs = if i == 0 { vec![None] } else { vec![Some(d_enc[i - 1].as_mut_slice())] };
         layer_backward(w, grads, ix.encoder + i, true, rows, rows, &tape.encoder[i], &d, None, &seg, d_segs);
@@ -244,7 +260,8 @@ pub fn decode_backward(
     let ix = FoldIndex::new(net, base);
     let m = net.grid.len() / 2;
     let first = tape.fold1.last().expect("fold1 has layers");
-    let d_first = fold_backward(w, grads, ix.fold2, &net.fold2, &tape.fold2, codewords, first, m, d_recon, d_codeword, true);
+    let d_first =
+        fold_backward(w, grads, ix.fold2, &net.fold2, &tape.fold2, codewords, first, m, d_recon, d_codeword, true);
     let grid = tiled_grid(net, tape.patches);
     fold_backward(w, grads, ix.fold1, &net.fold1, &tape.fold1, codewords, &grid, m, d_first, d_codeword, false);
 }
@@ -269,6 +286,18 @@ pub fn relative_backward(
     let mut d_src = vec![0.0; source.len()];
     let mut d_tgt = vec![0.0; target.len()];
     let segs = [Segment { x: source, width: f, offset: 0 }, Segment { x: target, width: f, offset: f }];
-    layer_backward(w, grads, base, n > 1, rows, rows, &outs[0], &d0, None, &segs, vec![Some(&mut d_src), Some(&mut d_tgt)]);
+    layer_backward(
+        w,
+        grads,
+        base,
+        n > 1,
+        rows,
+        rows,
+        &outs[0],
+        &d0,
+        None,
+        &segs,
+        vec![Some(&mut d_src), Some(&mut d_tgt)],
+    );
     (d_src, d_tgt)
 }

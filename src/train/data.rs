@@ -83,7 +83,12 @@ pub fn discover_pairs(paths: &[PathBuf]) -> Result<Vec<FragmentPair>> {
             for e in &scene.gt {
                 let file = |k: usize| {
                     scene.files.get(k).cloned().ok_or_else(|| {
-                        Error::invalid(format!("{}: pair ({}, {}) names a fragment that does not exist", scene.dir.display(), e.i, e.j))
+                        Error::invalid(format!(
+                            "{}: pair ({}, {}) names a fragment that does not exist",
+                            scene.dir.display(),
+                            e.i,
+                            e.j
+                        ))
                     })
                 };
                 out.push(FragmentPair { source: file(e.j)?, target: file(e.i)?, target_from_source: e.transform });

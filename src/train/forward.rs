@@ -18,8 +18,14 @@ type Slice<'a> = (&'a [f32], usize, usize);
 /// `layer(x)` with only the bias as group term (mirrors `foldnet::apply`).
 fn apply(layer: &Linear, x: &[f32], rows: usize, relu: bool) -> Vec<f32> {
     let mut out = vec![0.0; rows * layer.out_dim];
-    let shape =
-        DenseShape { rows, in_dim: layer.in_dim, out_dim: layer.out_dim, rows_per_group: rows.max(1), accumulate: false, relu };
+    let shape = DenseShape {
+        rows,
+        in_dim: layer.in_dim,
+        out_dim: layer.out_dim,
+        rows_per_group: rows.max(1),
+        accumulate: false,
+        relu,
+    };
     dense(&shape, x, &layer.weight_t, &layer.bias, &mut out);
     out
 }
@@ -128,7 +134,15 @@ pub(crate) fn tiled_grid(net: &FoldNet, patches: usize) -> Vec<f32> {
 }
 
 /// One folding MLP: [codeword | x] through `layers`, ReLU on all but the last.
-fn fold(layers: &[Linear], codewords: &[f32], cw: usize, x: &[f32], x_w: usize, patches: usize, m: usize) -> Vec<Vec<f32>> {
+fn fold(
+    layers: &[Linear],
+    codewords: &[f32],
+    cw: usize,
+    x: &[f32],
+    x_w: usize,
+    patches: usize,
+    m: usize,
+) -> Vec<Vec<f32>> {
     let rows = patches * m;
     let mut outs = Vec::with_capacity(layers.len());
     outs.push(apply_concat(&layers[0], (codewords, cw, 0), &[(x, x_w, cw)], rows, m, layers.len() > 1));

@@ -62,7 +62,13 @@ fn tile_loop<const MR: usize, const NR: usize>(
 }
 
 #[inline(always)]
-fn body<const MR: usize, const NR: usize>(op: &Operands<'_>, c: &mut [f32], ldc: usize, epi: Epilogue<'_>, micro: Option<Micro<MR, NR>>) {
+fn body<const MR: usize, const NR: usize>(
+    op: &Operands<'_>,
+    c: &mut [f32],
+    ldc: usize,
+    epi: Epilogue<'_>,
+    micro: Option<Micro<MR, NR>>,
+) {
     let Operands { m, n, k, a, sa, sp, b, ldb } = *op;
     // Column strips outermost so a strip of B (k x NR) stays in cache while every row block streams past it.
     for c0 in (0..n).step_by(NR) {
@@ -112,7 +118,14 @@ mod x86 {
 
     /// 8 x 32 tile in 16 AVX-512 registers. Separate multiply and add, as the portable loop.
     #[target_feature(enable = "avx512f")]
-    pub(super) unsafe fn micro_avx512(k: usize, a: &[f32], [sa, sp]: [usize; 2], b: &[f32], ldb: usize, acc: &mut [[f32; 32]; 8]) {
+    pub(super) unsafe fn micro_avx512(
+        k: usize,
+        a: &[f32],
+        [sa, sp]: [usize; 2],
+        b: &[f32],
+        ldb: usize,
+        acc: &mut [[f32; 32]; 8],
+    ) {
         debug_assert!(a.len() > 7 * sa + (k - 1) * sp && b.len() >= (k - 1) * ldb + 32);
         let (pa, pb) = (a.as_ptr(), b.as_ptr());
         // SAFETY (all pointer reads): the caller guarantees rows 0..8 of A hold k values and rows 0..k of B
@@ -126,10 +139,10 @@ mod x86 {
             for p in 0..k {
                 let b0 = _mm512_loadu_ps(pb.add(p * ldb));
                 let b1 = _mm512_loadu_ps(pb.add(p * ldb + 16));
-                for i in 0..8 {
+                for (i, ci) in c.iter_mut().enumerate() {
                     let x = _mm512_set1_ps(*pa.add(i * sa + p * sp));
-                    c[i][0] = _mm512_add_ps(c[i][0], _mm512_mul_ps(x, b0));
-                    c[i][1] = _mm512_add_ps(c[i][1], _mm512_mul_ps(x, b1));
+                    ci[0] = _mm512_add_ps(ci[0], _mm512_mul_ps(x, b0));
+                    ci[1] = _mm512_add_ps(ci[1], _mm512_mul_ps(x, b1));
                 }
             }
             for i in 0..8 {
@@ -141,7 +154,14 @@ mod x86 {
 
     /// 6 x 16 tile in 12 AVX registers. Separate multiply and add, as the portable loop.
     #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn micro_avx2(k: usize, a: &[f32], [sa, sp]: [usize; 2], b: &[f32], ldb: usize, acc: &mut [[f32; 16]; 6]) {
+    pub(super) unsafe fn micro_avx2(
+        k: usize,
+        a: &[f32],
+        [sa, sp]: [usize; 2],
+        b: &[f32],
+        ldb: usize,
+        acc: &mut [[f32; 16]; 6],
+    ) {
         debug_assert!(a.len() > 5 * sa + (k - 1) * sp && b.len() >= (k - 1) * ldb + 16);
         let (pa, pb) = (a.as_ptr(), b.as_ptr());
         // SAFETY (all pointer reads): the caller guarantees rows 0..6 of A hold k values and rows 0..k of B
@@ -155,10 +175,10 @@ mod x86 {
             for p in 0..k {
                 let b0 = _mm256_loadu_ps(pb.add(p * ldb));
                 let b1 = _mm256_loadu_ps(pb.add(p * ldb + 8));
-                for i in 0..6 {
+                for (i, ci) in c.iter_mut().enumerate() {
                     let x = _mm256_set1_ps(*pa.add(i * sa + p * sp));
-                    c[i][0] = _mm256_add_ps(c[i][0], _mm256_mul_ps(x, b0));
-                    c[i][1] = _mm256_add_ps(c[i][1], _mm256_mul_ps(x, b1));
+                    ci[0] = _mm256_add_ps(ci[0], _mm256_mul_ps(x, b0));
+                    ci[1] = _mm256_add_ps(ci[1], _mm256_mul_ps(x, b1));
                 }
             }
             for i in 0..6 {
@@ -210,7 +230,17 @@ pub fn gemm_acc(m: usize, n: usize, k: usize, a: &[f32], lda: usize, b: &[f32], 
 
 /// [`gemm_acc`] with `A` stored transposed: `c[i * ldc + j] += sum_p a[p * lda + i] * b[p * ldb + j]`.
 #[expect(clippy::too_many_arguments, reason = "BLAS-style and layer-shaped signatures")]
-pub fn gemm_acc_at(m: usize, n: usize, k: usize, a: &[f32], lda: usize, b: &[f32], ldb: usize, c: &mut [f32], ldc: usize) {
+pub fn gemm_acc_at(
+    m: usize,
+    n: usize,
+    k: usize,
+    a: &[f32],
+    lda: usize,
+    b: &[f32],
+    ldb: usize,
+    c: &mut [f32],
+    ldc: usize,
+) {
     run(&Operands { m, n, k, a, sa: 1, sp: lda, b, ldb }, c, ldc, Epilogue::Accumulate);
 }
 

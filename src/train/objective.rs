@@ -126,11 +126,15 @@ pub fn sample_objective(
     // Feature consistency on the PPF codewords.
     let (feat, d_fp) = feat_loss(&ppf_e.codeword[..cw], &ppf_e.codeword[cw..]);
 
-    let total = [(settings.rec, 1.0, rec), (settings.pose, settings.lambda_pose, pose), (settings.feat, settings.lambda_feat, feat)]
-        .iter()
-        .filter(|t| t.0)
-        .map(|t| t.1 * t.2)
-        .sum();
+    let total = [
+        (settings.rec, 1.0, rec),
+        (settings.pose, settings.lambda_pose, pose),
+        (settings.feat, settings.lambda_feat, feat),
+    ]
+    .iter()
+    .filter(|t| t.0)
+    .map(|t| t.1 * t.2)
+    .sum();
     let losses = Losses { rec, pose, feat, total };
     let Some(grads) = grads else { return Ok(losses) };
 
@@ -171,7 +175,11 @@ pub fn sample_objective(
 /// Mean loss over `samples` and its gradient. Samples run in parallel (rayon), in waves of one sample per
 /// thread; each sample's gradient is computed on one thread and the per-sample gradients are summed in
 /// sample order, so the result is bit-identical whatever the number of threads.
-pub fn batch_objective(weights: &Weights, samples: &[PairSample], settings: &LossSettings) -> Result<(Losses, Gradients)> {
+pub fn batch_objective(
+    weights: &Weights,
+    samples: &[PairSample],
+    settings: &LossSettings,
+) -> Result<(Losses, Gradients)> {
     if samples.is_empty() {
         return Err(Error::invalid("empty training batch"));
     }

@@ -171,9 +171,10 @@ impl Trainer {
             let grad = if i % 2 == 0 { &layer.weight } else { &layer.bias };
             slots[i] = Some(Param { value, grad, decay: order[i].2 });
         }
-        let mut params: Vec<Param<'_>> = slots.into_iter().collect::<Option<_>>().ok_or_else(|| {
-            Error::invalid("weights are missing a tensor of the model configuration")
-        })?;
+        let mut params: Vec<Param<'_>> = slots
+            .into_iter()
+            .collect::<Option<_>>()
+            .ok_or_else(|| Error::invalid("weights are missing a tensor of the model configuration"))?;
         self.adam.step(&mut params)?;
         self.step += 1;
         Ok(losses)
