@@ -27,7 +27,7 @@ pub struct RegisterOptions {
     /// Neighbours for PCA normals (when the file has none).
     #[arg(long, default_value_t = 30)]
     pub normal_k: usize,
-    /// Pose estimator: relativenet or ransac.
+    /// Pose estimator: relativenet or ransac (`eval` also takes `both`).
     #[arg(long, default_value = "relativenet")]
     pub estimator: String,
     /// Mutual K nearest neighbours (1..4), or 0 for the "closest" rule.
