@@ -374,7 +374,7 @@ fn batch_gradient_is_identical_for_any_thread_count() {
     let config = tiny_config();
     let weights = weights_with_biases(&config, 31);
     let mut rng = Rng::new(32);
-    let samples: Vec<PairSample> = (0..7).map(|_| random_sample(&config, &mut rng)).collect();
+    let samples: Vec<PairSample> = (0..19).map(|_| random_sample(&config, &mut rng)).collect();
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| batch_objective(&weights, &samples, &LossSettings::default()).unwrap())

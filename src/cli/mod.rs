@@ -6,6 +6,7 @@ pub mod bench;
 pub mod eval;
 pub mod register;
 pub mod synth;
+pub mod train;
 pub mod weights;
 
 /// dpr-gpu: learned pairwise registration of 3D scans on any GPU (and the CPU).
@@ -30,6 +31,8 @@ pub enum Command {
     Info(weights::InfoArgs),
     /// Generate synthetic indoor scans in the 3DMatch layout.
     Synth(synth::Args),
+    /// Train the model (PPF-FoldNet, PC-FoldNet and RelativeNet) on 3DMatch-format data.
+    Train(train::Args),
     /// Evaluate registration on a dataset (3DMatch protocol) or score a result log.
     Eval(eval::Args),
 }
@@ -44,6 +47,7 @@ pub fn main() -> std::process::ExitCode {
         Command::Info(args) => weights::run_info(args),
         Command::Synth(args) => synth::run(args),
         Command::Eval(args) => eval::run(args),
+        Command::Train(args) => train::run(args),
     };
     match outcome {
         Ok(()) => std::process::ExitCode::SUCCESS,

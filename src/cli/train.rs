@@ -86,6 +86,9 @@ pub struct Args {
     /// Do not rotate source fragments (labels are then the dataset's own relative rotations).
     #[arg(long)]
     pub no_rotate_source: bool,
+    /// Largest augmentation rotation in degrees (180: uniform over SO(3)) [default: 180].
+    #[arg(long)]
+    pub max_rotation: Option<f64>,
     /// Start from these weights instead of a random initialisation (their config is used).
     #[arg(long)]
     pub init: Option<PathBuf>,
@@ -142,6 +145,7 @@ fn fresh_settings(args: &Args) -> TrainSettings {
     s.sampling.match_distance = args.match_distance.unwrap_or(s.sampling.match_distance);
     s.sampling.rotate_target = args.rotate_target;
     s.sampling.rotate_source = !args.no_rotate_source;
+    s.sampling.max_rotation_deg = args.max_rotation.unwrap_or(s.sampling.max_rotation_deg);
     s
 }
 
@@ -170,6 +174,7 @@ fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> an
     check("--match-distance", args.match_distance.is_some_and(|v| v != s.sampling.match_distance));
     check("--rotate-target", args.rotate_target && !s.sampling.rotate_target);
     check("--no-rotate-source", args.no_rotate_source && s.sampling.rotate_source);
+    check("--max-rotation", args.max_rotation.is_some_and(|v| v != s.sampling.max_rotation_deg));
     check("--init", args.init.is_some());
     if clashes.is_empty() {
         Ok(())
@@ -241,6 +246,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Trainer::from_checkpoint_parts(weights, settings, pairs, adam, meta.step)?
     } else {
         let settings = fresh_settings(&args);
+        if args.init.is_some() && (args.config.is_some() || args.points.is_some() || args.grid.is_some()) {
+            bail!("--init takes the model size from the weights file: drop --config, --points and --grid");
+        }
         let weights = match &args.init {
             Some(p) => Weights::load(p)?,
             None => Weights::init(&model_config(&args)?, settings.seed)?,
@@ -361,7 +369,8 @@ mod tests {
 
     #[test]
     fn train_checkpoints_resumes_exactly_and_writes_notes() {
-        let dir = std::env::temp_dir().join(format!("dpr-gpu-cli-train-{}", std::process::id()));
+        let tag = module_path!().replace("::", "-");
+        let dir = std::env::temp_dir().join(format!("dpr-gpu-{tag}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         write_data(&dir);

@@ -47,11 +47,19 @@ pub struct DataSettings {
     pub rotate_source: bool,
     /// Rotate the target fragment too (independently).
     pub rotate_target: bool,
+    /// Largest augmentation rotation angle in degrees: 180 draws uniformly from all of SO(3); smaller values
+    /// draw uniformly from the rotations up to this angle (uniform SO(3) restricted by rejection).
+    #[serde(default = "full_turn")]
+    pub max_rotation_deg: f64,
+}
+
+fn full_turn() -> f64 {
+    180.0
 }
 
 impl Default for DataSettings {
     /// 2.5 cm voxels, 30 normal neighbours (as inference), 3 cm matches, at least 32 points per patch,
-    /// source rotation only.
+    /// source rotation only, uniform over SO(3).
     fn default() -> Self {
         DataSettings {
             voxel: 0.025,
@@ -60,6 +68,7 @@ impl Default for DataSettings {
             min_patch_points: 32,
             rotate_source: true,
             rotate_target: false,
+            max_rotation_deg: 180.0,
         }
     }
 }
@@ -170,6 +179,23 @@ pub struct Sampler {
 /// Pair draws per sample before giving up (pairs without any match are skipped).
 const MAX_DRAWS: usize = 1000;
 
+/// A rotation drawn uniformly from SO(3) restricted to angles up to `max_deg` (by rejection; at most a few
+/// hundred draws for angles down to 20 degrees, and the identity when `max_deg` is tiny and every draw fails).
+fn random_rotation(rng: &mut Rng, max_deg: f64) -> [f64; 4] {
+    if max_deg >= 180.0 {
+        return rng.unit_quaternion();
+    }
+    let max_w = (max_deg.to_radians() / 2.0).cos();
+    for _ in 0..100_000 {
+        let q = rng.unit_quaternion();
+        // angle = 2 acos(|w|) <= max  <=>  |w| >= cos(max / 2)
+        if q[0].abs() >= max_w {
+            return q;
+        }
+    }
+    [1.0, 0.0, 0.0, 0.0]
+}
+
 fn rotation(q: [f64; 4]) -> Matrix3<f64> {
     UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3])).to_rotation_matrix().into_inner()
 }
@@ -198,7 +224,8 @@ impl Sampler {
         }
         let voxel_ok = settings.voxel.is_finite() && settings.voxel >= 0.0;
         let match_ok = settings.match_distance.is_finite() && settings.match_distance > 0.0;
-        if !(voxel_ok && match_ok) {
+        let angle_ok = settings.max_rotation_deg.is_finite() && settings.max_rotation_deg > 0.0;
+        if !(voxel_ok && match_ok && angle_ok) {
             return Err(Error::invalid(format!("data settings out of range: {settings:?}")));
         }
         let mut ids: HashMap<PathBuf, usize> = HashMap::new();
@@ -305,7 +332,8 @@ impl Sampler {
                 }
                 let (source_point, target_point) = matches[rng.below(matches.len())];
                 let seeds = [rng.next_u64(), rng.next_u64()];
-                let rotations = [rng.unit_quaternion(), rng.unit_quaternion()];
+                let max = self.settings.max_rotation_deg;
+                let rotations = [random_rotation(&mut rng, max), random_rotation(&mut rng, max)];
                 plan = Some(Plan { pair, source_point, target_point, seeds, rotations });
                 break;
             }
@@ -353,5 +381,24 @@ impl Sampler {
         let r = self.pairs[plan.pair].target_from_source.fixed_view::<3, 3>(0, 0).into_owned();
         let label = quaternion_of(&(r_t * r * r_s.transpose()));
         Ok(PairSample { ppf, pc, label })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn limited_rotations_stay_within_the_angle() {
+        let mut rng = Rng::new(3);
+        for max in [20.0, 90.0] {
+            for _ in 0..200 {
+                let q = random_rotation(&mut rng, max);
+                let angle = 2.0 * q[0].abs().min(1.0).acos().to_degrees();
+                assert!(angle <= max + 1e-9, "{angle} > {max}");
+            }
+        }
+        // The full range is the plain uniform draw.
+        assert_eq!(random_rotation(&mut Rng::new(4), 180.0), Rng::new(4).unit_quaternion());
     }
 }

@@ -124,17 +124,27 @@ pub fn max_pool_backward_acc(
     d_out: &[f32],
     dx: &mut [f32],
 ) {
+    if rows_per_group == 0 {
+        return;
+    }
+    let mut best_row = vec![0usize; channels];
+    let mut best_val = vec![0f32; channels];
     for g in 0..groups {
-        for c in 0..channels {
-            let mut best = 0;
-            for r in 1..rows_per_group {
-                if x[(g * rows_per_group + r) * channels + c] > x[(g * rows_per_group + best) * channels + c] {
-                    best = r;
+        let base = g * rows_per_group;
+        best_row.fill(0);
+        best_val.copy_from_slice(&x[base * channels..][..channels]);
+        for r in 1..rows_per_group {
+            let row = &x[(base + r) * channels..][..channels];
+            for c in 0..channels {
+                // Strictly greater: the lowest row keeps a tie.
+                if row[c] > best_val[c] {
+                    best_val[c] = row[c];
+                    best_row[c] = r;
                 }
             }
-            if rows_per_group > 0 {
-                dx[(g * rows_per_group + best) * channels + c] += d_out[g * channels + c];
-            }
+        }
+        for (c, &r) in best_row.iter().enumerate() {
+            dx[(base + r) * channels + c] += d_out[g * channels + c];
         }
     }
 }

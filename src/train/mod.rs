@@ -2,6 +2,7 @@
 //! `L = L_rec + lambda1 L_pose + lambda2 L_feat` on pairs of corresponding patches.
 //!
 //! - [`forward`]: the inference forward pass, keeping activations (bit-identical to `FoldNet`/`RelativeNet`);
+//! - [`gemm`]: the matrix kernel (AVX-512 / AVX2 / portable, bit-identical results) behind both passes;
 //! - [`grad`], [`backward`]: backward passes of every layer and of the whole networks;
 //! - [`loss`]: Chamfer distance, quaternion normalisation, pose and feature-consistency losses;
 //! - [`objective`]: the per-pair loss and the batch gradient (parallel, deterministic);
@@ -42,9 +43,3 @@ pub use checkpoint::{load_checkpoint, save_checkpoint};
 pub use data::{DataSettings, FragmentPair, Sampler};
 pub use objective::{LossSettings, Losses, PairSample, batch_loss, batch_objective};
 pub use trainer::{TrainSettings, Trainer};
-
-/// TEMPORARY compile check of `src/cli/train.rs` until the lead wires it into `src/cli/mod.rs`.
-#[cfg(test)]
-#[allow(dead_code)]
-#[path = "../cli/train.rs"]
-mod cli_train_check;

@@ -172,9 +172,15 @@ pub fn sample_objective(
     Ok(losses)
 }
 
-/// Mean loss over `samples` and its gradient. Samples run in parallel (rayon), in waves of one sample per
-/// thread; each sample's gradient is computed on one thread and the per-sample gradients are summed in
-/// sample order, so the result is bit-identical whatever the number of threads.
+/// Samples of a batch are split into at most this many contiguous groups; each group accumulates its samples'
+/// gradients, in order, into one buffer on one thread. The grouping depends only on the batch size, never on
+/// the number of threads.
+pub const MAX_GROUPS: usize = 8;
+
+/// Mean loss over `samples` and its gradient. The batch is cut into at most [`MAX_GROUPS`] contiguous groups
+/// (a function of the batch size only); groups run in parallel (rayon), in waves of one group per thread,
+/// each accumulating its samples' gradients in sample order, and the group gradients are summed in group
+/// order. The result is therefore bit-identical whatever the number of threads.
 pub fn batch_objective(
     weights: &Weights,
     samples: &[PairSample],
@@ -186,24 +192,31 @@ pub fn batch_objective(
     let model = Model::from_weights(weights)?;
     let w = LayerWeights::new(weights)?;
     let scale = 1.0 / samples.len() as f64;
+    let per_group = samples.len().div_ceil(MAX_GROUPS);
+    let groups: Vec<&[PairSample]> = samples.chunks(per_group).collect();
     let mut total = Gradients::zeros(&weights.config);
     let mut losses = Losses::default();
     let wave = rayon::current_num_threads().max(1);
-    for chunk in samples.chunks(wave) {
-        let results: Vec<Result<(Losses, Gradients)>> = chunk
+    for chunk in groups.chunks(wave) {
+        let results: Vec<Result<(Vec<Losses>, Gradients)>> = chunk
             .par_iter()
-            .map(|s| {
+            .map(|group| {
                 let mut g = Gradients::zeros(&weights.config);
-                let l = sample_objective(&model, &w, s, settings, scale, Some(&mut g))?;
+                let l = group
+                    .iter()
+                    .map(|s| sample_objective(&model, &w, s, settings, scale, Some(&mut g)))
+                    .collect::<Result<Vec<_>>>()?;
                 Ok((l, g))
             })
             .collect();
         for r in results {
-            let (l, g) = r?;
-            losses.rec += l.rec * scale;
-            losses.pose += l.pose * scale;
-            losses.feat += l.feat * scale;
-            losses.total += l.total * scale;
+            let (ls, g) = r?;
+            for l in ls {
+                losses.rec += l.rec * scale;
+                losses.pose += l.pose * scale;
+                losses.feat += l.feat * scale;
+                losses.total += l.total * scale;
+            }
             total.add_assign(&g);
         }
     }
