@@ -2,6 +2,7 @@
 //! GPU kernel is checked against, and the fallback on machines without a GPU.
 
 pub mod dense;
+pub mod gemm;
 pub mod hypotheses;
 pub mod max_pool;
 pub mod mutual_knn;

@@ -1,71 +1,13 @@
 //! The training forward pass: `FoldNet::encode`/`decode` and `RelativeNet::forward_raw`, step for step, keeping
 //! every layer's output for the backward pass.
 //!
-//! The layers run through [`super::gemm::dense`], which gives bit-for-bit the results of
-//! `crate::cpu::dense::dense` (the inference kernel) but is vectorised for the CPU at hand; the slices, group
-//! terms and ReLU flags are exactly those of `crate::model::foldnet`, so the codewords, reconstructions and
-//! quaternions equal the inference ones bit for bit (checked in `tests/train.rs`).
+//! The layers are `crate::model::foldnet`'s own `apply`/`apply_concat` (the fast `cpu::gemm` kernel, bit-for-bit
+//! equal to the `cpu::dense` twin), so the codewords, reconstructions and quaternions equal the inference ones
+//! bit for bit (checked in `tests/train.rs`).
 
-use super::gemm::dense;
-use crate::cpu::dense::DenseShape;
 use crate::cpu::max_pool::max_pool;
+use crate::model::foldnet::{Slice, apply, apply_concat};
 use crate::model::{FoldNet, RelativeNet, linear::Linear};
-
-/// One slice of a concatenated input: data (`rows x width`), width, first weight row (of the transposed
-/// weight) it multiplies.
-type Slice<'a> = (&'a [f32], usize, usize);
-
-/// `layer(x)` with only the bias as group term (mirrors `foldnet::apply`).
-fn apply(layer: &Linear, x: &[f32], rows: usize, relu: bool) -> Vec<f32> {
-    let mut out = vec![0.0; rows * layer.out_dim];
-    let shape = DenseShape {
-        rows,
-        in_dim: layer.in_dim,
-        out_dim: layer.out_dim,
-        rows_per_group: rows.max(1),
-        accumulate: false,
-        relu,
-    };
-    dense(&shape, x, &layer.weight_t, &layer.bias, &mut out);
-    out
-}
-
-/// `layer(concat(per_group, segments...))` (mirrors `foldnet::apply_concat`).
-fn apply_concat(
-    layer: &Linear,
-    per_group: Slice<'_>,
-    segments: &[Slice<'_>],
-    rows: usize,
-    rows_per_group: usize,
-    relu: bool,
-) -> Vec<f32> {
-    let (g_x, g_w, g_offset) = per_group;
-    let groups = rows / rows_per_group;
-    let mut group_term = vec![0.0; groups * layer.out_dim];
-    let shape = DenseShape {
-        rows: groups,
-        in_dim: g_w,
-        out_dim: layer.out_dim,
-        rows_per_group: groups.max(1),
-        accumulate: false,
-        relu: false,
-    };
-    dense(&shape, g_x, layer.weight_t_rows(g_offset, g_w), &layer.bias, &mut group_term);
-    let mut out = vec![0.0; rows * layer.out_dim];
-    for (s, &(x, w, offset)) in segments.iter().enumerate() {
-        let shape = DenseShape {
-            rows,
-            in_dim: w,
-            out_dim: layer.out_dim,
-            rows_per_group,
-            accumulate: s > 0,
-            relu: relu && s + 1 == segments.len(),
-        };
-        let term: &[f32] = if s == 0 { &group_term } else { &[] };
-        dense(&shape, x, layer.weight_t_rows(offset, w), term, &mut out);
-    }
-    out
-}
 
 /// Everything the encoder computed for a batch of patches.
 #[derive(Clone, Debug)]

@@ -5,7 +5,7 @@
 //! are *accumulated* into the buffers the caller passes, so several uses of a layer (or several samples) can
 //! share one gradient buffer.
 
-use super::gemm::{gemm_acc, gemm_acc_at};
+use crate::cpu::gemm::{gemm_acc, gemm_acc_at};
 
 /// One per-row input slice of a dense layer: `x` is `rows x width`, and it multiplies the weight columns
 /// `offset..offset + width`.

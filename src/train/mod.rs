@@ -2,7 +2,6 @@
 //! `L = L_rec + lambda1 L_pose + lambda2 L_feat` on pairs of corresponding patches.
 //!
 //! - [`forward`]: the inference forward pass, keeping activations (bit-identical to `FoldNet`/`RelativeNet`);
-//! - [`gemm`]: the matrix kernel (AVX-512 / AVX2 / portable, bit-identical results) behind both passes;
 //! - [`grad`], [`backward`]: backward passes of every layer and of the whole networks;
 //! - [`loss`]: Chamfer distance, quaternion normalisation, pose and feature-consistency losses;
 //! - [`objective`]: the per-pair loss and the batch gradient (parallel, deterministic);
@@ -31,7 +30,6 @@ pub mod backward;
 pub mod checkpoint;
 pub mod data;
 pub mod forward;
-pub mod gemm;
 pub mod grad;
 pub mod loss;
 pub mod objective;

@@ -1,4 +1,4 @@
-//! The matrix kernel of training: one blocked multiply-accumulate with an AVX-512 and an AVX2 micro-kernel
+//! The fast CPU matrix kernel behind inference (`model::foldnet`) and training: one blocked multiply-accumulate with an AVX-512 and an AVX2 micro-kernel
 //! picked at run time (the crate is built for baseline x86-64, and training is bound by these loops), and a
 //! portable one elsewhere.
 //!
@@ -290,6 +290,26 @@ mod tests {
                     assert!((got[i * ldc + j] as f64 - exact).abs() < 1e-4 * (1.0 + exact.abs()));
                 }
             }
+        }
+    }
+
+    #[test]
+    fn dense_equals_the_cpu_twin_bit_for_bit() {
+        let mut rng = Rng::new(2);
+        for &(rows, in_dim, out_dim, rpg, accumulate, relu) in &[
+            (7, 3, 5, 7, false, true),
+            (130, 70, 130, 16, true, false),
+            (257, 64, 512, 256, false, true),
+            (1, 1, 1, 1, true, true),
+        ] {
+            let s = DenseShape { rows, in_dim, out_dim, rows_per_group: rpg, accumulate, relu };
+            let mut v = |n: usize| (0..n).map(|_| rng.normal() as f32).collect::<Vec<f32>>();
+            let (x, w, g, init) =
+                (v(rows * in_dim), v(in_dim * out_dim), v(rows.div_ceil(rpg) * out_dim), v(rows * out_dim));
+            let (mut fast, mut twin) = (init.clone(), init);
+            dense(&s, &x, &w, &g, &mut fast);
+            crate::cpu::dense::dense(&s, &x, &w, &g, &mut twin);
+            assert_eq!(fast, twin, "{s:?}");
         }
     }
 }
