@@ -109,7 +109,7 @@ impl Default for RegistrationSettings {
             weights: None,
             radius: None,
             voxel: None,
-            keypoints: 1000,
+            keypoints: 2500,
             keypoint_mode: KeypointMode::Random,
             normal_neighbors: 30,
             viewpoint: [0.0; 3],

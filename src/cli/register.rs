@@ -13,7 +13,7 @@ pub struct RegisterOptions {
     #[arg(long)]
     pub weights: Option<PathBuf>,
     /// Keypoints per scan.
-    #[arg(long, default_value_t = 1000)]
+    #[arg(long, default_value_t = 2500)]
     pub keypoints: usize,
     /// Keypoint selection: random (3DMatch convention) or uniform (farthest-point sampling).
     #[arg(long, default_value = "random")]

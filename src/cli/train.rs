@@ -257,8 +257,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Trainer::with_pairs(weights, settings, pairs)?
     };
     let start = trainer.step_count();
-    if start >= args.steps {
-        bail!("the checkpoint is already at step {start}; ask for more --steps");
+    if start > args.steps {
+        bail!("the checkpoint is already at step {start}, past --steps {}", args.steps);
+    }
+    if start == args.steps {
+        // Nothing left to train: export the checkpoint's weights (e.g. to evaluate a run in progress).
+        let mut weights = trainer.weights().clone();
+        weights.notes.insert("dpr_gpu.train.steps".into(), start.to_string());
+        weights.notes.insert("dpr_gpu.train.settings".into(), serde_json::to_string(trainer.settings())?);
+        weights.save(&args.out)?;
+        eprintln!("wrote {} from the checkpoint at step {start}", args.out.display());
+        return Ok(());
     }
     let sampler = trainer.sampler_mut();
     eprintln!("preparing {} fragments of {} pairs...", sampler.fragment_count(), sampler.pair_count());
