@@ -288,6 +288,7 @@ impl Registrar {
         Ok(RegistrationResult {
             estimate,
             correspondences: correspondences.len(),
+            empty_patches: described_source.empty_patches + described_target.empty_patches,
             timings,
             backend: self.backend.name(),
         })

@@ -173,6 +173,8 @@ pub struct RegistrationResult {
     pub estimate: PoseEstimate,
     /// Number of correspondences fed to the estimator.
     pub correspondences: usize,
+    /// Keypoints dropped (source + target) because no other point lay within the patch radius.
+    pub empty_patches: usize,
     /// Wall time per stage, in pipeline order.
     pub timings: Vec<StageTime>,
     /// The backend (and adapter) that ran the learned stages.

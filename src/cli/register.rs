@@ -191,6 +191,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("target_from_source (p_target = T p_source):");
         print!("{}", matrix_text(&t));
         let e = &result.estimate;
+        if result.empty_patches > 0 {
+            println!("keypoints without neighbours within the radius (dropped): {}", result.empty_patches);
+        }
         println!("correspondences: {}", result.correspondences);
         println!("hypotheses scored: {}", e.hypotheses_scored);
         println!("inliers: {} (fitness {:.4}, inlier RMSE {:.5})", e.inliers, e.fitness, e.inlier_rmse);
