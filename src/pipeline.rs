@@ -74,6 +74,29 @@ pub fn create_backend(kind: BackendKind, model: Model) -> Result<Box<dyn Backend
     }
 }
 
+/// Checks the settings every constructor relies on.
+fn validate_settings(settings: &RegistrationSettings) -> Result<()> {
+    if let Some(r) = settings.radius
+        && !(r.is_finite() && r > 0.0)
+    {
+        return Err(Error::invalid(format!("radius must be positive, got {r}")));
+    }
+    if settings.keypoints == 0 {
+        return Err(Error::invalid("keypoints must be at least 1"));
+    }
+    if let MatchMode::Mutual(k) = settings.matching
+        && !(1..=4).contains(&k)
+    {
+        return Err(Error::invalid(format!("mutual K must be 1..4, got {k}")));
+    }
+    if let Some(t) = settings.inlier_threshold
+        && !(t.is_finite() && t > 0.0)
+    {
+        return Err(Error::invalid(format!("inlier threshold must be positive, got {t}")));
+    }
+    Ok(())
+}
+
 struct Stopwatch {
     start: Instant,
     timings: Vec<StageTime>,
@@ -106,26 +129,15 @@ impl Registrar {
 
     /// Builds the pipeline from weights already in memory.
     pub fn with_weights(settings: &RegistrationSettings, weights: &Weights) -> Result<Registrar> {
-        if let Some(r) = settings.radius
-            && !(r.is_finite() && r > 0.0)
-        {
-            return Err(Error::invalid(format!("radius must be positive, got {r}")));
-        }
-        if settings.keypoints == 0 {
-            return Err(Error::invalid("keypoints must be at least 1"));
-        }
-        if let MatchMode::Mutual(k) = settings.matching
-            && !(1..=4).contains(&k)
-        {
-            return Err(Error::invalid(format!("mutual K must be 1..4, got {k}")));
-        }
-        if let Some(t) = settings.inlier_threshold
-            && !(t.is_finite() && t > 0.0)
-        {
-            return Err(Error::invalid(format!("inlier threshold must be positive, got {t}")));
-        }
+        validate_settings(settings)?;
         let model = Model::from_weights(weights)?;
-        let backend = create_backend(settings.backend, model)?;
+        Registrar::with_backend(settings, create_backend(settings.backend, model)?)
+    }
+
+    /// Builds the pipeline around a backend made by the caller (e.g. one sharing a GPU device); the settings'
+    /// `weights` and `backend` fields are ignored.
+    pub fn with_backend(settings: &RegistrationSettings, backend: Box<dyn Backend>) -> Result<Registrar> {
+        validate_settings(settings)?;
         Ok(Registrar { settings: settings.clone(), backend })
     }
 

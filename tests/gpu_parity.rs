@@ -24,6 +24,8 @@ use dpr_gpu::rng::Rng;
 use dpr_gpu::settings::MatchMode;
 use std::sync::Arc;
 
+mod common;
+
 const EPS: f32 = f32::EPSILON;
 
 /// dense / codeword_distance: both sides sum the same terms in the same order, but a GPU may contract
@@ -663,4 +665,52 @@ fn invalid_calls_are_errors_not_panics() {
     let big = vec![0.0f32; (g.context.max_buffer_bytes() / 4 + 1) as usize];
     let err = gpu::max_pool::run(&g, &big, 1, big.len(), 1, &mut [0.0]).unwrap_err().to_string();
     assert!(err.contains("max_storage_buffer_binding_size"), "{err}");
+}
+
+/// End to end: `register` on a generated pair with the GPU backend and with the CPU reference. The codewords
+/// agree to `NETWORK_RTOL`, far below the distance gaps mutual matching decides on, so the correspondences must
+/// be identical; RANSAC then sees identical inputs, so the poses must agree to `POSE_ATOL`; RelativeNet's
+/// quaternions for those correspondences agree to the network tolerance.
+#[test]
+fn register_matches_cpu_on_a_generated_pair() {
+    /// Identical correspondences and seed give the identical RANSAC sample sequence; only the printing of
+    /// f64 sums could differ, so allow a hair above f64 noise.
+    const POSE_ATOL: f64 = 1e-9;
+    let Some(g) = gpu() else { return };
+    let s = seed(70);
+    let (gpu_b, cpu_b) = backends_for(g, small_model(s));
+    let settings = dpr_gpu::RegistrationSettings {
+        keypoints: 120,
+        estimator: dpr_gpu::Estimator::Ransac,
+        seed: s,
+        ..Default::default()
+    };
+    let (source, target, _) = common::room_pair(s, 4_000);
+    let on_gpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(gpu_b)).unwrap();
+    let on_cpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(cpu_b)).unwrap();
+    let (gs, gt) = (on_gpu.describe(&source, 0).unwrap(), on_gpu.describe(&target, 1).unwrap());
+    let (cs, ct) = (on_cpu.describe(&source, 0).unwrap(), on_cpu.describe(&target, 1).unwrap());
+    assert_eq!(gs.keypoints, cs.keypoints, "seed {s}");
+    let tol = NETWORK_RTOL * max_abs(&cs.ppf_codewords);
+    assert_close("register ppf codewords", s, &gs.ppf_codewords, &cs.ppf_codewords, |_| tol);
+    let g_corr = on_gpu.correspond(&gs, &gt).unwrap();
+    let c_corr = on_cpu.correspond(&cs, &ct).unwrap();
+    let pairs = |c: &[dpr_gpu::Correspondence]| c.iter().map(|c| (c.source_index, c.target_index)).collect::<Vec<_>>();
+    assert_eq!(pairs(&g_corr), pairs(&c_corr), "correspondences, seed {s}");
+    assert!(c_corr.len() >= 3, "the generated pair gives correspondences ({})", c_corr.len());
+    let g_pose = on_gpu.estimate(&gs, &gt, &g_corr, dpr_gpu::Estimator::Ransac).unwrap();
+    let c_pose = on_cpu.estimate(&cs, &ct, &c_corr, dpr_gpu::Estimator::Ransac).unwrap();
+    assert!((g_pose.target_from_source - c_pose.target_from_source).abs().max() < POSE_ATOL, "seed {s}");
+    assert_eq!(g_pose.inliers, c_pose.inliers);
+    // RelativeNet on the same correspondences.
+    let dim = cs.pose_features.len() / cs.keypoints.len();
+    let rows = |f: &dpr_gpu::pipeline::ScanFeatures, idx: Vec<usize>| -> Vec<f32> {
+        idx.into_iter().flat_map(|i| f.pose_features[i * dim..(i + 1) * dim].to_vec()).collect()
+    };
+    let src_idx: Vec<usize> = c_corr.iter().map(|c| c.source_index as usize).collect();
+    let tgt_idx: Vec<usize> = c_corr.iter().map(|c| c.target_index as usize).collect();
+    let gq = on_gpu.backend().predict_rotations(&rows(&gs, src_idx.clone()), &rows(&gt, tgt_idx.clone()), c_corr.len());
+    let cq = on_cpu.backend().predict_rotations(&rows(&cs, src_idx), &rows(&ct, tgt_idx), c_corr.len());
+    let flat = |q: Vec<[f32; 4]>| q.into_iter().flatten().collect::<Vec<f32>>();
+    assert_close("register quaternions", s, &flat(gq.unwrap()), &flat(cq.unwrap()), |_| NETWORK_RTOL);
 }
