@@ -47,10 +47,11 @@ fn registers_a_generated_pair_with_ransac_on_random_weights() {
     write_ply(&t, &target).unwrap();
     let weights = small_weights(&dir);
     let (out, aligned) = (dir.join("T.txt"), dir.join("aligned.ply"));
-    let o = dpr(&[
+    let (s, t) = (s.to_str().unwrap(), t.to_str().unwrap());
+    let ransac_json: &[&str] = &[
         "register",
-        s.to_str().unwrap(),
-        t.to_str().unwrap(),
+        s,
+        t,
         "--weights",
         &weights,
         "--keypoints",
@@ -61,11 +62,8 @@ fn registers_a_generated_pair_with_ransac_on_random_weights() {
         "0.02",
         "--icp",
         "--json",
-        "--out",
-        out.to_str().unwrap(),
-        "--aligned",
-        aligned.to_str().unwrap(),
-    ]);
+    ];
+    let o = dpr(&[ransac_json, &["--out", out.to_str().unwrap(), "--aligned", aligned.to_str().unwrap()]].concat());
     let (stdout, stderr) = text(&o);
     assert!(o.status.success(), "{stderr}");
     let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
@@ -84,35 +82,11 @@ fn registers_a_generated_pair_with_ransac_on_random_weights() {
     let (moved, _) = read_cloud(&aligned, &LoadOptions::default()).unwrap();
     assert_eq!(moved.len(), source.len());
     // Same inputs and seed, same result.
-    let again = dpr(&[
-        "register",
-        s.to_str().unwrap(),
-        t.to_str().unwrap(),
-        "--weights",
-        &weights,
-        "--keypoints",
-        "300",
-        "--estimator",
-        "ransac",
-        "--voxel",
-        "0.02",
-        "--icp",
-        "--json",
-    ]);
+    let again = dpr(ransac_json);
     let w: serde_json::Value = serde_json::from_str(text(&again).0.trim()).unwrap();
     assert_eq!(w["target_from_source"], v["target_from_source"]);
     // Text output names the matrix and the stages.
-    let plain = dpr(&[
-        "register",
-        s.to_str().unwrap(),
-        t.to_str().unwrap(),
-        "--weights",
-        &weights,
-        "--keypoints",
-        "100",
-        "--voxel",
-        "0.02",
-    ]);
+    let plain = dpr(&["register", s, t, "--weights", &weights, "--keypoints", "100", "--voxel", "0.02"]);
     let (stdout, _) = text(&plain);
     assert!(plain.status.success());
     assert!(
