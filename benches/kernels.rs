@@ -13,7 +13,9 @@ use dpr_gpu::cpu;
 use dpr_gpu::cpu::dense::DenseShape;
 use dpr_gpu::cpu::score_hypotheses::HypothesisScore;
 use dpr_gpu::gpu::{self, Gpu, GpuBackend};
+use dpr_gpu::model::config::PoseFrame;
 use dpr_gpu::model::{Model, ModelConfig, Net, Weights};
+use dpr_gpu::preprocess::GatheredPatches;
 use dpr_gpu::rng::Rng;
 use dpr_gpu::settings::MatchMode;
 use std::hint::black_box;
@@ -50,16 +52,19 @@ fn points(rng: &mut Rng, n: usize) -> Vec<[f32; 3]> {
 fn patch_features(c: &mut Criterion) {
     let (p, n) = PATCHES;
     let mut rng = Rng::new(1);
-    let (centers, cn, pts, nrm) =
-        (points(&mut rng, p), points(&mut rng, p), points(&mut rng, p * n), points(&mut rng, p * n));
+    let patches = GatheredPatches {
+        centers: points(&mut rng, p),
+        center_normals: points(&mut rng, p),
+        points: points(&mut rng, p * n),
+        normals: points(&mut rng, p * n),
+    };
+    let frame = PoseFrame::Normal;
     let mut g = c.benchmark_group("patch_features");
-    g.bench_function(BenchmarkId::new("cpu", p * n), |b| {
-        b.iter(|| black_box(cpu::patch_features::patch_features(&centers, &cn, &pts, &nrm, n, 0.3)))
-    });
+    g.bench_function(BenchmarkId::new("cpu", p * n), |b| b.iter(|| black_box(patches.features(n, 0.3, frame))));
     if let Some(dev) = gpu() {
         let (mut ppf, mut pc) = (vec![0.0; p * n * 4], vec![0.0; p * n * 3]);
         g.bench_function(BenchmarkId::new("gpu", p * n), |b| {
-            b.iter(|| gpu::patch_features::run(&dev, &centers, &cn, &pts, &nrm, n, 0.3, &mut ppf, &mut pc).unwrap())
+            b.iter(|| gpu::patch_features::run(&dev, &patches, n, 0.3, frame, &mut ppf, &mut pc).unwrap())
         });
     }
     g.finish();
@@ -130,7 +135,8 @@ fn matching(c: &mut Criterion) {
 fn hypotheses_and_scores(c: &mut Criterion) {
     let k = KEYPOINTS * 4;
     let mut rng = Rng::new(5);
-    let q: Vec<[f32; 4]> = (0..k).map(|_| rng.unit_quaternion().map(|v| v as f32)).collect();
+    let q: Vec<[f32; 9]> =
+        (0..k).map(|_| cpu::rotation_head::quaternion_rotation(rng.unit_quaternion().map(|v| v as f32))).collect();
     let (ps, pt) = (points(&mut rng, k), points(&mut rng, k));
     let hyps = cpu::hypotheses::hypotheses(&q, &ps, &pt);
     let mut g = c.benchmark_group("hypotheses");

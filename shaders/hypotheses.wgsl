@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: MIT OR Apache-2.0
-// hypotheses: one rigid pose per correspondence from its unit quaternion [w, x, y, z]:
-// R = R(q) (target_from_source), t = p_target - R p_source. One invocation per correspondence.
-// Bindings: 0 params (uniform) | 1 quaternions (4 per row), 2 source_points, 3 target_points (xyz per
+// hypotheses: one rigid pose per correspondence from its rotation R (target_from_source, row-major, from
+// rotation_head): R, t = p_target - R p_source. One invocation per correspondence.
+// Bindings: 0 params (uniform) | 1 rotations (9 per row), 2 source_points, 3 target_points (xyz per
 //           row) (read) | 4 out (12 per row: R row-major, then t; written).
 // CPU twin: src/cpu/hypotheses.rs
 
@@ -15,7 +15,7 @@ struct HypothesesParams {
 const WG_SIZE: u32 = 64u;
 
 @group(0) @binding(0) var<uniform> params: HypothesesParams;
-@group(0) @binding(1) var<storage, read> quaternions: array<f32>;
+@group(0) @binding(1) var<storage, read> rotations: array<f32>;
 @group(0) @binding(2) var<storage, read> source_points: array<f32>;
 @group(0) @binding(3) var<storage, read> target_points: array<f32>;
 @group(0) @binding(4) var<storage, read_write> out: array<f32>;
@@ -30,20 +30,10 @@ fn main(
     if i >= params.rows {
         return;
     }
-    let w = quaternions[i * 4u];
-    let x = quaternions[i * 4u + 1u];
-    let y = quaternions[i * 4u + 2u];
-    let z = quaternions[i * 4u + 3u];
     var r: array<f32, 9>;
-    r[0] = 1.0 - 2.0 * (y * y + z * z);
-    r[1] = 2.0 * (x * y - w * z);
-    r[2] = 2.0 * (x * z + w * y);
-    r[3] = 2.0 * (x * y + w * z);
-    r[4] = 1.0 - 2.0 * (x * x + z * z);
-    r[5] = 2.0 * (y * z - w * x);
-    r[6] = 2.0 * (x * z - w * y);
-    r[7] = 2.0 * (y * z + w * x);
-    r[8] = 1.0 - 2.0 * (x * x + y * y);
+    for (var e = 0u; e < 9u; e++) {
+        r[e] = rotations[i * 9u + e];
+    }
     let ps = vec3<f32>(source_points[i * 3u], source_points[i * 3u + 1u], source_points[i * 3u + 2u]);
     let pt = vec3<f32>(target_points[i * 3u], target_points[i * 3u + 1u], target_points[i * 3u + 2u]);
     for (var e = 0u; e < 9u; e++) {

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: MIT OR Apache-2.0
 // patch_features: per gathered patch point, the 4-D point pair feature (PPF) against the patch centre and
-// the centred, radius-scaled coordinate (PC). One invocation per point, the workgroup grid linearised.
+// the centred, radius-scaled coordinate (PC), rotated into the centre normal's frame F(n_r) (rows t1, t2, n;
+// Duff et al. 2017) when normal_frame = 1. One invocation per point, the workgroup grid linearised.
 // Bindings: 0 params (uniform) | 1 centers, 2 center_normals (xyz per patch) | 3 points, 4 normals
 //           (xyz per point) | 5 ppf (4 per point), 6 pc (3 per point), written.
 // CPU twin: src/cpu/patch_features.rs
@@ -9,10 +10,11 @@ struct PatchFeaturesParams {
     rows: u32,
     points_per_patch: u32,
     radius: f32,
-    _pad: u32,
+    normal_frame: u32,
 }
 
 const WG_SIZE: u32 = 64u;
+const MIN_NORM: f32 = 1e-12;
 const INV_PI: f32 = 0.318309886183790671537767526745028724;
 
 @group(0) @binding(0) var<uniform> params: PatchFeaturesParams;
@@ -32,6 +34,22 @@ fn angle(a: vec3<f32>, b: vec3<f32>) -> f32 {
         return 0.0;
     }
     return atan2(s, d);
+}
+
+// Rotation taking the unit normal v to +z (rows t1, t2, n); identity for a zero or NaN normal. Same formula
+// and branch as rotation_head.wgsl and the CPU twin (src/cpu/rotation_head.rs: normal_frame).
+fn normal_frame(v: vec3<f32>) -> array<f32, 9> {
+    let len = sqrt(v.x * v.x + v.y * v.y + v.z * v.z);
+    if !(len > MIN_NORM) {
+        return array<f32, 9>(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0);
+    }
+    let x = v.x / len;
+    let y = v.y / len;
+    let z = v.z / len;
+    let sign = select(-1.0, 1.0, z >= 0.0);
+    let a = -1.0 / (sign + z);
+    let b = x * y * a;
+    return array<f32, 9>(1.0 + sign * x * x * a, sign * b, -sign * x, b, sign + y * y * a, -y, x, y, z);
 }
 
 @compute @workgroup_size(WG_SIZE)
@@ -56,7 +74,15 @@ fn main(
     ppf[i * 4u + 1u] = angle(n_i, d) * INV_PI;
     ppf[i * 4u + 2u] = angle(n_r, n_i) * INV_PI;
     ppf[i * 4u + 3u] = dist / r;
-    pc[i * 3u] = -d.x / r;
-    pc[i * 3u + 1u] = -d.y / r;
-    pc[i * 3u + 2u] = -d.z / r;
+    let c = vec3<f32>(-d.x / r, -d.y / r, -d.z / r);
+    if params.normal_frame == 1u {
+        let f = normal_frame(n_r);
+        pc[i * 3u] = f[0] * c.x + f[1] * c.y + f[2] * c.z;
+        pc[i * 3u + 1u] = f[3] * c.x + f[4] * c.y + f[5] * c.z;
+        pc[i * 3u + 2u] = f[6] * c.x + f[7] * c.y + f[8] * c.z;
+    } else {
+        pc[i * 3u] = c.x;
+        pc[i * 3u + 1u] = c.y;
+        pc[i * 3u + 2u] = c.z;
+    }
 }

@@ -2,7 +2,7 @@
 //! estimate the pose. `register` runs it all; `Registrar` exposes the steps for evaluation tools and keeps the
 //! model and backend loaded across pairs.
 
-use crate::backend::{Backend, CpuBackend};
+use crate::backend::{Backend, CpuBackend, RotationInputs};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::estimate::{icp_point_to_plane, ransac, verify};
@@ -28,6 +28,8 @@ pub struct ScanFeatures {
     pub cloud: PointCloud,
     /// Keypoint positions (scan frame), only keypoints with a non-empty patch.
     pub keypoints: Vec<[f32; 3]>,
+    /// Their unit normals (scan frame): the normal frames of normal-aligned patches.
+    pub keypoint_normals: Vec<[f32; 3]>,
     /// Keypoints dropped because their patch was empty.
     pub empty_patches: usize,
     /// Rotation-invariant PPF-FoldNet codewords, `keypoints.len() x codeword`, row-major.
@@ -212,10 +214,11 @@ impl Registrar {
         let ppf_codewords = self.backend.encode(Net::Ppf, &ppf_input, count)?;
         clock.lap("ppf_encoder");
         let pc_codewords = self.backend.encode(Net::Pc, &pc_input, count)?;
-        let pose_features = pc_codewords.iter().zip(&ppf_codewords).map(|(pc, ppf)| pc - ppf).collect();
+        let pose_features = crate::model::pose_feature(&pc_codewords, &ppf_codewords);
         clock.lap("pc_encoder");
         Ok(ScanFeatures {
             keypoints: gathered.centers,
+            keypoint_normals: gathered.center_normals,
             empty_patches: patches.empty.len(),
             cloud,
             ppf_codewords,
@@ -266,8 +269,19 @@ impl Registrar {
                 };
                 let fs = rows(source, &mut correspondences.iter().map(|c| c.source_index as usize));
                 let ft = rows(target, &mut correspondences.iter().map(|c| c.target_index as usize));
-                let quaternions = self.backend.predict_rotations(&fs, &ft, correspondences.len())?;
-                verify(self.backend.as_ref(), &quaternions, &src, &tgt, threshold)?
+                let ns: Vec<[f32; 3]> =
+                    correspondences.iter().map(|c| source.keypoint_normals[c.source_index as usize]).collect();
+                let nt: Vec<[f32; 3]> =
+                    correspondences.iter().map(|c| target.keypoint_normals[c.target_index as usize]).collect();
+                let pose = RotationInputs {
+                    source: &fs,
+                    target: &ft,
+                    source_normals: &ns,
+                    target_normals: &nt,
+                    rows: correspondences.len(),
+                };
+                let rotations = self.backend.predict_rotations(pose)?;
+                verify(self.backend.as_ref(), &rotations, &src, &tgt, threshold)?
             }
             Estimator::Ransac => ransac(&src, &tgt, threshold, &self.settings.ransac, self.settings.seed)?,
         };

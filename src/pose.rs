@@ -48,6 +48,15 @@ pub fn quaternion_from_matrix(r: &Matrix3<f64>) -> [f64; 4] {
     [s * q.w, s * q.i, s * q.j, s * q.k]
 }
 
+/// The rotation nearest to `r` (SVD projection onto SO(3), reflection-corrected), so slightly non-orthonormal
+/// ground truth can be used as a rotation. The identity when the SVD fails.
+pub fn nearest_rotation(r: &Matrix3<f64>) -> Matrix3<f64> {
+    let svd = r.svd(true, true);
+    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else { return Matrix3::identity() };
+    let d = (u * v_t).determinant().signum();
+    u * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * v_t
+}
+
 /// Rotation matrix of a unit quaternion `[w, x, y, z]`.
 pub fn matrix_from_quaternion(q: [f64; 4]) -> Matrix3<f64> {
     UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3])).to_rotation_matrix().into_inner()

@@ -10,14 +10,16 @@
 //! depend on float rounding (max_pool, mutual_knn on a given matrix, inlier counts away from the threshold)
 //! must match exactly.
 
+use dpr_gpu::backend::RotationInputs;
 use dpr_gpu::backend::{Backend, CpuBackend};
 use dpr_gpu::cpu::dense::DenseShape;
 use dpr_gpu::cpu::hypotheses::{Hypothesis, hypotheses as cpu_hypotheses};
+use dpr_gpu::cpu::rotation_head::rotation_head as cpu_rotation_head;
 use dpr_gpu::cpu::score_hypotheses::{HypothesisScore, score_hypotheses as cpu_score, squared_residual};
 use dpr_gpu::cpu::{self, mutual_knn::Match};
 use dpr_gpu::gpu::testing::{gpu_or_skip as gpu, new_gpu_or_skip};
 use dpr_gpu::gpu::{self, Gpu, GpuBackend};
-use dpr_gpu::model::relativenet::normalize_quaternion;
+use dpr_gpu::model::config::{PoseFrame, RotationOutput};
 use dpr_gpu::model::{Model, ModelConfig, Net, Weights};
 use dpr_gpu::preprocess::GatheredPatches;
 use dpr_gpu::rng::Rng;
@@ -40,11 +42,16 @@ const PPF_ANGLE_ATOL: f32 = 2e-5;
 /// patch_features distances and PC coordinates: one `sqrt` / division, each a few ulp on a GPU.
 const PPF_LENGTH_RTOL: f32 = 8.0 * EPS;
 
-/// normalize_quaternion: four squares, a `sqrt` and a division, each a few ulp on a GPU.
-const QUATERNION_ATOL: f32 = 16.0 * EPS;
+/// patch_features PC coordinates in a normal frame: the frame costs a `sqrt`, two divisions and a few
+/// products (each a few ulp on a GPU, FMA-contractible), then a 3-term dot product; relative to the row's
+/// vector length.
+const PC_FRAME_RTOL: f32 = 32.0 * EPS;
 
-/// hypotheses: R from products of quaternion components (FMA-contractible), t = p_t - R p_s; errors are a
-/// few ulp of the largest term.
+/// rotation_head: normalisation (`sqrt`, division), Gram-Schmidt or quaternion products, and with normal frames
+/// two 3x3 products of unit-scale matrices; each step a few ulp on a GPU, so a few tens of ulp of 1 in all.
+const ROTATION_ATOL: f32 = 64.0 * EPS;
+
+/// hypotheses: R copied, t = p_t - R p_s (FMA-contractible); errors are a few ulp of the largest term.
 const HYPOTHESIS_ULPS: f32 = 16.0;
 
 /// score_hypotheses: the GPU sums residuals in a tree, the twin sequentially; both within
@@ -148,6 +155,8 @@ fn small_config() -> ModelConfig {
         grid: [5, 7],
         grid_extent: 0.3,
         relative_widths: vec![40, 24],
+        pose_frame: PoseFrame::Normal,
+        rotation_output: RotationOutput::SixD,
     }
 }
 
@@ -195,11 +204,22 @@ fn gathered(rng: &mut Rng, patches: usize, n: usize, radius: f32) -> GatheredPat
     }
 }
 
-fn check_patch_features(kernel: &str, seed: u64, got: (&[f32], &[f32]), want: (&[f32], &[f32])) {
+fn check_patch_features(kernel: &str, seed: u64, got: (&[f32], &[f32]), want: (&[f32], &[f32]), frame: PoseFrame) {
     assert_close(&format!("{kernel} ppf"), seed, got.0, want.0, |i| {
         if i % 4 == 3 { PPF_LENGTH_RTOL * want.0[i].abs() + 1e-30 } else { PPF_ANGLE_ATOL }
     });
-    assert_close(&format!("{kernel} pc"), seed, got.1, want.1, |i| PPF_LENGTH_RTOL * want.1[i].abs() + 1e-30);
+    let row_len = |i: usize| want.1[i / 3 * 3..][..3].iter().map(|v| v * v).sum::<f32>().sqrt();
+    assert_close(&format!("{kernel} pc ({frame:?} frame)"), seed, got.1, want.1, |i| match frame {
+        PoseFrame::Fragment => PPF_LENGTH_RTOL * want.1[i].abs() + 1e-30,
+        PoseFrame::Normal => PC_FRAME_RTOL * row_len(i) + 1e-30,
+    });
+}
+
+/// The kernel on `p` in `frame`, outputs pre-filled with the sentinel.
+fn gpu_patch_features(g: &Gpu, p: &GatheredPatches, n: usize, radius: f32, frame: PoseFrame) -> (Vec<f32>, Vec<f32>) {
+    let (mut ppf, mut pc) = (vec![SENTINEL; p.points.len() * 4], vec![SENTINEL; p.points.len() * 3]);
+    gpu::patch_features::run(g, p, n, radius, frame, &mut ppf, &mut pc).unwrap();
+    (ppf, pc)
 }
 
 // ----------------------------------------------------------------------------------------- patch_features
@@ -210,13 +230,15 @@ fn patch_features_matches_cpu_ragged() {
     let s = seed(11);
     let mut rng = Rng::new(s);
     let (patches, n, radius) = (7, 37, 0.3); // 259 points: not a multiple of 64
-    let p = gathered(&mut rng, patches, n, radius);
-    let (want_ppf, want_pc) =
-        cpu::patch_features::patch_features(&p.centers, &p.center_normals, &p.points, &p.normals, n, radius);
-    let (mut ppf, mut pc) = (vec![SENTINEL; want_ppf.len()], vec![SENTINEL; want_pc.len()]);
-    gpu::patch_features::run(&g, &p.centers, &p.center_normals, &p.points, &p.normals, n, radius, &mut ppf, &mut pc)
-        .unwrap();
-    check_patch_features("patch_features", s, (&ppf, &pc), (&want_ppf, &want_pc));
+    let mut p = gathered(&mut rng, patches, n, radius);
+    // Normals on the frame's branch switch (z = +0, -0) and the poles.
+    p.center_normals[..4].copy_from_slice(&[[1.0, 0.0, 0.0], [0.0, 0.6, -0.8], [0.0, 0.0, -1.0], [0.0, 0.0, 1.0]]);
+    p.center_normals[4] = [0.0, 1.0, -0.0];
+    for frame in [PoseFrame::Fragment, PoseFrame::Normal] {
+        let (want_ppf, want_pc) = p.features(n, radius, frame);
+        let (ppf, pc) = gpu_patch_features(&g, &p, n, radius, frame);
+        check_patch_features("patch_features", s, (&ppf, &pc), (&want_ppf, &want_pc), frame);
+    }
 }
 
 #[test]
@@ -247,11 +269,15 @@ fn patch_features_matches_cpu_degenerate() {
     nrm.extend(nrm.clone());
     centers.truncate(2);
     center_normals.truncate(2);
-    let (want_ppf, want_pc) = cpu::patch_features::patch_features(&centers, &center_normals, &pts, &nrm, n, 0.3);
-    let (mut ppf, mut pc) = (vec![SENTINEL; want_ppf.len()], vec![SENTINEL; want_pc.len()]);
-    gpu::patch_features::run(&g, &centers, &center_normals, &pts, &nrm, n, 0.3, &mut ppf, &mut pc).unwrap();
-    assert!(want_ppf.iter().all(|v| v.is_finite()), "twin gives finite features on degenerate input");
-    check_patch_features("patch_features (degenerate)", s, (&ppf, &pc), (&want_ppf, &want_pc));
+    let p = GatheredPatches { centers, center_normals, points: pts, normals: nrm };
+    for frame in [PoseFrame::Normal, PoseFrame::Fragment] {
+        let (want_ppf, want_pc) = p.features(n, 0.3, frame);
+        let (ppf, pc) = gpu_patch_features(&g, &p, n, 0.3, frame);
+        assert!(want_ppf.iter().chain(&want_pc).all(|v| v.is_finite()), "finite features on degenerate input");
+        check_patch_features("patch_features (degenerate)", s, (&ppf, &pc), (&want_ppf, &want_pc), frame);
+    }
+    let (want_ppf, _) = p.features(n, 0.3, PoseFrame::Fragment);
+    let (ppf, _) = gpu_patch_features(&g, &p, n, 0.3, PoseFrame::Fragment);
     // The zero-vector branch (atan2(0, 0) -> 0) must be taken identically: exact zeros where the twin has one
     // because a vector is exactly zero.
     for (i, (&a, &e)) in ppf.iter().zip(&want_ppf).enumerate() {
@@ -388,30 +414,52 @@ fn mutual_knn_matches_cpu_with_ties() {
 // ----------------------------------------------------------------------- quaternions, hypotheses, scores
 
 #[test]
-fn normalize_quaternion_matches_cpu() {
+fn rotation_head_matches_cpu() {
     let Some(g) = gpu() else { return };
     let s = seed(51);
-    let mut rng = Rng::new(s);
-    let mut raw: Vec<[f32; 4]> = (0..131)
-        .map(|i| {
-            let scale = 10f32.powi(i % 7 - 3);
-            [0; 4].map(|_: i32| rng.normal() as f32 * scale)
-        })
-        .collect();
-    // Degenerate: zero, below the minimum norm (identity), just above it, one-hot.
-    raw.extend([[0.0; 4], [1e-13, 0.0, 0.0, 0.0], [0.0, 0.0, 2e-12, 0.0], [0.0, -3.0, 0.0, 0.0]]);
-    let want: Vec<f32> = raw.iter().flat_map(|&q| normalize_quaternion(q)).collect();
-    let mut got = vec![[SENTINEL; 4]; raw.len()];
-    gpu::normalize_quaternion::run(&g, &raw, &mut got).unwrap();
-    assert_close("normalize_quaternion", s, got.as_flattened(), &want, |_| QUATERNION_ATOL);
+    for output in [RotationOutput::Quaternion, RotationOutput::SixD] {
+        let mut rng = Rng::new(s);
+        let w = output.width();
+        let rows = 131;
+        let mut raw: Vec<f32> = (0..rows * w)
+            .map(|i| {
+                let scale = 10f32.powi((i / w) as i32 % 7 - 3);
+                rng.normal() as f32 * scale
+            })
+            .collect();
+        // Degenerate rows: zero, below the minimum norm (identity), just above it, one-hot, NaN, and for 6-D a
+        // second column parallel to the first.
+        let mut extra: Vec<Vec<f32>> = vec![vec![0.0; w], vec![1e-13; w], vec![2e-12; w], vec![f32::NAN; w]];
+        let mut one_hot = vec![0.0; w];
+        one_hot[1] = -3.0;
+        extra.push(one_hot);
+        if w == 6 {
+            extra.push(vec![1.0, 2.0, 3.0, 2.0, 4.0, 6.0]);
+        }
+        for e in &extra {
+            raw.extend(e);
+        }
+        let n = raw.len() / w;
+        let mut ns: Vec<[f32; 3]> = (0..n).map(|_| unit(&mut rng)).collect();
+        let nt: Vec<[f32; 3]> = (0..n).map(|_| unit(&mut rng)).collect();
+        ns[..4].copy_from_slice(&[[0.0; 3], [0.0, 0.0, -1.0], [1.0, 0.0, -0.0], [f32::NAN; 3]]);
+        for frame in [PoseFrame::Fragment, PoseFrame::Normal] {
+            let want = cpu_rotation_head(&raw, output, frame, &ns, &nt);
+            let mut got = vec![[SENTINEL; 9]; n];
+            gpu::rotation_head::run(&g, &raw, output, frame, [&ns, &nt], &mut got).unwrap();
+            let name = format!("rotation_head ({output:?}, {frame:?})");
+            assert_close(&name, s, got.as_flattened(), want.as_flattened(), |_| ROTATION_ATOL);
+        }
+    }
 }
 
-/// Quaternions with source and target points, one per correspondence.
-type QuaternionProblem = (Vec<[f32; 4]>, Vec<[f32; 3]>, Vec<[f32; 3]>);
+/// Rotations with source and target points, one per correspondence.
+type RotationProblem = (Vec<[f32; 9]>, Vec<[f32; 3]>, Vec<[f32; 3]>);
 
-fn random_hypotheses(rng: &mut Rng, n: usize, extent: f64) -> QuaternionProblem {
-    let q = (0..n).map(|_| rng.unit_quaternion().map(|v| v as f32)).collect();
-    (q, points(rng, n, extent), points(rng, n, extent))
+fn random_hypotheses(rng: &mut Rng, n: usize, extent: f64) -> RotationProblem {
+    let q: Vec<[f32; 4]> = (0..n).map(|_| rng.unit_quaternion().map(|v| v as f32)).collect();
+    let r = q.iter().map(|&q| cpu::rotation_head::quaternion_rotation(q)).collect();
+    (r, points(rng, n, extent), points(rng, n, extent))
 }
 
 #[test]
@@ -545,7 +593,8 @@ fn backend_patch_features_and_encode_match_cpu() {
     let p = gathered(&mut rng, 13, n, 0.3);
     let want = cpu_b.patch_features(&p, 0.3).unwrap();
     let got = gpu_b.patch_features(&p, 0.3).unwrap();
-    check_patch_features("backend patch_features", s, (&got.0, &got.1), (&want.0, &want.1));
+    let frame = cpu_b.model().config.pose_frame;
+    check_patch_features("backend patch_features", s, (&got.0, &got.1), (&want.0, &want.1), frame);
     for (net, input) in [(Net::Ppf, &want.0), (Net::Pc, &want.1)] {
         let want_cw = cpu_b.encode(net, input, 13).unwrap();
         let got_cw = gpu_b.encode(net, input, 13).unwrap();
@@ -578,9 +627,16 @@ fn networks_match_cpu_at_default_widths() {
         assert_close(&format!("decode {net:?} (default widths)"), s, &got_rec, &want_rec, |_| tol);
         codewords.push(want);
     }
-    let pose: Vec<f32> = codewords[1].iter().zip(&codewords[0]).map(|(a, b)| a - b).collect();
-    let want = cpu_b.predict_rotations(&pose, &pose, 3).unwrap();
-    let got = gpu_b.predict_rotations(&pose, &pose, 3).unwrap();
+    let pose = dpr_gpu::model::pose_feature(&codewords[1], &codewords[0]);
+    let inputs = RotationInputs {
+        source: &pose,
+        target: &pose,
+        source_normals: &p.center_normals,
+        target_normals: &p.center_normals[..3],
+        rows: 3,
+    };
+    let want = cpu_b.predict_rotations(inputs).unwrap();
+    let got = gpu_b.predict_rotations(inputs).unwrap();
     assert_close("predict_rotations (default widths)", s, got.as_flattened(), want.as_flattened(), |_| NETWORK_RTOL);
 }
 
@@ -635,14 +691,35 @@ fn decode_matches_cpu() {
 fn relativenet_hypotheses_and_scores_match_cpu() {
     let Some(g) = gpu() else { return };
     let s = seed(64);
-    let (gpu_b, cpu_b) = backends(g, s);
-    let cw = cpu_b.model().config.codeword();
+    let heads = [
+        (PoseFrame::Normal, RotationOutput::SixD),
+        (PoseFrame::Fragment, RotationOutput::Quaternion),
+        (PoseFrame::Normal, RotationOutput::Quaternion),
+        (PoseFrame::Fragment, RotationOutput::SixD),
+    ];
+    for (pose_frame, rotation_output) in heads {
+        let config = ModelConfig { pose_frame, rotation_output, ..small_config() };
+        let (gpu_b, cpu_b) = backends_for(Arc::clone(&g), random_model(config, s));
+        relativenet_matches_cpu(s, &gpu_b, &cpu_b);
+    }
+}
+
+fn relativenet_matches_cpu(s: u64, gpu_b: &GpuBackend, cpu_b: &CpuBackend) {
+    let config = &cpu_b.model().config;
+    let cw = config.codeword();
     let rows = 77;
     let mut rng = Rng::new(s);
     let (src, tgt) = (normals(&mut rng, rows * cw), normals(&mut rng, rows * cw));
-    let want = cpu_b.predict_rotations(&src, &tgt, rows).unwrap();
-    let got = gpu_b.predict_rotations(&src, &tgt, rows).unwrap();
-    assert_close("predict_rotations", s, got.as_flattened(), want.as_flattened(), |_| NETWORK_RTOL);
+    let ns: Vec<[f32; 3]> = (0..rows).map(|_| unit(&mut rng)).collect();
+    let nt: Vec<[f32; 3]> = (0..rows).map(|_| unit(&mut rng)).collect();
+    let inputs = RotationInputs { source: &src, target: &tgt, source_normals: &ns, target_normals: &nt, rows };
+    let want = cpu_b.predict_rotations(inputs).unwrap();
+    let got = gpu_b.predict_rotations(inputs).unwrap();
+    let name = format!("predict_rotations ({:?}, {:?})", config.pose_frame, config.rotation_output);
+    assert_close(&name, s, got.as_flattened(), want.as_flattened(), |_| NETWORK_RTOL);
+    // Wrong lengths are errors on both backends.
+    let short = RotationInputs { source_normals: &ns[1..], ..inputs };
+    assert!(cpu_b.predict_rotations(short).is_err() && gpu_b.predict_rotations(short).is_err());
 
     let (ps, pt) = (points(&mut rng, rows, 2.0), points(&mut rng, rows, 2.0));
     let want_h = cpu_b.hypotheses(&want, &ps, &pt).unwrap();
@@ -670,12 +747,16 @@ fn invalid_calls_are_errors_not_panics() {
 /// End to end: `register` on a generated pair with the GPU backend and with the CPU reference. The codewords
 /// agree to `NETWORK_RTOL`, far below the distance gaps mutual matching decides on, so the correspondences must
 /// be identical; RANSAC then sees identical inputs, so the poses must agree to `POSE_ATOL`; RelativeNet's
-/// quaternions for those correspondences agree to the network tolerance.
+/// rotations for those correspondences agree to the network tolerance, and its estimate picks the same best
+/// hypothesis (same inliers, pose within `RELATIVENET_POSE_ATOL`).
 #[test]
 fn register_matches_cpu_on_a_generated_pair() {
     /// Identical correspondences and seed give the identical RANSAC sample sequence; only the printing of
     /// f64 sums could differ, so allow a hair above f64 noise.
     const POSE_ATOL: f64 = 1e-9;
+    /// RelativeNet's best hypothesis comes from GPU rotations within `NETWORK_RTOL` of the CPU's, then the same
+    /// refinement on the same inliers: the refined poses agree far inside a millimetre / a milliradian.
+    const RELATIVENET_POSE_ATOL: f64 = 1e-3;
     let Some(g) = gpu() else { return };
     let s = seed(70);
     let (gpu_b, cpu_b) = backends_for(g, small_model(s));
@@ -703,14 +784,10 @@ fn register_matches_cpu_on_a_generated_pair() {
     assert!((g_pose.target_from_source - c_pose.target_from_source).abs().max() < POSE_ATOL, "seed {s}");
     assert_eq!(g_pose.inliers, c_pose.inliers);
     // RelativeNet on the same correspondences.
-    let dim = cs.pose_features.len() / cs.keypoints.len();
-    let rows = |f: &dpr_gpu::pipeline::ScanFeatures, idx: Vec<usize>| -> Vec<f32> {
-        idx.into_iter().flat_map(|i| f.pose_features[i * dim..(i + 1) * dim].to_vec()).collect()
-    };
-    let src_idx: Vec<usize> = c_corr.iter().map(|c| c.source_index as usize).collect();
-    let tgt_idx: Vec<usize> = c_corr.iter().map(|c| c.target_index as usize).collect();
-    let gq = on_gpu.backend().predict_rotations(&rows(&gs, src_idx.clone()), &rows(&gt, tgt_idx.clone()), c_corr.len());
-    let cq = on_cpu.backend().predict_rotations(&rows(&cs, src_idx), &rows(&ct, tgt_idx), c_corr.len());
-    let flat = |q: Vec<[f32; 4]>| q.into_iter().flatten().collect::<Vec<f32>>();
-    assert_close("register quaternions", s, &flat(gq.unwrap()), &flat(cq.unwrap()), |_| NETWORK_RTOL);
+    let g_rel = on_gpu.estimate(&gs, &gt, &g_corr, dpr_gpu::Estimator::RelativeNet).unwrap();
+    let c_rel = on_cpu.estimate(&cs, &ct, &c_corr, dpr_gpu::Estimator::RelativeNet).unwrap();
+    assert_eq!(g_rel.inliers, c_rel.inliers, "RelativeNet inliers, seed {s}");
+    assert_eq!(g_rel.hypotheses_scored, c_rel.hypotheses_scored);
+    let diff = (g_rel.target_from_source - c_rel.target_from_source).abs().max();
+    assert!(diff < RELATIVENET_POSE_ATOL, "RelativeNet pose differs by {diff}, seed {s}");
 }

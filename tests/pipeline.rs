@@ -5,6 +5,7 @@
 use dpr_gpu::backend::CpuBackend;
 use dpr_gpu::cpu::mutual_knn::{codeword_distance, mutual_knn};
 use dpr_gpu::cpu::patch_features::point_features;
+use dpr_gpu::cpu::rotation_head::quaternion_rotation;
 use dpr_gpu::estimate::{ransac, verify};
 use dpr_gpu::model::{Model, ModelConfig, Weights};
 use dpr_gpu::pose::{
@@ -184,7 +185,8 @@ fn verifier_and_ransac_recover_a_known_transform_with_80_percent_outliers() {
     let backend = CpuBackend::new(model);
     for seed in 0..5 {
         let p = problem(seed, 200, 0.2);
-        let est = verify(&backend, &p.quaternions, &p.source, &p.target, 0.05).unwrap();
+        let rotations: Vec<[f32; 9]> = p.quaternions.iter().map(|&q| quaternion_rotation(q)).collect();
+        let est = verify(&backend, &rotations, &p.source, &p.target, 0.05).unwrap();
         assert!(rotation_error_deg(&est.target_from_source, &p.truth) < 1.0, "seed {seed}");
         assert!(translation_error(&est.target_from_source, &p.truth) < 0.02, "seed {seed}");
         assert!(est.inliers >= 38 && est.inliers <= 45, "inliers {}", est.inliers);

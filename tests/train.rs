@@ -8,14 +8,16 @@
 //! the two Chamfer directions), so it requires 90% of the sampled parameters to agree within 5e-4 + 3%.
 
 use dpr_gpu::PointCloud;
-use dpr_gpu::cpu::hypotheses::quaternion_to_matrix;
+use dpr_gpu::model::config::{PoseFrame, RotationOutput};
 use dpr_gpu::model::params::tensor_specs;
 use dpr_gpu::model::{FoldNet, ModelConfig, Net, RelativeNet, Weights};
+use dpr_gpu::pose::matrix_from_quaternion;
 use dpr_gpu::rng::Rng;
 use dpr_gpu::train::adam::{Adam, AdamSettings, Param};
-use dpr_gpu::train::forward::{decode_tape, encode_tape, relative_tape};
 use dpr_gpu::train::grad::{DenseGrads, DenseLayer, Segment, dense_backward, max_pool_backward, relu_backward};
-use dpr_gpu::train::loss::{chamfer, feat_loss, normalize_quaternion, normalize_quaternion_backward, pose_loss};
+use dpr_gpu::train::loss::{
+    chamfer, feat_loss, normalize_quaternion, normalize_quaternion_backward, pose_loss, rotation_loss, six_d_pose_loss,
+};
 use dpr_gpu::train::{
     DataSettings, LossSettings, PairSample, Sampler, TrainSettings, Trainer, batch_loss, batch_objective,
 };
@@ -246,6 +248,61 @@ fn quaternion_normalisation_and_pose_loss_match_finite_differences() {
     assert_eq!(normalize_quaternion_backward([0.0; 4], [1.0; 4]), [0.0; 4]);
 }
 
+/// Row-major f64 matrix of a unit quaternion.
+fn rotation_rows(q: [f64; 4]) -> [f64; 9] {
+    let m = matrix_from_quaternion(q);
+    std::array::from_fn(|k| m[(k / 3, k % 3)])
+}
+
+#[test]
+fn six_d_pose_loss_matches_finite_differences() {
+    let mut rng = Rng::new(18);
+    // The loss by its definition, in f64: Gram-Schmidt on the raw columns, then |R - R*|_F / 2.
+    let definition = |r: &[f64], label: &[f64; 9]| {
+        let n1 = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
+        let b1 = [r[0] / n1, r[1] / n1, r[2] / n1];
+        let d = b1[0] * r[3] + b1[1] * r[4] + b1[2] * r[5];
+        let u = [r[3] - d * b1[0], r[4] - d * b1[1], r[5] - d * b1[2]];
+        let n2 = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
+        let b2 = [u[0] / n2, u[1] / n2, u[2] / n2];
+        let b3 = [b1[1] * b2[2] - b1[2] * b2[1], b1[2] * b2[0] - b1[0] * b2[2], b1[0] * b2[1] - b1[1] * b2[0]];
+        let cols = [b1, b2, b3];
+        (0..9).map(|k| (cols[k % 3][k / 3] - label[k]).powi(2)).sum::<f64>().sqrt() / 2.0
+    };
+    for _ in 0..8 {
+        let raw: [f32; 6] = std::array::from_fn(|_| rng.normal() as f32);
+        let label = rotation_rows(rng.unit_quaternion());
+        let (value, grad) = six_d_pose_loss(raw, &label);
+        assert!((value - definition(&to64(&raw), &label)).abs() < 1e-6);
+        let grad32 = grad.map(|v| v as f32);
+        check_all("6-D pose loss w.r.t. raw output", &raw, &grad32, &|r| definition(r, &label));
+        // The generic entry point agrees.
+        let (v2, g2) = rotation_loss(&raw, RotationOutput::SixD, &label);
+        assert_eq!((v2, g2.as_slice()), (value, grad32.as_slice()));
+    }
+    // The exact label's columns (scaled, with a leak of the first into the second) give zero loss; a rotation
+    // by theta gives sqrt(2) sin(theta / 2).
+    let label = rotation_rows(rng.unit_quaternion());
+    let raw = [0, 1, 2, 3, 4, 5].map(|k| {
+        let (col, row) = (k / 3, k % 3);
+        (3.0 * label[row * 3 + col] + if col == 1 { 0.5 * label[row * 3] } else { 0.0 }) as f32
+    });
+    assert!(six_d_pose_loss(raw, &label).0 < 1e-6);
+    let theta: f64 = 2.0;
+    let about_z = [theta.cos(), -theta.sin(), 0.0, theta.sin(), theta.cos(), 0.0, 0.0, 0.0, 1.0];
+    let identity_raw = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+    let expected = 2f64.sqrt() * (theta / 2.0).sin();
+    assert!((six_d_pose_loss(identity_raw, &about_z).0 - expected).abs() < 1e-9);
+    // Degenerate output: scored as the identity, zero gradient.
+    let (v, g) = six_d_pose_loss([0.0; 6], &about_z);
+    assert!((v - expected).abs() < 1e-9 && g == [0.0; 6]);
+    // The quaternion entry point is the paper's loss on the label's quaternion.
+    let q = rng.unit_quaternion();
+    let raw_q = [0.3f32, -0.2, 0.9, 0.1];
+    let (vq, _) = rotation_loss(&raw_q, RotationOutput::Quaternion, &rotation_rows(q));
+    assert!((vq - pose_loss(normalize_quaternion(raw_q), q).0).abs() < 1e-9);
+}
+
 #[test]
 fn feature_loss_matches_finite_differences() {
     let mut rng = Rng::new(9);
@@ -272,6 +329,8 @@ fn tiny_config() -> ModelConfig {
         grid: [2, 2],
         grid_extent: 0.3,
         relative_widths: vec![8, 6],
+        pose_frame: PoseFrame::Normal,
+        rotation_output: RotationOutput::SixD,
     }
 }
 
@@ -293,7 +352,7 @@ fn random_sample(config: &ModelConfig, rng: &mut Rng) -> PairSample {
     PairSample {
         ppf: (0..2 * n * 4).map(|_| rng.unit_f64() as f32).collect(),
         pc: (0..2 * n * 3).map(|_| rng.uniform(-1.0, 1.0) as f32).collect(),
-        label: rng.unit_quaternion(),
+        label: rotation_rows(rng.unit_quaternion()),
     }
 }
 
@@ -315,21 +374,26 @@ fn training_forward_equals_the_inference_forward_bit_for_bit() {
     for net in [Net::Ppf, Net::Pc] {
         let f = FoldNet::from_weights(&weights, net).unwrap();
         let input: Vec<f32> = (0..patches * 37 * net.io_width()).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
-        let tape = encode_tape(&f, &input, patches, 37);
+        let tape = f.encode_tape(&input, patches, 37);
         assert_eq!(tape.codeword, f.encode(&input, patches, 37), "{net:?} codewords");
-        let dec = decode_tape(&f, &tape.codeword, patches);
+        let dec = f.decode_tape(&tape.codeword, patches);
         assert_eq!(dec.output(), f.decode(&tape.codeword, patches).as_slice(), "{net:?} reconstruction");
     }
     let rel = RelativeNet::from_weights(&weights).unwrap();
     let src = randn(&mut rng, 2 * 40, 1.0);
     let tgt = randn(&mut rng, 2 * 40, 1.0);
-    let outs = relative_tape(&rel, &src, &tgt, 2);
+    let outs = rel.forward_tape(&src, &tgt, 2);
     assert_eq!(outs.last().unwrap(), &rel.forward_raw(&src, &tgt, 2));
 }
 
 #[test]
 fn whole_model_gradient_matches_finite_differences() {
-    let config = tiny_config();
+    for output in [RotationOutput::SixD, RotationOutput::Quaternion] {
+        whole_model_gradient_matches(ModelConfig { rotation_output: output, ..tiny_config() });
+    }
+}
+
+fn whole_model_gradient_matches(config: ModelConfig) {
     let weights = weights_with_biases(&config, 21);
     let mut rng = Rng::new(22);
     let samples: Vec<PairSample> = (0..2).map(|_| random_sample(&config, &mut rng)).collect();
@@ -515,6 +579,8 @@ fn small_config() -> ModelConfig {
         grid: [4, 4],
         grid_extent: 0.3,
         relative_widths: vec![32, 16],
+        pose_frame: PoseFrame::Normal,
+        rotation_output: RotationOutput::SixD,
     }
 }
 
@@ -548,8 +614,10 @@ fn sampled_labels_rotate_source_patches_onto_target_patches() {
     std::fs::write(dir.0.join("pairs.txt"), format!("# source target T\na.ply b.ply {flat}\n")).unwrap();
     // Many samples per patch (with replacement) so the sampled centroids are close to the true ones.
     let n = 2048;
-    let config = ModelConfig { points_per_patch: n, ..small_config() };
-    for rotate_target in [false, true] {
+    for (rotate_target, pose_frame) in
+        [(false, PoseFrame::Fragment), (true, PoseFrame::Fragment), (true, PoseFrame::Normal)]
+    {
+        let config = ModelConfig { points_per_patch: n, pose_frame, ..small_config() };
         let settings = DataSettings { voxel: 0.0, rotate_target, ..DataSettings::default() };
         let pairs = dpr_gpu::train::data::discover_pairs(&[dir.0.join("pairs.txt")]).unwrap();
         let mut sampler = Sampler::new(pairs, settings, &config).unwrap();
@@ -557,9 +625,13 @@ fn sampled_labels_rotate_source_patches_onto_target_patches() {
         assert_eq!(batch, sampler.batch(7, 0, 8).unwrap(), "sampling is not deterministic");
         let (mut worst, mut transposed): (f64, f64) = (0.0, 0.0);
         for s in &batch {
-            let r = quaternion_to_matrix(s.label.map(|v| v as f32));
-            let r = Matrix3::from_row_slice(&r.map(|v| v as f64));
+            let r = Matrix3::from_row_slice(&s.label);
             assert!((r.determinant() - 1.0).abs() < 1e-4);
+            if pose_frame == PoseFrame::Normal {
+                // Normal-aligned patches: the label keeps the z axis (up to normal noise), a rotation about the
+                // normal; -z where the two fragments' viewpoints orient the normals oppositely.
+                assert!((r * Vector3::z()).z.abs() > 0.98, "label tilts the normal: {r}");
+            }
             let (cs, ct) = (centroid(&s.pc[..n * 3]), centroid(&s.pc[n * 3..]));
             worst = worst.max((r * cs - ct).norm());
             transposed = transposed.max((r.transpose() * cs - ct).norm());
@@ -612,7 +684,8 @@ fn loss_decreases_on_a_tiny_dataset() {
     }
     let after = batch_loss(trainer.weights(), &eval, &settings.loss).unwrap();
     eprintln!("before {before:?}\nafter  {after:?}");
-    assert!(after.total < 0.8 * before.total, "loss {before:?} -> {after:?}");
+    // The 6-D chordal pose term starts at ~1.3 (random rotations) and falls slowest: ask for 15 % overall.
+    assert!(after.total < 0.85 * before.total, "loss {before:?} -> {after:?}");
     assert!(after.rec < before.rec, "reconstruction {before:?} -> {after:?}");
 }
 

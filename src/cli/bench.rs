@@ -6,7 +6,7 @@
 //! supports `TIMESTAMP_QUERY`, the GPU time between the first and last dispatch of each submission. Each
 //! stage runs once untimed (pipeline and buffer warm-up), then `--repeat` times; the fastest run is reported.
 
-use crate::backend::{Backend, CpuBackend};
+use crate::backend::{Backend, CpuBackend, RotationInputs};
 use crate::cpu::dense::{DenseShape, dense};
 use crate::gpu::{Gpu, GpuBackend, buffer::GpuBuffer, dense as gpu_dense, recorder::Recorder};
 use crate::model::{Model, ModelConfig, Net, Weights};
@@ -157,7 +157,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     let mut rng = Rng::new(args.seed);
     let patches = synthetic_patches(&mut rng, k, p, radius);
-    let (ppf, pc) = patches.features(p, radius);
+    let (ppf, pc) = patches.features(p, radius, model.config.pose_frame);
     let reference: &dyn Backend = match (&gpu, &cpu) {
         (Some(g), _) => g,
         (None, Some(c)) => c,
@@ -165,11 +165,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let source_cw = reference.encode(Net::Ppf, &ppf, k)?;
     let target_cw: Vec<f32> = source_cw.iter().map(|v| v + 0.01 * rng.normal() as f32).collect();
-    let pose: Vec<f32> = reference.encode(Net::Pc, &pc, k)?.iter().zip(&source_cw).map(|(a, b)| a - b).collect();
-    let quats = reference.predict_rotations(&pose, &pose, k)?;
+    let pose: Vec<f32> = crate::model::pose_feature(&reference.encode(Net::Pc, &pc, k)?, &source_cw);
+    let normals = patches.center_normals.clone();
+    let rotation_inputs =
+        RotationInputs { source: &pose, target: &pose, source_normals: &normals, target_normals: &normals, rows: k };
+    let rotations = reference.predict_rotations(rotation_inputs)?;
     let src_pts = patches.centers.clone();
     let tgt_pts: Vec<[f32; 3]> = src_pts.iter().map(|q| q.map(|c| c + 0.05 * rng.normal() as f32)).collect();
-    let hyps = reference.hypotheses(&quats, &src_pts, &tgt_pts)?;
+    let hyps = reference.hypotheses(&rotations, &src_pts, &tgt_pts)?;
 
     let stages: Vec<(&str, Option<f64>)> = vec![
         ("patch_features", None),
@@ -195,8 +198,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     "encode ppf" => drop(b.encode(Net::Ppf, &ppf, k)?),
                     "encode pc" => drop(b.encode(Net::Pc, &pc, k)?),
                     "match_codewords" => drop(b.match_codewords(&source_cw, &target_cw, cw, MatchMode::Mutual(1))?),
-                    "predict_rotations" => drop(b.predict_rotations(&pose, &pose, k)?),
-                    "hypotheses" => drop(b.hypotheses(&quats, &src_pts, &tgt_pts)?),
+                    "predict_rotations" => drop(b.predict_rotations(rotation_inputs)?),
+                    "hypotheses" => drop(b.hypotheses(&rotations, &src_pts, &tgt_pts)?),
                     _ => drop(b.score_hypotheses(&hyps, &src_pts, &tgt_pts, radius / 3.0)?),
                 }
                 Ok(())

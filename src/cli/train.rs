@@ -1,6 +1,7 @@
 //! `dpr-gpu train`: trains PPF-FoldNet, PC-FoldNet and RelativeNet on registered fragment pairs, with a
 //! progress bar, a CSV loss log, periodic atomic checkpoints and exact resumption.
 
+use crate::model::config::{PoseFrame, RotationOutput};
 use crate::model::{ModelConfig, Weights};
 use crate::train::checkpoint::read_checkpoint;
 use crate::train::data::discover_pairs;
@@ -38,6 +39,14 @@ pub struct Args {
     /// Folding grid G x G (overrides the preset).
     #[arg(long)]
     pub grid: Option<usize>,
+    /// Frame of PC-FoldNet's patches: `normal` (each patch rotated so its keypoint normal is +z; the default) or
+    /// `fragment` (the paper). With --init, a different head keeps the FoldNets and re-initialises RelativeNet.
+    #[arg(long)]
+    pub pose_frame: Option<PoseFrame>,
+    /// RelativeNet's rotation output: `six-d` (Gram-Schmidt, chordal loss; the default) or `quaternion` (the
+    /// paper's L2 loss).
+    #[arg(long)]
+    pub rotation_output: Option<RotationOutput>,
     /// Train until this many steps are done in total (a resumed run counts the checkpoint's steps).
     #[arg(long, default_value_t = 1000)]
     pub steps: u64,
@@ -123,6 +132,8 @@ fn model_config(args: &Args) -> anyhow::Result<ModelConfig> {
     if let Some(g) = args.grid {
         config.grid = [g, g];
     }
+    config.pose_frame = args.pose_frame.unwrap_or(config.pose_frame);
+    config.rotation_output = args.rotation_output.unwrap_or(config.rotation_output);
     config.validate()?;
     Ok(config)
 }
@@ -159,6 +170,8 @@ fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> an
     };
     let sized = args.config.is_some() || args.points.is_some() || args.grid.is_some();
     check("--config/--points/--grid", sized && model_config(args).ok().as_ref() != Some(config));
+    check("--pose-frame", args.pose_frame.is_some_and(|v| v != config.pose_frame));
+    check("--rotation-output", args.rotation_output.is_some_and(|v| v != config.rotation_output));
     check("--batch", args.batch.is_some_and(|v| v != s.batch));
     check("--seed", args.seed.is_some_and(|v| v != s.seed));
     check("--lr", args.lr.is_some_and(|v| v != s.adam.lr));
@@ -250,7 +263,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             bail!("--init takes the model size from the weights file: drop --config, --points and --grid");
         }
         let weights = match &args.init {
-            Some(p) => Weights::load(p)?,
+            Some(p) => {
+                let w = Weights::load(p)?;
+                let frame = args.pose_frame.unwrap_or(w.config.pose_frame);
+                let output = args.rotation_output.unwrap_or(w.config.rotation_output);
+                if (frame, output) == (w.config.pose_frame, w.config.rotation_output) {
+                    w
+                } else {
+                    eprintln!("--init: new pose head ({frame:?}, {output:?}): RelativeNet starts from random weights");
+                    w.with_pose_head(frame, output, settings.seed)?
+                }
+            }
             None => Weights::init(&model_config(&args)?, settings.seed)?,
         };
         let pairs = discover_pairs(&settings.data)?;

@@ -1,5 +1,6 @@
 //! `dpr-gpu init-weights` and `dpr-gpu info`.
 
+use crate::model::config::{PoseFrame, RotationOutput};
 use crate::model::{ModelConfig, Weights};
 use std::path::PathBuf;
 
@@ -18,6 +19,12 @@ pub struct ConfigOptions {
     /// Patch radius the model is trained for.
     #[arg(long)]
     pub model_radius: Option<f32>,
+    /// Frame of PC-FoldNet's patches: normal (compact's default) or fragment (the paper's).
+    #[arg(long)]
+    pub pose_frame: Option<PoseFrame>,
+    /// RelativeNet's rotation output: six-d (compact's default) or quaternion (the paper's).
+    #[arg(long)]
+    pub rotation_output: Option<RotationOutput>,
 }
 
 impl ConfigOptions {
@@ -37,6 +44,8 @@ impl ConfigOptions {
         if let Some(r) = self.model_radius {
             c.radius = r;
         }
+        c.pose_frame = self.pose_frame.unwrap_or(c.pose_frame);
+        c.rotation_output = self.rotation_output.unwrap_or(c.rotation_output);
         c.validate()?;
         Ok(c)
     }

@@ -7,4 +7,5 @@ pub mod hypotheses;
 pub mod max_pool;
 pub mod mutual_knn;
 pub mod patch_features;
+pub mod rotation_head;
 pub mod score_hypotheses;

@@ -1,5 +1,5 @@
-//! RelativeNet's hypothesize-and-verify: every correspondence gives one full pose (R from its predicted
-//! quaternion, t = p_target - R p_source); all are scored in parallel on the backend; the best (most inliers,
+//! RelativeNet's hypothesize-and-verify: every correspondence gives one full pose (R predicted for it by
+//! RelativeNet, t = p_target - R p_source); all are scored in parallel on the backend; the best (most inliers,
 //! then smallest residual sum, then lowest index) is refined on its inliers.
 
 use super::refine::refine;
@@ -17,15 +17,15 @@ pub fn best_hypothesis(scores: &[HypothesisScore]) -> Option<usize> {
     })
 }
 
-/// Hypothesize and verify from per-correspondence quaternions.
+/// Hypothesize and verify from per-correspondence rotations (row-major, target_from_source).
 pub fn verify(
     backend: &dyn Backend,
-    quaternions: &[[f32; 4]],
+    rotations: &[[f32; 9]],
     source: &[[f32; 3]],
     target: &[[f32; 3]],
     threshold: f32,
 ) -> Result<PoseEstimate> {
-    let hypotheses = backend.hypotheses(quaternions, source, target)?;
+    let hypotheses = backend.hypotheses(rotations, source, target)?;
     let scores = backend.score_hypotheses(&hypotheses, source, target, threshold)?;
     let best = best_hypothesis(&scores).ok_or_else(|| crate::Error::invalid("no hypotheses to verify"))?;
     Ok(refine(matrix_from_hypothesis(&hypotheses[best]), source, target, threshold, hypotheses.len()))

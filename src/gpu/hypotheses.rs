@@ -1,4 +1,4 @@
-//! Host side of `shaders/hypotheses.wgsl`: one rigid pose per correspondence from its quaternion.
+//! Host side of `shaders/hypotheses.wgsl`: one rigid pose per correspondence from its rotation.
 //! CPU twin: [`crate::cpu::hypotheses`].
 
 use super::kernel::{BindKind, KernelSpec, ParamsLayout, gpu_params};
@@ -51,33 +51,33 @@ pub fn from_row(row: &[f32]) -> Hypothesis {
     h
 }
 
-/// Records `rows` hypotheses from `quaternions`, `source` and `target` into `out`.
+/// Records `rows` hypotheses from `rotations` (9 floats per row), `source` and `target` into `out`.
 pub fn record<'a>(
     rec: &mut Recorder<'a>,
     gpu: &'a Gpu,
     rows: usize,
-    [quaternions, source, target]: [&wgpu::Buffer; 3],
+    [rotations, source, target]: [&wgpu::Buffer; 3],
     out: &wgpu::Buffer,
 ) -> Result<()> {
     let params = HypothesesParams { rows: to_u32(rows, "hypotheses")?, _pad0: 0, _pad1: 0, _pad2: 0 };
-    rec.dispatch(&gpu.kernels.hypotheses, &params, &[quaternions, source, target, out], workgroups(rows, WG_SIZE))
+    rec.dispatch(&gpu.kernels.hypotheses, &params, &[rotations, source, target, out], workgroups(rows, WG_SIZE))
 }
 
 /// Runs the kernel on slices; `out` holds the initial contents (a sentinel in tests) and receives the result.
 pub fn run(
     gpu: &Gpu,
-    quaternions: &[[f32; 4]],
+    rotations: &[[f32; 9]],
     source: &[[f32; 3]],
     target: &[[f32; 3]],
     out: &mut [Hypothesis],
 ) -> Result<()> {
-    let rows = quaternions.len();
+    let rows = rotations.len();
     if source.len() != rows || target.len() != rows || out.len() != rows {
-        return Err(Error::invalid("hypotheses: quaternions, points and outputs must have the same length"));
+        return Err(Error::invalid("hypotheses: rotations, points and outputs must have the same length"));
     }
     let ctx = &gpu.context;
     let init: Vec<[f32; HYPOTHESIS_FLOATS]> = out.iter().map(to_row).collect();
-    let q = super::buffer::GpuBuffer::from_slice(ctx, "quaternions", quaternions)?;
+    let q = super::buffer::GpuBuffer::from_slice(ctx, "rotations", rotations)?;
     let s = super::buffer::GpuBuffer::from_slice(ctx, "source", source)?;
     let t = super::buffer::GpuBuffer::from_slice(ctx, "target", target)?;
     let o = super::buffer::GpuBuffer::from_slice(ctx, "hypotheses", &init)?;

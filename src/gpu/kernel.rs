@@ -90,7 +90,7 @@ pub const KERNELS: &[&KernelSpec] = &[
     &super::max_pool::SPEC,
     &super::codeword_distance::SPEC,
     &super::mutual_knn::SPEC,
-    &super::normalize_quaternion::SPEC,
+    &super::rotation_head::SPEC,
     &super::hypotheses::SPEC,
     &super::score_hypotheses::SPEC,
 ];
@@ -169,8 +169,8 @@ pub struct Kernels {
     pub codeword_distance: Kernel,
     /// `shaders/mutual_knn.wgsl`.
     pub mutual_knn: Kernel,
-    /// `shaders/normalize_quaternion.wgsl`.
-    pub normalize_quaternion: Kernel,
+    /// `shaders/rotation_head.wgsl`.
+    pub rotation_head: Kernel,
     /// `shaders/hypotheses.wgsl`.
     pub hypotheses: Kernel,
     /// `shaders/score_hypotheses.wgsl`.
@@ -186,7 +186,7 @@ impl Kernels {
             max_pool: Kernel::new(ctx, &super::max_pool::SPEC)?,
             codeword_distance: Kernel::new(ctx, &super::codeword_distance::SPEC)?,
             mutual_knn: Kernel::new(ctx, &super::mutual_knn::SPEC)?,
-            normalize_quaternion: Kernel::new(ctx, &super::normalize_quaternion::SPEC)?,
+            rotation_head: Kernel::new(ctx, &super::rotation_head::SPEC)?,
             hypotheses: Kernel::new(ctx, &super::hypotheses::SPEC)?,
             score_hypotheses: Kernel::new(ctx, &super::score_hypotheses::SPEC)?,
         })

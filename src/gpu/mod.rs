@@ -18,13 +18,13 @@ pub mod kernel;
 pub mod max_pool;
 pub mod mutual_knn;
 pub mod nets;
-pub mod normalize_quaternion;
 pub mod patch_features;
 pub mod recorder;
+pub mod rotation_head;
 pub mod score_hypotheses;
 pub mod testing;
 
-use crate::backend::Backend;
+use crate::backend::{Backend, RotationInputs};
 use crate::cpu::hypotheses::Hypothesis;
 use crate::cpu::mutual_knn::Match;
 use crate::cpu::score_hypotheses::HypothesisScore;
@@ -223,7 +223,7 @@ impl Backend for GpuBackend {
                     rows: to_u32(rows, "patch points")?,
                     points_per_patch: to_u32(n, "points per patch")?,
                     radius,
-                    _pad: 0,
+                    normal_frame: u32::from(self.model.config.pose_frame == crate::model::config::PoseFrame::Normal),
                 };
                 let mut rec = Recorder::new(gpu, "patch_features");
                 let b = patch_features::PatchFeaturesBuffers {
@@ -297,19 +297,16 @@ impl Backend for GpuBackend {
         })
     }
 
-    fn predict_rotations(&self, source: &[f32], target: &[f32], rows: usize) -> Result<Vec<[f32; 4]>> {
-        self.run("predict_rotations", |ws| nets::relative(&self.gpu, ws, &self.weights.relative, source, target, rows))
+    fn predict_rotations(&self, pose: RotationInputs<'_>) -> Result<Vec<[f32; 9]>> {
+        let c = &self.model.config;
+        pose.validate(c.codeword())?;
+        self.run("predict_rotations", |ws| nets::relative(&self.gpu, ws, &self.weights.relative, c, pose))
     }
 
-    fn hypotheses(
-        &self,
-        quaternions: &[[f32; 4]],
-        source: &[[f32; 3]],
-        target: &[[f32; 3]],
-    ) -> Result<Vec<Hypothesis>> {
-        let rows = quaternions.len();
+    fn hypotheses(&self, rotations: &[[f32; 9]], source: &[[f32; 3]], target: &[[f32; 3]]) -> Result<Vec<Hypothesis>> {
+        let rows = rotations.len();
         if source.len() != rows || target.len() != rows {
-            return Err(Error::invalid("hypotheses: quaternions and points differ in length"));
+            return Err(Error::invalid("hypotheses: rotations and points differ in length"));
         }
         let gpu = &self.gpu;
         let ctx = &gpu.context;
@@ -318,7 +315,7 @@ impl Backend for GpuBackend {
             let mut pending = Vec::new();
             for r0 in (0..rows).step_by(chunk) {
                 let n = chunk.min(rows - r0);
-                let q = ws.upload(ctx, "hyp_quaternions", &quaternions[r0..r0 + n])?;
+                let q = ws.upload(ctx, "hyp_rotations", &rotations[r0..r0 + n])?;
                 let s = ws.upload(ctx, "hyp_source", &source[r0..r0 + n])?;
                 let t = ws.upload(ctx, "hyp_target", &target[r0..r0 + n])?;
                 let bytes = (n * hypotheses::HYPOTHESIS_FLOATS * 4) as u64;

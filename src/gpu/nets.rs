@@ -1,5 +1,5 @@
 //! The networks on the GPU: weights uploaded once per layer, and the forward passes of FoldNet (encode,
-//! decode) and RelativeNet composed from `dense`, `max_pool` and `normalize_quaternion` dispatches, in the
+//! decode) and RelativeNet composed from `dense`, `max_pool` and `rotation_head` dispatches, in the
 //! same order of operations as the CPU reference (`model::foldnet`, `model::relativenet`).
 //!
 //! Work is chunked by whole patches (or rows) so that no buffer exceeds [`GpuContext::max_buffer_bytes`];
@@ -12,9 +12,11 @@ use super::context::GpuContext;
 use super::dense::{self, DenseParams};
 use super::max_pool::{self, MaxPoolParams};
 use super::recorder::{Pending, Recorder};
-use super::{Gpu, normalize_quaternion};
+use super::{Gpu, rotation_head};
+use crate::backend::RotationInputs;
 use crate::cpu::dense::DenseShape;
 use crate::error::{Error, Result};
+use crate::model::ModelConfig;
 use crate::model::linear::Linear;
 use crate::model::{FoldNet, Model};
 
@@ -323,44 +325,54 @@ pub fn decode(gpu: &Gpu, ws: &mut Workspace, f: &GpuFoldNet, codewords: &[f32], 
     Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0)?))
 }
 
-/// RelativeNet's unit quaternions for `rows` rows of `[source | target]`, as `RelativeNet::predict`.
+/// RelativeNet's rotations (row-major, fragment frames) for the rows of `pose`, as `RelativeNet::predict`.
 pub fn relative(
     gpu: &Gpu,
     ws: &mut Workspace,
     layers: &[GpuLinear],
-    source: &[f32],
-    target: &[f32],
-    rows: usize,
-) -> Result<Vec<[f32; 4]>> {
+    config: &ModelConfig,
+    pose: RotationInputs<'_>,
+) -> Result<Vec<[f32; 9]>> {
+    let RotationInputs { source, target, source_normals, target_normals, rows } = pose;
     let l0 = &layers[0];
     let f = l0.in_dim / 2;
     if source.len() != rows * f || target.len() != rows * f {
         return Err(Error::invalid(format!("predict_rotations: inputs must be {rows} rows of {f} values")));
     }
+    if source_normals.len() != rows || target_normals.len() != rows {
+        return Err(Error::invalid(format!("predict_rotations: expected {rows} normals per side")));
+    }
     let out_w = layers.last().map_or(0, |l| l.out_dim);
-    if out_w != 4 {
-        return Err(Error::invalid(format!("RelativeNet's last layer has width {out_w}, expected 4")));
+    if out_w != config.rotation_output.width() {
+        return Err(Error::invalid(format!(
+            "RelativeNet's last layer has width {out_w}, expected {} for {:?}",
+            config.rotation_output.width(),
+            config.rotation_output
+        )));
     }
     if rows == 0 {
         return Ok(Vec::new());
     }
     let ctx = &gpu.context;
-    let widest = layers.iter().map(|l| l.out_dim).chain([f]).max().unwrap_or(f);
+    let widest = layers.iter().map(|l| l.out_dim).chain([f, 9]).max().unwrap_or(f);
     let chunk = items_per_chunk(ctx, (widest * 4) as u64, "RelativeNet row")?;
     let mut pending = Vec::new();
     for r0 in (0..rows).step_by(chunk) {
         let n = chunk.min(rows - r0);
         let s = ws.upload(ctx, "rel_source", &source[r0 * f..(r0 + n) * f])?;
         let t = ws.upload(ctx, "rel_target", &target[r0 * f..(r0 + n) * f])?;
+        let ns = ws.upload(ctx, "rel_source_normals", &source_normals[r0..r0 + n])?;
+        let nt = ws.upload(ctx, "rel_target_normals", &target_normals[r0..r0 + n])?;
         let mut rec = Recorder::new(gpu, "predict_rotations");
         let bufs = ping_pong(ws, ctx, ["rel_a", "rel_b"], layers, n)?;
         let relu0 = layers.len() > 1;
         dense_call(&mut rec, gpu, l0, (&s, f, 0), (n, n), Some(&l0.bias), (false, false), &bufs[0])?;
         dense_call(&mut rec, gpu, l0, (&t, f, f), (n, n), None, (true, relu0), &bufs[0])?;
         let raw = tail(&mut rec, gpu, layers, &bufs, n, false)?;
-        let quats = ws.buffer(ctx, "rel_quaternions", (n * 16) as u64)?;
-        normalize_quaternion::record(&mut rec, gpu, n, &raw, &quats)?;
-        rec.read(&quats, 0, (n * 16) as u64);
+        let rotations = ws.buffer(ctx, "rel_rotations", (n * 36) as u64)?;
+        let params = rotation_head::RotationHeadParams::new(n, config.rotation_output, config.pose_frame)?;
+        rotation_head::record(&mut rec, gpu, &params, [&raw, &ns, &nt], &rotations)?;
+        rec.read(&rotations, 0, (n * 36) as u64);
         pending.push(rec.submit()?);
     }
     Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0)?))

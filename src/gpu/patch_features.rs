@@ -5,6 +5,8 @@ use super::kernel::{BindKind, KernelSpec, ParamsLayout, gpu_params};
 use super::recorder::Recorder;
 use super::{Gpu, to_u32, workgroups};
 use crate::error::{Error, Result};
+use crate::model::config::PoseFrame;
+use crate::preprocess::GatheredPatches;
 
 gpu_params! {
     /// Mirrors `struct PatchFeaturesParams` in shaders/patch_features.wgsl.
@@ -15,8 +17,8 @@ gpu_params! {
         pub points_per_patch: u32,
         /// Patch radius r.
         pub radius: f32,
-        /// Padding.
-        pub _pad: u32,
+        /// 1: PC coordinates in the keypoint's normal frame (`PoseFrame::Normal`); 0: in the fragment's frame.
+        pub normal_frame: u32,
     }
 }
 
@@ -72,26 +74,24 @@ pub fn record<'a>(
     )
 }
 
-/// Runs the kernel on slices in one dispatch (the inputs must fit the buffer cap). `ppf` and `pc` hold the
-/// initial buffer contents (a sentinel in tests) and receive the result, as the twin's outputs.
-#[expect(clippy::too_many_arguments, reason = "mirrors the CPU twin's argument list plus the outputs")]
+/// Runs the kernel on gathered patches in one dispatch (the inputs must fit the buffer cap). `ppf` and `pc` hold
+/// the initial buffer contents (a sentinel in tests) and receive the result, as the twin's outputs.
 pub fn run(
     gpu: &Gpu,
-    centers: &[[f32; 3]],
-    center_normals: &[[f32; 3]],
-    points: &[[f32; 3]],
-    normals: &[[f32; 3]],
+    patches: &GatheredPatches,
     points_per_patch: usize,
     radius: f32,
+    frame: PoseFrame,
     ppf: &mut [f32],
     pc: &mut [f32],
 ) -> Result<()> {
+    let GatheredPatches { centers, center_normals, points, normals } = patches;
     let rows = points.len();
-    let patches = centers.len();
+    let count = centers.len();
     if points_per_patch == 0
         || normals.len() != rows
-        || center_normals.len() != patches
-        || rows != patches * points_per_patch
+        || center_normals.len() != count
+        || rows != count * points_per_patch
         || ppf.len() != rows * 4
         || pc.len() != rows * 3
     {
@@ -111,7 +111,7 @@ pub fn run(
         rows: to_u32(rows, "patch points")?,
         points_per_patch: to_u32(points_per_patch, "points per patch")?,
         radius,
-        _pad: 0,
+        normal_frame: u32::from(frame == PoseFrame::Normal),
     };
     let mut rec = Recorder::new(gpu, "patch_features");
     let buffers = PatchFeaturesBuffers {

@@ -4,6 +4,63 @@
 use crate::error::{Error, Result};
 use serde::{Deserialize, Serialize};
 
+/// The frame PC-FoldNet sees a patch in, and so the frame RelativeNet's rotation is expressed in.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PoseFrame {
+    /// The paper: centred points in their fragment's frame; RelativeNet regresses the whole relative rotation.
+    #[default]
+    Fragment,
+    /// Centred points rotated so the keypoint's normal is +z (`crate::cpu::rotation_head::normal_frame`);
+    /// RelativeNet regresses the rotation between the two normal-aligned patches (mostly an angle about z) and
+    /// the fragment-frame rotation is `frame_target^T R frame_source`.
+    Normal,
+}
+
+/// How RelativeNet's last layer encodes a rotation.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RotationOutput {
+    /// The paper: 4 values, L2-normalised to a unit quaternion `[w, x, y, z]`, trained with an L2 loss.
+    #[default]
+    Quaternion,
+    /// 6 values, the first two columns of the rotation, made orthonormal by Gram-Schmidt (Zhou et al., CVPR
+    /// 2019: a continuous representation of SO(3)), trained with the chordal (Frobenius) distance.
+    SixD,
+}
+
+impl std::str::FromStr for PoseFrame {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "fragment" => Ok(PoseFrame::Fragment),
+            "normal" => Ok(PoseFrame::Normal),
+            other => Err(Error::invalid(format!("unknown pose frame '{other}' (expected fragment or normal)"))),
+        }
+    }
+}
+
+impl std::str::FromStr for RotationOutput {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "quaternion" => Ok(RotationOutput::Quaternion),
+            "six-d" | "6d" => Ok(RotationOutput::SixD),
+            other => Err(Error::invalid(format!("unknown rotation output '{other}' (expected quaternion or six-d)"))),
+        }
+    }
+}
+
+impl RotationOutput {
+    /// Width of RelativeNet's last layer.
+    pub fn width(self) -> usize {
+        match self {
+            RotationOutput::Quaternion => 4,
+            RotationOutput::SixD => 6,
+        }
+    }
+}
+
 /// Sizes of PPF-FoldNet, PC-FoldNet (same architecture, input/output width 4 vs 3) and RelativeNet.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ModelConfig {
@@ -21,8 +78,14 @@ pub struct ModelConfig {
     pub grid: [usize; 2],
     /// The grid spans [-grid_extent, grid_extent]^2.
     pub grid_extent: f32,
-    /// RelativeNet hidden widths (512-256-128); input is 2 x codeword, output a quaternion (4).
+    /// RelativeNet hidden widths (512-256-128); input is 2 x codeword, output `rotation_output.width()`.
     pub relative_widths: Vec<usize>,
+    /// The frame of PC-FoldNet's input (weights files without it use the paper's fragment frame).
+    #[serde(default)]
+    pub pose_frame: PoseFrame,
+    /// RelativeNet's rotation encoding (weights files without it use the paper's quaternion).
+    #[serde(default)]
+    pub rotation_output: RotationOutput,
 }
 
 impl Default for ModelConfig {
@@ -38,14 +101,33 @@ impl Default for ModelConfig {
             grid: [16, 16],
             grid_extent: 0.3,
             relative_widths: vec![512, 256, 128],
+            pose_frame: PoseFrame::Normal,
+            rotation_output: RotationOutput::SixD,
         }
     }
 }
 
 impl ModelConfig {
-    /// The paper's configuration: 2048 points per patch and FoldingNet's 45 x 45 grid over [-0.3, 0.3]^2.
+    /// The paper's configuration: 2048 points per patch, FoldingNet's 45 x 45 grid over [-0.3, 0.3]^2, and the
+    /// paper's pose head (fragment-frame patches, quaternion output).
     pub fn paper() -> Self {
-        ModelConfig { points_per_patch: 2048, grid: [45, 45], ..ModelConfig::default() }
+        ModelConfig {
+            points_per_patch: 2048,
+            grid: [45, 45],
+            pose_frame: PoseFrame::Fragment,
+            rotation_output: RotationOutput::Quaternion,
+            ..ModelConfig::default()
+        }
+    }
+
+    /// The compact sizes with the paper's pose head (fragment-frame patches, quaternion output): the
+    /// formulation the ablation compares against.
+    pub fn compact_paper_head() -> Self {
+        ModelConfig {
+            pose_frame: PoseFrame::Fragment,
+            rotation_output: RotationOutput::Quaternion,
+            ..ModelConfig::default()
+        }
     }
 
     /// Codeword length (the last head width).

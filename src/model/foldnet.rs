@@ -88,6 +88,61 @@ pub(crate) fn apply_concat(
     out
 }
 
+/// Everything the encoder computed for a batch of patches: the codewords, and every layer's output (what the
+/// trainer's backward pass needs).
+#[derive(Clone, Debug)]
+pub struct EncodeTape {
+    /// Patches encoded.
+    pub patches: usize,
+    /// Points per patch.
+    pub points: usize,
+    /// Output of each encoder layer (after ReLU), `patches * points x width`.
+    pub encoder: Vec<Vec<f32>>,
+    /// Max-pool of the last encoder output, `patches x width`.
+    pub global: Vec<f32>,
+    /// Output of each head layer (after ReLU), `patches * points x width`.
+    pub head: Vec<Vec<f32>>,
+    /// Codewords, `patches x codeword`.
+    pub codeword: Vec<f32>,
+}
+
+/// Everything the folding decoder computed.
+#[derive(Clone, Debug)]
+pub struct DecodeTape {
+    /// Patches decoded.
+    pub patches: usize,
+    /// Output of each first-fold layer, `patches * grid_points x width`.
+    pub fold1: Vec<Vec<f32>>,
+    /// Output of each second-fold layer; the last is the reconstruction.
+    pub fold2: Vec<Vec<f32>>,
+}
+
+impl DecodeTape {
+    /// The reconstruction, `patches * grid_points x io_width`.
+    pub fn output(&self) -> &[f32] {
+        self.fold2.last().map_or(&[], Vec::as_slice)
+    }
+}
+
+/// One folding MLP: [codeword | x] through `layers`, ReLU on all but the last; every layer's output.
+fn fold(
+    layers: &[Linear],
+    codewords: &[f32],
+    cw: usize,
+    x: (&[f32], usize),
+    patches: usize,
+    m: usize,
+) -> Vec<Vec<f32>> {
+    let rows = patches * m;
+    let mut outs: Vec<Vec<f32>> = Vec::with_capacity(layers.len());
+    outs.push(apply_concat(&layers[0], (codewords, cw, 0), &[(x.0, x.1, cw)], rows, m, layers.len() > 1));
+    for (i, layer) in layers.iter().enumerate().skip(1) {
+        let h = apply(layer, outs.last().expect("one fold output"), rows, i + 1 < layers.len());
+        outs.push(h);
+    }
+    outs
+}
+
 impl FoldNet {
     /// Builds the network from checked weights.
     pub fn from_weights(weights: &Weights, net: Net) -> Result<FoldNet> {
@@ -107,13 +162,14 @@ impl FoldNet {
         })
     }
 
-    /// Codewords of `patches` patches of `points` rows each (`input` is `patches x points x io_width`).
+    /// Codewords of `patches` patches of `points` rows each (`input` is `patches x points x io_width`), in
+    /// parallel chunks of patches.
     pub fn encode(&self, input: &[f32], patches: usize, points: usize) -> Vec<f32> {
         let width = self.net.io_width();
         let per_task = (ROWS_PER_TASK / points.max(1)).max(1);
         input
             .par_chunks(per_task * points * width)
-            .flat_map_iter(|chunk| self.encode_chunk(chunk, chunk.len() / (points * width), points))
+            .flat_map_iter(|chunk| self.encode_tape(chunk, chunk.len() / (points * width), points).codeword)
             .collect::<Vec<f32>>()
             .into_iter()
             .take(patches * self.codeword_len())
@@ -125,47 +181,54 @@ impl FoldNet {
         self.head.last().map_or(0, |l| l.out_dim)
     }
 
-    fn encode_chunk(&self, input: &[f32], patches: usize, points: usize) -> Vec<f32> {
+    /// The encoder, the one definition inference and training share: per-point MLP, max-pool, skip
+    /// concatenation `[enc_0 | enc_1 | ... | global]` (the global slice enters as the per-patch term, so it sits
+    /// last in the weight's rows), per-point MLP, max-pool to the codeword. Keeps every layer's output.
+    pub fn encode_tape(&self, input: &[f32], patches: usize, points: usize) -> EncodeTape {
         let rows = patches * points;
-        let mut acts: Vec<Vec<f32>> = Vec::with_capacity(self.encoder.len());
+        let mut encoder: Vec<Vec<f32>> = Vec::with_capacity(self.encoder.len());
         for layer in &self.encoder {
-            let x = acts.last().map_or(input, |v| v.as_slice());
-            acts.push(apply(layer, x, rows, true));
+            let x = encoder.last().map_or(input, |v| v.as_slice());
+            encoder.push(apply(layer, x, rows, true));
         }
         let last_w = self.encoder.last().map_or(0, |l| l.out_dim);
-        let global = max_pool(acts.last().expect("encoder has layers"), patches, points, last_w);
-        // Skip concatenation [enc_0 | enc_1 | ... | global]: the global slice goes in as the per-patch term,
-        // so it sits last in the weight's rows; the encoder slices come first in order.
-        let mut segments = Vec::with_capacity(acts.len());
+        let global = max_pool(encoder.last().map_or(&[], Vec::as_slice), patches, points, last_w);
+        let mut segments = Vec::with_capacity(encoder.len());
         let mut offset = 0;
-        for a in &acts {
-            let w = a.len() / rows;
-            segments.push((a.as_slice(), w, offset));
-            offset += w;
+        for (a, layer) in encoder.iter().zip(&self.encoder) {
+            segments.push((a.as_slice(), layer.out_dim, offset));
+            offset += layer.out_dim;
         }
-        let mut h = apply_concat(&self.head[0], (&global, last_w, offset), &segments, rows, points, true);
+        let mut head: Vec<Vec<f32>> = Vec::with_capacity(self.head.len());
+        head.push(apply_concat(&self.head[0], (&global, last_w, offset), &segments, rows, points, true));
         for layer in &self.head[1..] {
-            h = apply(layer, &h, rows, true);
+            let h = apply(layer, head.last().expect("one head output"), rows, true);
+            head.push(h);
         }
-        max_pool(&h, patches, points, self.codeword_len())
+        let codeword = max_pool(head.last().expect("head has layers"), patches, points, self.codeword_len());
+        EncodeTape { patches, points, encoder, global, head, codeword }
+    }
+
+    /// The folding grid repeated for every patch.
+    pub fn tiled_grid(&self, patches: usize) -> Vec<f32> {
+        (0..patches).flat_map(|_| self.grid.iter().copied()).collect()
+    }
+
+    /// The decoder, shared by inference and training: two folds, each `[codeword | x]` through its MLP (x the
+    /// grid, then the first fold's output). Keeps every layer's output.
+    pub fn decode_tape(&self, codewords: &[f32], patches: usize) -> DecodeTape {
+        let cw = self.codeword_len();
+        let m = self.grid.len() / 2;
+        let d = self.net.io_width();
+        let grid = self.tiled_grid(patches);
+        let fold1 = fold(&self.fold1, codewords, cw, (&grid, 2), patches, m);
+        let fold2 = fold(&self.fold2, codewords, cw, (fold1.last().expect("fold1 has layers"), d), patches, m);
+        DecodeTape { patches, fold1, fold2 }
     }
 
     /// Reconstruction (`patches x grid_points x io_width`) from codewords (`patches x codeword`).
     pub fn decode(&self, codewords: &[f32], patches: usize) -> Vec<f32> {
-        let cw = self.codeword_len();
-        let m = self.grid.len() / 2;
-        let d = self.net.io_width();
-        let grid_tiled: Vec<f32> = (0..patches).flat_map(|_| self.grid.iter().copied()).collect();
-        let fold = |layers: &[Linear], x: &[f32], x_w: usize| {
-            let rows = patches * m;
-            let mut h = apply_concat(&layers[0], (codewords, cw, 0), &[(x, x_w, cw)], rows, m, layers.len() > 1);
-            for (i, layer) in layers.iter().enumerate().skip(1) {
-                h = apply(layer, &h, rows, i + 1 < layers.len());
-            }
-            h
-        };
-        let first = fold(&self.fold1, &grid_tiled, 2);
-        fold(&self.fold2, &first, d)
+        self.decode_tape(codewords, patches).fold2.pop().unwrap_or_default()
     }
 }
 

@@ -28,6 +28,11 @@ pub struct Model {
     pub relative: RelativeNet,
 }
 
+/// The pose-variant feature RelativeNet reads (paper, section 3.2): PC codeword minus PPF codeword, row by row.
+pub fn pose_feature(pc_codewords: &[f32], ppf_codewords: &[f32]) -> Vec<f32> {
+    pc_codewords.iter().zip(ppf_codewords).map(|(pc, ppf)| pc - ppf).collect()
+}
+
 impl Model {
     /// Builds the model from checked weights.
     pub fn from_weights(weights: &Weights) -> Result<Model> {

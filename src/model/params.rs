@@ -66,9 +66,9 @@ pub fn foldnet_layers(config: &ModelConfig, net: Net) -> Vec<LayerSpec> {
     out
 }
 
-/// RelativeNet's layers: 2 x codeword -> relative_widths -> 4.
+/// RelativeNet's layers: 2 x codeword -> relative_widths -> the rotation output (4 or 6).
 pub fn relative_layers(config: &ModelConfig) -> Vec<LayerSpec> {
-    let widths: Vec<usize> = config.relative_widths.iter().copied().chain([4]).collect();
+    let widths: Vec<usize> = config.relative_widths.iter().copied().chain([config.rotation_output.width()]).collect();
     let mut out = Vec::new();
     chain("relative", 2 * config.codeword(), &widths, &mut out);
     out

@@ -1,29 +1,20 @@
 //! RelativeNet on the CPU reference path: a 4-layer MLP on [source pose feature | target pose feature]
-//! (pose feature = PC codeword - PPF codeword) that regresses target_from_source as a unit quaternion.
+//! (pose feature = PC codeword - PPF codeword, [`super::pose_feature`]) whose raw output `rotation_head` turns
+//! into the rotation target_from_source.
 
+use super::config::ModelConfig;
 use super::foldnet::{Slice, apply, apply_concat};
 use super::linear::Linear;
 use super::params::relative_layers;
 use super::weights::Weights;
+use crate::cpu::rotation_head::rotation_head;
 use crate::error::Result;
 
 /// RelativeNet's layers.
 #[derive(Clone, Debug)]
 pub struct RelativeNet {
-    /// Hidden layers (ReLU) and the final 4-wide layer (linear).
+    /// Hidden layers (ReLU) and the final linear layer (4 or 6 wide, the rotation output).
     pub layers: Vec<Linear>,
-}
-
-/// Below this norm a raw quaternion is treated as degenerate and mapped to the identity.
-pub const MIN_QUATERNION_NORM: f32 = 1e-12;
-
-/// Normalises a raw network output `[w, x, y, z]` to a unit quaternion (identity when degenerate).
-pub fn normalize_quaternion(q: [f32; 4]) -> [f32; 4] {
-    let n = q.iter().map(|v| v * v).sum::<f32>().sqrt();
-    if n.is_nan() || n <= MIN_QUATERNION_NORM {
-        return [1.0, 0.0, 0.0, 0.0];
-    }
-    q.map(|v| v / n)
 }
 
 impl RelativeNet {
@@ -34,27 +25,42 @@ impl RelativeNet {
         Ok(RelativeNet { layers })
     }
 
-    /// Raw (unnormalised) outputs for `rows` pairs; `source` and `target` are `rows x feature` row-major.
-    pub fn forward_raw(&self, source: &[f32], target: &[f32], rows: usize) -> Vec<f32> {
+    /// The forward pass, the one definition inference and training share: every layer's output for `rows`
+    /// pairs (`source` and `target` are `rows x feature` row-major); the last is the raw rotation output.
+    pub fn forward_tape(&self, source: &[f32], target: &[f32], rows: usize) -> Vec<Vec<f32>> {
         if rows == 0 {
             return Vec::new();
         }
         let f = self.layers[0].in_dim / 2;
         // [source | target]: source as the first segment carrying the bias, target accumulated.
         let segs: [Slice<'_>; 2] = [(source, f, 0), (target, f, f)];
-        let zero_group = vec![0.0; 0];
-        let mut h = apply_concat(&self.layers[0], (&zero_group, 0, 0), &segs, rows, rows, self.layers.len() > 1);
+        let n = self.layers.len();
+        let mut outs: Vec<Vec<f32>> = Vec::with_capacity(n);
+        outs.push(apply_concat(&self.layers[0], (&[], 0, 0), &segs, rows, rows, n > 1));
         for (i, layer) in self.layers.iter().enumerate().skip(1) {
-            h = apply(layer, &h, rows, i + 1 < self.layers.len());
+            let h = apply(layer, outs.last().expect("one relative output"), rows, i + 1 < n);
+            outs.push(h);
         }
-        h
+        outs
     }
 
-    /// Unit quaternions `[w, x, y, z]` (target_from_source) for `rows` pairs.
-    pub fn predict(&self, source: &[f32], target: &[f32], rows: usize) -> Vec<[f32; 4]> {
-        self.forward_raw(source, target, rows)
-            .chunks_exact(4)
-            .map(|q| normalize_quaternion([q[0], q[1], q[2], q[3]]))
-            .collect()
+    /// Raw outputs (`rows x 4` or `rows x 6`).
+    pub fn forward_raw(&self, source: &[f32], target: &[f32], rows: usize) -> Vec<f32> {
+        self.forward_tape(source, target, rows).pop().unwrap_or_default()
+    }
+
+    /// Rotations target_from_source (row-major, fragment frames) for `rows` correspondences, given the pose
+    /// features and the keypoint normals of each correspondence's patches.
+    pub fn predict(
+        &self,
+        config: &ModelConfig,
+        source: &[f32],
+        target: &[f32],
+        source_normals: &[[f32; 3]],
+        target_normals: &[[f32; 3]],
+        rows: usize,
+    ) -> Vec<[f32; 9]> {
+        let raw = self.forward_raw(source, target, rows);
+        rotation_head(&raw, config.rotation_output, config.pose_frame, source_normals, target_normals)
     }
 }

@@ -1,7 +1,7 @@
 //! Weights files: safetensors with the `ModelConfig` (JSON) in the metadata under `dpr_gpu.config`.
 //! Loading checks every tensor's name, dtype and shape and reports all mismatches at once.
 
-use super::config::ModelConfig;
+use super::config::{ModelConfig, PoseFrame, RotationOutput};
 use super::params::{all_layers, tensor_specs};
 use crate::error::{Error, Result};
 use crate::rng::Rng;
@@ -45,6 +45,21 @@ impl Weights {
     /// Total number of scalar parameters.
     pub fn parameter_count(&self) -> usize {
         self.tensors.values().map(Vec::len).sum()
+    }
+
+    /// These weights with another pose head (`config.pose_frame`, `config.rotation_output`): both FoldNets keep
+    /// their tensors, RelativeNet is initialised afresh from `seed` (its output width or input frame changes what
+    /// it means). The other sizes must be equal.
+    pub fn with_pose_head(&self, frame: PoseFrame, output: RotationOutput, seed: u64) -> Result<Weights> {
+        let config = ModelConfig { pose_frame: frame, rotation_output: output, ..self.config.clone() };
+        let fresh = Weights::init(&config, seed)?;
+        let mut tensors = fresh.tensors;
+        for (name, value) in tensors.iter_mut() {
+            if !name.starts_with("relative.") {
+                *value = self.get(name)?.to_vec();
+            }
+        }
+        Ok(Weights { config, tensors, notes: self.notes.clone() })
     }
 
     /// Parameter count per tensor-name prefix ("ppf", "pc", "relative").

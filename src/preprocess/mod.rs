@@ -11,6 +11,7 @@ pub use patches::{Patches, extract_patches};
 pub use voxel::voxel_downsample;
 
 use crate::cpu::patch_features::patch_features;
+use crate::model::config::PoseFrame;
 
 /// Gathers patch centres, neighbours and normals in the layout of the `patch_features` kernel.
 pub struct GatheredPatches {
@@ -35,8 +36,9 @@ pub fn gather(points: &[[f32; 3]], normals: &[[f32; 3]], patches: &Patches) -> G
 }
 
 impl GatheredPatches {
-    /// PPF (P x N x 4) and PC (P x N x 3) inputs on the CPU.
-    pub fn features(&self, points_per_patch: usize, radius: f32) -> (Vec<f32>, Vec<f32>) {
-        patch_features(&self.centers, &self.center_normals, &self.points, &self.normals, points_per_patch, radius)
+    /// PPF (P x N x 4) and PC (P x N x 3, in `frame`) inputs on the CPU.
+    pub fn features(&self, points_per_patch: usize, radius: f32, frame: PoseFrame) -> (Vec<f32>, Vec<f32>) {
+        let (c, cn) = (&self.centers, &self.center_normals);
+        patch_features(c, cn, &self.points, &self.normals, points_per_patch, radius, frame)
     }
 }

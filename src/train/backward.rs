@@ -2,9 +2,9 @@
 //! broadcast global feature, per-point MLP, max-pool), folding decoder (codeword broadcast to every grid point,
 //! two folds) and RelativeNet, built from the layer backward passes in [`super::grad`].
 
-use super::forward::{DecodeTape, EncodeTape, tiled_grid};
 use super::grad::{DenseGrads, DenseLayer, Segment, dense_backward, max_pool_backward, max_pool_backward_acc};
 use crate::error::Result;
+use crate::model::foldnet::{DecodeTape, EncodeTape};
 use crate::model::params::{LayerSpec, all_layers};
 use crate::model::{FoldNet, ModelConfig, RelativeNet, Weights, linear::Linear};
 
@@ -262,7 +262,7 @@ pub fn decode_backward(
     let first = tape.fold1.last().expect("fold1 has layers");
     let d_first =
         fold_backward(w, grads, ix.fold2, &net.fold2, &tape.fold2, codewords, first, m, d_recon, d_codeword, true);
-    let grid = tiled_grid(net, tape.patches);
+    let grid = net.tiled_grid(tape.patches);
     fold_backward(w, grads, ix.fold1, &net.fold1, &tape.fold1, codewords, &grid, m, d_first, d_codeword, false);
 }
 

@@ -14,17 +14,22 @@
 //! uniform random rotation R_s (and, when enabled, the target fragment by R_t); the label is the rotation of
 //! the augmented target_from_source, R_t R R_s^T, which is uniform over SO(3) when R_s is. Rotating about the
 //! origin rather than the keypoint only changes the translation, which the centred patch inputs cancel; the
-//! normals are rotated with the points (their viewpoint, the origin, is fixed by the rotation).
+//! normals are rotated with the points (their viewpoint, the origin, is fixed by the rotation). With
+//! normal-frame patches (`PoseFrame::Normal`) each patch is further rotated by its keypoint's normal frame F, and
+//! the label becomes the rotation between the two aligned patches, `F_t (R_t R R_s^T) F_s^T`.
 
 use super::objective::PairSample;
 use crate::cloud::PointCloud;
+use crate::cpu::rotation_head::normal_frame;
 use crate::error::{Error, Result};
 use crate::io::{LoadOptions, read_cloud};
 use crate::model::ModelConfig;
+use crate::model::config::PoseFrame;
+use crate::pose::{matrix_from_quaternion, nearest_rotation};
 use crate::preprocess::{GatheredPatches, estimate_normals, extract_patches, gather, voxel_downsample};
 use crate::rng::Rng;
 use crate::spatial::PointIndex;
-use nalgebra::{Matrix3, Matrix4, Quaternion, Rotation3, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Matrix4, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -174,6 +179,7 @@ pub struct Sampler {
     settings: DataSettings,
     radius: f32,
     points_per_patch: usize,
+    pose_frame: PoseFrame,
 }
 
 /// Pair draws per sample before giving up (pairs without any match are skipped).
@@ -194,21 +200,6 @@ fn random_rotation(rng: &mut Rng, max_deg: f64) -> [f64; 4] {
         }
     }
     [1.0, 0.0, 0.0, 0.0]
-}
-
-fn rotation(q: [f64; 4]) -> Matrix3<f64> {
-    UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3])).to_rotation_matrix().into_inner()
-}
-
-/// `[w, x, y, z]` of a rotation matrix. The matrix is first projected onto SO(3) (the nearest rotation, by
-/// SVD), so slightly non-orthonormal ground truth is fine.
-pub fn quaternion_of(r: &Matrix3<f64>) -> [f64; 4] {
-    let svd = r.svd(true, true);
-    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else { return [1.0, 0.0, 0.0, 0.0] };
-    let d = (u * v_t).determinant().signum();
-    let rot = u * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * v_t;
-    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(rot));
-    [q.w, q.i, q.j, q.k]
 }
 
 fn rotate(r: &Matrix3<f64>, v: [f32; 3]) -> [f32; 3] {
@@ -247,6 +238,7 @@ impl Sampler {
             settings,
             radius: config.radius,
             points_per_patch: config.points_per_patch,
+            pose_frame: config.pose_frame,
         })
     }
 
@@ -355,13 +347,16 @@ impl Sampler {
         let src = self.fragments[s].as_ref().ok_or_else(missing)?;
         let tgt = self.fragments[t].as_ref().ok_or_else(missing)?;
         let identity = Matrix3::identity();
-        let r_s = if self.settings.rotate_source { rotation(plan.rotations[0]) } else { identity };
-        let r_t = if self.settings.rotate_target { rotation(plan.rotations[1]) } else { identity };
+        let r_s = if self.settings.rotate_source { matrix_from_quaternion(plan.rotations[0]) } else { identity };
+        let r_t = if self.settings.rotate_target { matrix_from_quaternion(plan.rotations[1]) } else { identity };
         let (n, radius) = (self.points_per_patch, self.radius);
         let mut ppf = Vec::with_capacity(2 * n * 4);
         let mut pc = Vec::with_capacity(2 * n * 3);
-        for (frag, point, seed, r) in
+        let mut frames = [Matrix3::identity(); 2];
+        for (slot, (frag, point, seed, r)) in
             [(src, plan.source_point, plan.seeds[0], &r_s), (tgt, plan.target_point, plan.seeds[1], &r_t)]
+                .into_iter()
+                .enumerate()
         {
             let patches = extract_patches(&frag.points, &frag.index, &[point as usize], radius, n, seed);
             if patches.keypoints.len() != 1 {
@@ -374,12 +369,19 @@ impl Sampler {
                 points: g.points.iter().map(|&v| rotate(r, v)).collect(),
                 normals: g.normals.iter().map(|&v| rotate(r, v)).collect(),
             };
-            let (f, c) = g.features(n, radius);
+            let (f, c) = g.features(n, radius, self.pose_frame);
             ppf.extend(f);
             pc.extend(c);
+            if self.pose_frame == PoseFrame::Normal {
+                frames[slot] = Matrix3::from_row_slice(&normal_frame(g.center_normals[0]).map(f64::from));
+            }
         }
-        let r = self.pairs[plan.pair].target_from_source.fixed_view::<3, 3>(0, 0).into_owned();
-        let label = quaternion_of(&(r_t * r * r_s.transpose()));
+        let r = nearest_rotation(&self.pairs[plan.pair].target_from_source.fixed_view::<3, 3>(0, 0).into_owned());
+        let label_m = frames[1] * r_t * r * r_s.transpose() * frames[0].transpose();
+        let mut label = [0.0; 9];
+        for (k, v) in label.iter_mut().enumerate() {
+            *v = label_m[(k / 3, k % 3)];
+        }
         Ok(PairSample { ppf, pc, label })
     }
 }

@@ -10,6 +10,9 @@
 /// Below this norm, the gradient of a Euclidean norm is scaled down towards zero (see the module docs).
 pub const NORM_EPS: f64 = 1e-12;
 
+use crate::model::config::RotationOutput;
+use nalgebra::Matrix3;
+
 /// Euclidean norm in f64.
 fn norm(v: &[f64]) -> f64 {
     v.iter().map(|x| x * x).sum::<f64>().sqrt()
@@ -68,9 +71,9 @@ pub fn chamfer(x: &[f32], y: &[f32], dim: usize) -> (f64, Vec<f32>) {
     }
 }
 
-/// Below this norm a raw quaternion is degenerate: normalisation maps it to the identity with a zero gradient
-/// (the same threshold as `crate::model::relativenet::normalize_quaternion`).
-pub const MIN_QUATERNION_NORM: f64 = crate::model::relativenet::MIN_QUATERNION_NORM as f64;
+/// Below this norm a raw rotation output is degenerate: it maps to the identity with a zero gradient (the same
+/// threshold as `crate::cpu::rotation_head`).
+pub const MIN_QUATERNION_NORM: f64 = crate::cpu::rotation_head::MIN_NORM as f64;
 
 /// `q = r / |r|` (the identity when `|r|` is below [`MIN_QUATERNION_NORM`]).
 pub fn normalize_quaternion(r: [f32; 4]) -> [f64; 4] {
@@ -119,4 +122,84 @@ pub fn feat_loss(f_p: &[f32], f_q: &[f32]) -> (f64, Vec<f32>) {
     let len = norm(&diff);
     let g = len.max(NORM_EPS);
     (len, diff.iter().map(|d| (d / g) as f32).collect())
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// The 6-D output's rotation in f64 (as `crate::cpu::rotation_head::six_d_rotation`): columns
+/// `b1 = a1 / |a1|`, `b2 = (a2 - (b1.a2) b1) / |..|`, `b3 = b1 x b2`; `None` when degenerate.
+fn gram_schmidt(raw: [f32; 6]) -> Option<([[f64; 3]; 3], f64, f64)> {
+    let a1 = [raw[0], raw[1], raw[2]].map(f64::from);
+    let a2 = [raw[3], raw[4], raw[5]].map(f64::from);
+    let n1 = norm(&a1);
+    if n1.is_nan() || n1 <= MIN_QUATERNION_NORM {
+        return None;
+    }
+    let b1 = a1.map(|v| v / n1);
+    let d = dot3(b1, a2);
+    let u2 = [0, 1, 2].map(|i| a2[i] - d * b1[i]);
+    let n2 = norm(&u2);
+    if n2.is_nan() || n2 <= MIN_QUATERNION_NORM {
+        return None;
+    }
+    let b2 = u2.map(|v| v / n2);
+    Some(([b1, b2, cross(b1, b2)], n1, n2))
+}
+
+/// The chordal pose loss of a 6-D output, `|R - R*|_F / 2` (R from Gram-Schmidt on the raw `[a1 | a2]`, R* the
+/// row-major label), and its gradient w.r.t. the raw output. `|R - R*|_F / 2 = sqrt(2) sin(theta / 2)` for a
+/// rotation error theta: the same shape as the quaternion loss `2 sin(theta / 4)`, but continuous over all of
+/// SO(3). A degenerate output is scored as the identity with a zero gradient.
+pub fn six_d_pose_loss(raw: [f32; 6], label: &[f64; 9]) -> (f64, [f64; 6]) {
+    let Some(([b1, b2, b3], n1, n2)) = gram_schmidt(raw) else {
+        let identity = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+        let diff: Vec<f64> = identity.iter().zip(label).map(|(a, b)| a - b).collect();
+        return (0.5 * norm(&diff), [0.0; 6]);
+    };
+    let cols = [b1, b2, b3];
+    // diff[c][r] = R[r][c] - label[r][c].
+    let diff = [0, 1, 2].map(|c| [0, 1, 2].map(|r| cols[c][r] - label[r * 3 + c]));
+    let len = norm(&diff.concat());
+    let g = 0.5 / len.max(NORM_EPS);
+    let [mut g1, mut g2, g3] = diff.map(|col| col.map(|v| v * g));
+    // b3 = b1 x b2.
+    let (c1, c2) = (cross(b2, g3), cross(g3, b1));
+    g1 = [0, 1, 2].map(|i| g1[i] + c1[i]);
+    g2 = [0, 1, 2].map(|i| g2[i] + c2[i]);
+    // b2 = u2 / |u2|.
+    let k2 = dot3(b2, g2);
+    let g_u2 = [0, 1, 2].map(|i| (g2[i] - b2[i] * k2) / n2);
+    // u2 = a2 - (b1 . a2) b1.
+    let a2 = [raw[3], raw[4], raw[5]].map(f64::from);
+    let (d, k) = (dot3(b1, a2), dot3(b1, g_u2));
+    let g_a2 = [0, 1, 2].map(|i| g_u2[i] - b1[i] * k);
+    g1 = [0, 1, 2].map(|i| g1[i] - d * g_u2[i] - a2[i] * k);
+    // b1 = a1 / |a1|.
+    let k1 = dot3(b1, g1);
+    let g_a1 = [0, 1, 2].map(|i| (g1[i] - b1[i] * k1) / n1);
+    (0.5 * len, [g_a1[0], g_a1[1], g_a1[2], g_a2[0], g_a2[1], g_a2[2]])
+}
+
+/// The pose loss of a raw RelativeNet output of either encoding against the label rotation (row-major, in the
+/// frames the network sees), and its gradient w.r.t. the raw output: the paper's quaternion L2 loss
+/// ([`pose_loss`] after [`normalize_quaternion`]) or the 6-D chordal loss ([`six_d_pose_loss`]).
+pub fn rotation_loss(raw: &[f32], output: RotationOutput, label: &[f64; 9]) -> (f64, Vec<f32>) {
+    match output {
+        RotationOutput::Quaternion => {
+            let r = [raw[0], raw[1], raw[2], raw[3]];
+            let q_label = crate::pose::quaternion_from_matrix(&Matrix3::from_row_slice(label));
+            let (loss, d_q) = pose_loss(normalize_quaternion(r), q_label);
+            (loss, normalize_quaternion_backward(r, d_q).map(|v| v as f32).to_vec())
+        }
+        RotationOutput::SixD => {
+            let (loss, d) = six_d_pose_loss([raw[0], raw[1], raw[2], raw[3], raw[4], raw[5]], label);
+            (loss, d.map(|v| v as f32).to_vec())
+        }
+    }
 }

@@ -1,9 +1,10 @@
 //! Training of PPF-FoldNet, PC-FoldNet and RelativeNet together on the CPU (RelativeNet paper, section 3.3):
 //! `L = L_rec + lambda1 L_pose + lambda2 L_feat` on pairs of corresponding patches.
 //!
-//! - [`forward`]: the inference forward pass, keeping activations (bit-identical to `FoldNet`/`RelativeNet`);
+//! - the forward pass is the inference one (`FoldNet::encode_tape`/`decode_tape`, `RelativeNet::forward_tape`),
+//!   which keeps every layer's output;
 //! - [`grad`], [`backward`]: backward passes of every layer and of the whole networks;
-//! - [`loss`]: Chamfer distance, quaternion normalisation, pose and feature-consistency losses;
+//! - [`loss`]: Chamfer distance, the pose losses (quaternion and 6-D) and the feature-consistency loss;
 //! - [`objective`]: the per-pair loss and the batch gradient (parallel, deterministic);
 //! - [`adam`]: AdamW with an exponentially decaying learning rate;
 //! - [`data`]: training pairs from 3DMatch-layout datasets or pairs files;
@@ -29,7 +30,6 @@ pub mod adam;
 pub mod backward;
 pub mod checkpoint;
 pub mod data;
-pub mod forward;
 pub mod grad;
 pub mod loss;
 pub mod objective;

@@ -3,8 +3,9 @@
 //!
 //! Per pair (source patch p, target patch q, label q* = rotation of target_from_source):
 //! - `L_rec = mean over {p, q} of 1/2 (d_cham(PC, PC^) + d_cham(PPF, PPF^))`;
-//! - `L_pose = min(|q - q*|, |q + q*|)` with `q` the normalised RelativeNet output on
-//!   `[f_pc(p) - f_ppf(p) | f_pc(q) - f_ppf(q)]`;
+//! - `L_pose`: RelativeNet's output on `[f_pc(p) - f_ppf(p) | f_pc(q) - f_ppf(q)]` against the label rotation,
+//!   `min(|q - q*|, |q + q*|)` for the paper's quaternion output or `|R - R*|_F / 2` for the 6-D output
+//!   ([`super::loss::rotation_loss`]);
 //! - `L_feat = |f_ppf(p) - f_ppf(q)|`.
 //!
 //! The batch loss is the mean over pairs (the paper sums `L_feat` over the correspondences; with a fixed batch
@@ -12,11 +13,10 @@
 //! is still computed and reported, but it adds nothing to the loss or the gradient.
 
 use super::backward::{Gradients, LayerWeights, decode_backward, encode_backward, relative_backward};
-use super::forward::{decode_tape, encode_tape, relative_tape};
-use super::loss::{chamfer, feat_loss, normalize_quaternion, normalize_quaternion_backward, pose_loss};
+use super::loss::{chamfer, feat_loss, rotation_loss};
 use crate::error::{Error, Result};
 use crate::model::params::foldnet_layers;
-use crate::model::{Model, Net, Weights};
+use crate::model::{Model, Net, Weights, pose_feature};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -25,12 +25,13 @@ use serde::{Deserialize, Serialize};
 pub struct PairSample {
     /// PPF-FoldNet inputs, `2 x points_per_patch x 4` (source patch, then target patch).
     pub ppf: Vec<f32>,
-    /// PC-FoldNet inputs, `2 x points_per_patch x 3` (source patch, then target patch), each in its own
-    /// fragment's (augmented) frame, centred on its keypoint and divided by the radius.
+    /// PC-FoldNet inputs, `2 x points_per_patch x 3` (source patch, then target patch), each centred on its
+    /// keypoint, divided by the radius and expressed in the model's pose frame (its fragment's augmented frame,
+    /// or its keypoint's normal frame).
     pub pc: Vec<f32>,
-    /// Unit quaternion `[w, x, y, z]` of the rotation of target_from_source (maps source-patch directions
-    /// into the target patch's frame), the label RelativeNet regresses.
-    pub label: [f64; 4],
+    /// The rotation RelativeNet regresses, row-major: target_from_source between the two patches' frames (maps
+    /// source-patch directions into the target patch's frame).
+    pub label: [f64; 9],
 }
 
 /// Which terms are trained and their weights.
@@ -93,10 +94,10 @@ pub fn sample_objective(
         )));
     }
     let (pc_base, rel_base) = bases(model);
-    let ppf_e = encode_tape(&model.ppf, &sample.ppf, 2, n);
-    let pc_e = encode_tape(&model.pc, &sample.pc, 2, n);
-    let ppf_d = decode_tape(&model.ppf, &ppf_e.codeword, 2);
-    let pc_d = decode_tape(&model.pc, &pc_e.codeword, 2);
+    let ppf_e = model.ppf.encode_tape(&sample.ppf, 2, n);
+    let pc_e = model.pc.encode_tape(&sample.pc, 2, n);
+    let ppf_d = model.ppf.decode_tape(&ppf_e.codeword, 2);
+    let pc_d = model.pc.decode_tape(&pc_e.codeword, 2);
     let m = model.config.grid_points();
 
     // Reconstruction: both patches, both networks.
@@ -114,14 +115,11 @@ pub fn sample_objective(
 
     // Pose: RelativeNet on the pose features (PC codeword minus PPF codeword) of source and target.
     let cw = model.config.codeword();
-    let feature = |p: usize| -> Vec<f32> {
-        pc_e.codeword[p * cw..][..cw].iter().zip(&ppf_e.codeword[p * cw..][..cw]).map(|(a, b)| a - b).collect()
-    };
+    let feature = |p: usize| pose_feature(&pc_e.codeword[p * cw..][..cw], &ppf_e.codeword[p * cw..][..cw]);
     let (f_s, f_t) = (feature(0), feature(1));
-    let rel = relative_tape(&model.relative, &f_s, &f_t, 1);
-    let raw_v = rel.last().expect("relative has layers");
-    let raw = [raw_v[0], raw_v[1], raw_v[2], raw_v[3]];
-    let (pose, d_q) = pose_loss(normalize_quaternion(raw), sample.label);
+    let rel = model.relative.forward_tape(&f_s, &f_t, 1);
+    let raw = rel.last().expect("relative has layers");
+    let (pose, d_raw) = rotation_loss(raw, model.config.rotation_output, &sample.label);
 
     // Feature consistency on the PPF codewords.
     let (feat, d_fp) = feat_loss(&ppf_e.codeword[..cw], &ppf_e.codeword[cw..]);
@@ -145,8 +143,8 @@ pub fn sample_objective(
         decode_backward(&model.pc, w, pc_base, &pc_e.codeword, &pc_d, d_pc_rec, &mut d_pc_cw, grads);
     }
     if settings.pose {
-        let d_q = d_q.map(|v| v * settings.lambda_pose * scale);
-        let d_raw = normalize_quaternion_backward(raw, d_q).map(|v| v as f32).to_vec();
+        let k = (settings.lambda_pose * scale) as f32;
+        let d_raw = d_raw.iter().map(|v| v * k).collect();
         let (d_fs, d_ft) = relative_backward(&model.relative, w, rel_base, &f_s, &f_t, 1, &rel, d_raw, grads);
         for (p, d_f) in [d_fs, d_ft].iter().enumerate() {
             for (i, &g) in d_f.iter().enumerate() {

@@ -1,0 +1,223 @@
+//! CPU twin of `shaders/rotation_head.wgsl`: RelativeNet's raw outputs to rotation matrices target_from_source
+//! in the fragments' frames.
+//!
+//! Per correspondence: the raw output becomes a rotation `R_net` (a quaternion normalised, or 6 values made
+//! orthonormal by Gram-Schmidt), which relates the two patches in the frames PC-FoldNet saw them in. With
+//! fragment-frame patches that is already the answer; with normal-aligned patches (each patch rotated by its
+//! keypoint's [`normal_frame`] `F`, so its normal is +z) the fragment-frame rotation is
+//! `R = F_target^T R_net F_source`. Matrices are row-major `[f32; 9]`.
+
+use crate::model::config::{PoseFrame, RotationOutput};
+
+/// Norms not above this (or NaN) make a raw output degenerate: it becomes the identity.
+pub const MIN_NORM: f32 = 1e-12;
+
+/// The identity, row-major.
+pub const IDENTITY: [f32; 9] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+
+/// A rotation `F` (row-major; rows t1, t2, n) that maps the unit normal `n` to +z, with a tangent basis fixed by
+/// `n` alone (Duff et al., "Building an orthonormal basis, revisited", JCGT 2017). The basis switches at
+/// `n.z = 0`; the sign test `n.z >= 0` is the same on the CPU and the GPU (-0.0 counts as positive). A zero
+/// or NaN normal gives the identity.
+pub fn normal_frame(n: [f32; 3]) -> [f32; 9] {
+    let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    if len.is_nan() || len <= MIN_NORM {
+        return IDENTITY;
+    }
+    let [x, y, z] = [n[0] / len, n[1] / len, n[2] / len];
+    let sign = if z >= 0.0 { 1.0f32 } else { -1.0 };
+    let a = -1.0 / (sign + z);
+    let b = x * y * a;
+    [1.0 + sign * x * x * a, sign * b, -sign * x, b, sign + y * y * a, -y, x, y, z]
+}
+
+/// Rotation matrix of the raw quaternion `[w, x, y, z]` after normalisation (identity when degenerate).
+pub fn quaternion_rotation(raw: [f32; 4]) -> [f32; 9] {
+    let n = (raw[0] * raw[0] + raw[1] * raw[1] + raw[2] * raw[2] + raw[3] * raw[3]).sqrt();
+    if n.is_nan() || n <= MIN_NORM {
+        return IDENTITY;
+    }
+    let [w, x, y, z] = raw.map(|v| v / n);
+    [
+        1.0 - 2.0 * (y * y + z * z),
+        2.0 * (x * y - w * z),
+        2.0 * (x * z + w * y),
+        2.0 * (x * y + w * z),
+        1.0 - 2.0 * (x * x + z * z),
+        2.0 * (y * z - w * x),
+        2.0 * (x * z - w * y),
+        2.0 * (y * z + w * x),
+        1.0 - 2.0 * (x * x + y * y),
+    ]
+}
+
+fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// Rotation whose first two columns are the raw `[a1 | a2]` made orthonormal (Gram-Schmidt), the third their
+/// cross product. Identity when `a1` or the part of `a2` orthogonal to it is degenerate.
+pub fn six_d_rotation(raw: [f32; 6]) -> [f32; 9] {
+    let a1 = [raw[0], raw[1], raw[2]];
+    let a2 = [raw[3], raw[4], raw[5]];
+    let n1 = dot(a1, a1).sqrt();
+    if n1.is_nan() || n1 <= MIN_NORM {
+        return IDENTITY;
+    }
+    let b1 = a1.map(|v| v / n1);
+    let d = dot(b1, a2);
+    let u2 = [a2[0] - d * b1[0], a2[1] - d * b1[1], a2[2] - d * b1[2]];
+    let n2 = dot(u2, u2).sqrt();
+    if n2.is_nan() || n2 <= MIN_NORM {
+        return IDENTITY;
+    }
+    let b2 = u2.map(|v| v / n2);
+    let b3 = [b1[1] * b2[2] - b1[2] * b2[1], b1[2] * b2[0] - b1[0] * b2[2], b1[0] * b2[1] - b1[1] * b2[0]];
+    [b1[0], b2[0], b3[0], b1[1], b2[1], b3[1], b1[2], b2[2], b3[2]]
+}
+
+/// `a * b` for row-major 3x3 matrices.
+pub fn mat_mul(a: &[f32; 9], b: &[f32; 9]) -> [f32; 9] {
+    let mut out = [0.0; 9];
+    for r in 0..3 {
+        for c in 0..3 {
+            out[r * 3 + c] = a[r * 3] * b[c] + a[r * 3 + 1] * b[3 + c] + a[r * 3 + 2] * b[6 + c];
+        }
+    }
+    out
+}
+
+/// `a^T * b` for row-major 3x3 matrices.
+pub fn mat_t_mul(a: &[f32; 9], b: &[f32; 9]) -> [f32; 9] {
+    let mut out = [0.0; 9];
+    for r in 0..3 {
+        for c in 0..3 {
+            out[r * 3 + c] = a[r] * b[c] + a[3 + r] * b[3 + c] + a[6 + r] * b[6 + c];
+        }
+    }
+    out
+}
+
+/// The rotation of one raw output, in the network's (patch) frames.
+pub fn network_rotation(raw: &[f32], output: RotationOutput) -> [f32; 9] {
+    match output {
+        RotationOutput::Quaternion => quaternion_rotation([raw[0], raw[1], raw[2], raw[3]]),
+        RotationOutput::SixD => six_d_rotation([raw[0], raw[1], raw[2], raw[3], raw[4], raw[5]]),
+    }
+}
+
+/// Fragment-frame rotations (target_from_source) of `rows` raw outputs (`rows x output.width()`), given the
+/// keypoint normals of each correspondence's source and target patch (used by [`PoseFrame::Normal`]).
+pub fn rotation_head(
+    raw: &[f32],
+    output: RotationOutput,
+    frame: PoseFrame,
+    source_normals: &[[f32; 3]],
+    target_normals: &[[f32; 3]],
+) -> Vec<[f32; 9]> {
+    raw.chunks_exact(output.width())
+        .enumerate()
+        .map(|(i, r)| {
+            let net = network_rotation(r, output);
+            match frame {
+                PoseFrame::Fragment => net,
+                PoseFrame::Normal => {
+                    let fs = normal_frame(source_normals[i]);
+                    let ft = normal_frame(target_normals[i]);
+                    mat_mul(&mat_t_mul(&ft, &net), &fs)
+                }
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pose::matrix_from_quaternion;
+    use crate::rng::Rng;
+    use nalgebra::Matrix3;
+
+    fn m(r: &[f32; 9]) -> Matrix3<f64> {
+        Matrix3::from_row_slice(&r.map(f64::from))
+    }
+
+    fn assert_rotation(r: &[f32; 9]) {
+        let r = m(r);
+        assert!((r.transpose() * r - Matrix3::identity()).norm() < 1e-5, "not orthonormal: {r}");
+        assert!((r.determinant() - 1.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn normal_frame_is_a_rotation_taking_the_normal_to_z() {
+        let mut rng = Rng::new(5);
+        let mut normals: Vec<[f32; 3]> = (0..200)
+            .map(|_| {
+                let q = rng.unit_quaternion();
+                let r = matrix_from_quaternion(q);
+                [r[(0, 2)] as f32, r[(1, 2)] as f32, r[(2, 2)] as f32]
+            })
+            .collect();
+        normals.extend([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, -0.0], [0.0, 1.0, 0.0]]);
+        for n in normals {
+            let f = normal_frame(n);
+            assert_rotation(&f);
+            let z = m(&f) * nalgebra::Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64);
+            assert!((z - nalgebra::Vector3::z()).norm() < 1e-5, "{n:?} -> {z}");
+        }
+        assert_eq!(normal_frame([0.0; 3]), IDENTITY);
+        assert_eq!(normal_frame([f32::NAN; 3]), IDENTITY);
+    }
+
+    #[test]
+    fn quaternion_and_six_d_outputs_give_the_rotation_they_encode() {
+        let mut rng = Rng::new(9);
+        for _ in 0..100 {
+            let q = rng.unit_quaternion();
+            let truth = matrix_from_quaternion(q);
+            let scale = rng.uniform(0.1, 10.0);
+            let raw_q = q.map(|v| (v * scale) as f32);
+            let rq = quaternion_rotation(raw_q);
+            assert!((m(&rq) - truth).norm() < 1e-5);
+            // The first two columns, scaled and with a1 leaking into a2, still give the same rotation.
+            let c = |j: usize| [truth[(0, j)], truth[(1, j)], truth[(2, j)]];
+            let (c0, c1) = (c(0), c(1));
+            let leak = rng.uniform(-2.0, 2.0);
+            let raw6 = [
+                (c0[0] * scale) as f32,
+                (c0[1] * scale) as f32,
+                (c0[2] * scale) as f32,
+                (c1[0] + leak * c0[0]) as f32,
+                (c1[1] + leak * c0[1]) as f32,
+                (c1[2] + leak * c0[2]) as f32,
+            ];
+            let r6 = six_d_rotation(raw6);
+            assert_rotation(&r6);
+            assert!((m(&r6) - truth).norm() < 1e-5);
+        }
+        assert_eq!(quaternion_rotation([0.0; 4]), IDENTITY);
+        assert_eq!(six_d_rotation([1.0, 0.0, 0.0, 2.0, 0.0, 0.0]), IDENTITY);
+        assert_eq!(six_d_rotation([f32::NAN; 6]), IDENTITY);
+    }
+
+    #[test]
+    fn normal_frames_recover_the_fragment_rotation() {
+        // A patch pair related by a known rotation R: source normal n_s, target normal n_t = R n_s. The network
+        // sees the patches in their normal frames, related by F_t R F_s^T; the head must give back R.
+        let mut rng = Rng::new(21);
+        for _ in 0..100 {
+            let r = matrix_from_quaternion(rng.unit_quaternion());
+            let n_s = matrix_from_quaternion(rng.unit_quaternion()).column(0).into_owned();
+            let n_t = r * n_s;
+            let to32 = |v: nalgebra::Vector3<f64>| [v.x as f32, v.y as f32, v.z as f32];
+            let fs = m(&normal_frame(to32(n_s)));
+            let ft = m(&normal_frame(to32(n_t)));
+            let net = ft * r * fs.transpose();
+            // The aligned rotation keeps +z: it is a rotation about the normal.
+            assert!((net * nalgebra::Vector3::z() - nalgebra::Vector3::z()).norm() < 1e-5);
+            let raw = [net[(0, 0)], net[(1, 0)], net[(2, 0)], net[(0, 1)], net[(1, 1)], net[(2, 1)]].map(|v| v as f32);
+            let out = rotation_head(&raw, RotationOutput::SixD, PoseFrame::Normal, &[to32(n_s)], &[to32(n_t)]);
+            assert!((m(&out[0]) - r).norm() < 1e-4);
+        }
+    }
+}

@@ -1,0 +1,87 @@
+//! Host side of `shaders/rotation_head.wgsl`: RelativeNet's raw outputs (quaternion or 6-D) to rotations
+//! target_from_source in the fragments' frames. CPU twin: [`crate::cpu::rotation_head`].
+
+use super::kernel::{BindKind, KernelSpec, ParamsLayout, gpu_params};
+use super::recorder::Recorder;
+use super::{Gpu, to_u32, workgroups};
+use crate::cpu::rotation_head::MIN_NORM;
+use crate::error::{Error, Result};
+use crate::model::config::{PoseFrame, RotationOutput};
+
+gpu_params! {
+    /// Mirrors `struct RotationHeadParams` in shaders/rotation_head.wgsl.
+    pub struct RotationHeadParams {
+        /// Rows (correspondences).
+        pub rows: u32,
+        /// Raw values per row: 4 (quaternion) or 6 (two columns).
+        pub width: u32,
+        /// 1 for normal-aligned patches, 0 for fragment-frame patches.
+        pub frame: u32,
+        /// Norms not above this give the identity ([`MIN_NORM`]).
+        pub min_norm: f32,
+    }
+}
+
+impl RotationHeadParams {
+    /// Parameters for `rows` rows of `output` in `frame`.
+    pub fn new(rows: usize, output: RotationOutput, frame: PoseFrame) -> Result<RotationHeadParams> {
+        Ok(RotationHeadParams {
+            rows: to_u32(rows, "rotations")?,
+            width: to_u32(output.width(), "rotation output width")?,
+            frame: u32::from(frame == PoseFrame::Normal),
+            min_norm: MIN_NORM,
+        })
+    }
+}
+
+/// Invocations per workgroup (`WG_SIZE` in the shader).
+pub const WG_SIZE: u32 = 64;
+
+/// The kernel's registry entry.
+pub const SPEC: KernelSpec = KernelSpec {
+    name: "rotation_head",
+    source: include_str!("../../shaders/rotation_head.wgsl"),
+    binds: &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite],
+    workgroup_size: WG_SIZE,
+    params: ParamsLayout::of::<RotationHeadParams>(),
+};
+
+/// Records the rotations of `params.rows` rows: `raw` outputs and the rows' keypoint normals into `out`
+/// (9 floats per row).
+pub fn record<'a>(
+    rec: &mut Recorder<'a>,
+    gpu: &'a Gpu,
+    params: &RotationHeadParams,
+    [raw, source_normals, target_normals]: [&wgpu::Buffer; 3],
+    out: &wgpu::Buffer,
+) -> Result<()> {
+    let groups = workgroups(params.rows as usize, WG_SIZE);
+    rec.dispatch(&gpu.kernels.rotation_head, params, &[raw, source_normals, target_normals, out], groups)
+}
+
+/// Runs the kernel on slices; `out` holds the initial contents (a sentinel in tests) and receives the result.
+pub fn run(
+    gpu: &Gpu,
+    raw: &[f32],
+    output: RotationOutput,
+    frame: PoseFrame,
+    [source_normals, target_normals]: [&[[f32; 3]]; 2],
+    out: &mut [[f32; 9]],
+) -> Result<()> {
+    let rows = out.len();
+    if raw.len() != rows * output.width() || source_normals.len() != rows || target_normals.len() != rows {
+        return Err(Error::invalid("rotation_head: raw outputs, normals and outputs differ in length"));
+    }
+    let ctx = &gpu.context;
+    let params = RotationHeadParams::new(rows, output, frame)?;
+    let rb = super::buffer::GpuBuffer::from_slice(ctx, "raw", raw)?;
+    let sb = super::buffer::GpuBuffer::from_slice(ctx, "source_normals", source_normals)?;
+    let tb = super::buffer::GpuBuffer::from_slice(ctx, "target_normals", target_normals)?;
+    let ob = super::buffer::GpuBuffer::from_slice(ctx, "rotations", out)?;
+    let mut rec = Recorder::new(gpu, "rotation_head");
+    record(&mut rec, gpu, &params, [rb.raw(), sb.raw(), tb.raw()], ob.raw())?;
+    let r = rec.read(ob.raw(), 0, (rows * 36) as u64);
+    let bytes = rec.finish()?;
+    out.copy_from_slice(bytemuck::cast_slice(&bytes[r]));
+    Ok(())
+}
