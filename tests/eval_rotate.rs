@@ -98,11 +98,8 @@ fn ground_truth_as_result_log_has_full_recall_at_every_angle_and_unrotated_truth
                     matrix: g.transform * rigid_inverse(&rot[&g.j].rotated_from_original(d)),
                 })
                 .collect();
-            let plain: Vec<LogRecord> = rotated
-                .iter()
-                .zip(&scene.gt)
-                .map(|(r, g)| LogRecord { matrix: g.transform, ..r.clone() })
-                .collect();
+            let plain: Vec<LogRecord> =
+                rotated.iter().zip(&scene.gt).map(|(r, g)| LogRecord { matrix: g.transform, ..r.clone() }).collect();
             for (kind, log) in [("rotated", &rotated), ("plain", &plain)] {
                 let path = dir.join(kind).join(format!("rot{}", angle_label(d))).join(format!("{}.log", scene.name));
                 std::fs::create_dir_all(path.parent().unwrap()).unwrap();
@@ -223,7 +220,10 @@ fn perturbed_estimates_score_identically_in_the_original_and_the_rotated_frame()
         .map(|&d| {
             perturbed
                 .iter()
-                .map(|r| LogRecord { matrix: r.matrix * rigid_inverse(&rot[&r.j].rotated_from_original(d)), ..r.clone() })
+                .map(|r| LogRecord {
+                    matrix: r.matrix * rigid_inverse(&rot[&r.j].rotated_from_original(d)),
+                    ..r.clone()
+                })
                 .collect()
         })
         .collect();
@@ -248,4 +248,125 @@ fn perturbed_estimates_score_identically_in_the_original_and_the_rotated_frame()
         assert!(p.rotation_error_deg.unwrap() >= 70.0 - 1e-9 && p.success == Some(false), "{p:?}");
     }
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Feature-match recall may differ between angles by at most this many gt pairs. The sweep describes a moved
+/// source with the same random stream as the original, the cloud keeps its point order and no voxel grid is
+/// applied here, so the same keypoints and patch samples are drawn at every angle and the PPF codewords are
+/// rotation invariant: the only differences left are f32 rounding of the moved coordinates flipping a
+/// borderline neighbour or nearest-codeword decision, which can move one pair across tau2 at most in a scene
+/// this small.
+const FMR_PAIRS_TOLERANCE: f64 = 1.0;
+/// The mean inlier ratio may differ between angles by at most this (about one correspondence in 60 per pair).
+const INLIER_RATIO_TOLERANCE: f64 = 0.017;
+
+#[test]
+fn feature_match_recall_of_a_run_does_not_depend_on_the_angle() {
+    let dir = temp_dir("fmr");
+    let data = dir.join("data");
+    synth(&data, 1, 4, 4);
+    let out = dir.join("out");
+    // The shipped weights, few keypoints (the fragments are small); both estimators side by side.
+    let weights = Path::new(env!("CARGO_MANIFEST_DIR")).join("weights/default.safetensors");
+    let stdout = run(&[
+        "eval",
+        data.to_str().unwrap(),
+        "--weights",
+        weights.to_str().unwrap(),
+        "--keypoints",
+        "150",
+        "--estimator",
+        "both",
+        "--rotate",
+        "0,90,180",
+        "--out",
+        out.to_str().unwrap(),
+    ])
+    .stdout;
+    let table = String::from_utf8_lossy(&stdout).into_owned();
+    let r = report(&out);
+    // Angle-major, estimators side by side at each angle.
+    let order: Vec<(String, f64)> = r["estimators"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| (e["estimator"].as_str().unwrap().to_string(), e["rotation_deg"].as_f64().unwrap()))
+        .collect();
+    let expected: Vec<(String, f64)> =
+        [0.0, 90.0, 180.0].iter().flat_map(|&d| [("relativenet".to_string(), d), ("ransac".to_string(), d)]).collect();
+    assert_eq!(order, expected);
+    let scene = &r["estimators"][0]["scenes"][0];
+    let gt_pairs = scene["gt_pairs"].as_u64().unwrap() as f64;
+    assert!(gt_pairs >= 3.0, "{scene}");
+    let fmr = |e: &Value| e["mean"]["feature_match_recall"].as_f64().unwrap();
+    let ratio = |e: &Value| e["mean"]["mean_inlier_ratio"].as_f64().unwrap();
+    let base = &r["estimators"][0];
+    eprintln!("FMR / inlier ratio at 0 degrees: {} / {}", fmr(base), ratio(base));
+    // The run finds real matches at 0 degrees, so counting them with the wrong ground truth would show.
+    assert!(fmr(base) > 0.0 && ratio(base) > 0.03, "{table}");
+    for e in r["estimators"].as_array().unwrap() {
+        let d = e["rotation_deg"].as_f64().unwrap();
+        eprintln!("{} at {d}: FMR {} inlier ratio {}", e["estimator"], fmr(e), ratio(e));
+        assert!((fmr(e) - fmr(base)).abs() <= FMR_PAIRS_TOLERANCE / gt_pairs + 1e-12, "{d}: {table}");
+        assert!((ratio(e) - ratio(base)).abs() <= INLIER_RATIO_TOLERANCE, "{d}: {table}");
+        // Both estimators of one angle share the correspondences.
+        let twin = r["estimators"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|x| x["rotation_deg"] == e["rotation_deg"] && x["estimator"] != e["estimator"])
+            .unwrap();
+        let fm = |x: &Value| -> Vec<Value> {
+            x["scenes"][0]["pairs"].as_array().unwrap().iter().map(|p| p["feature_match"].clone()).collect()
+        };
+        assert_eq!(fm(e), fm(twin));
+    }
+    // Targets are described once; each source once more per non-zero angle (0 degrees reuses the original).
+    let fragments = r["fragments"].as_array().unwrap();
+    let rotated: Vec<(u64, f64)> = fragments
+        .iter()
+        .filter_map(|f| f["rotation_deg"].as_f64().map(|d| (f["index"].as_u64().unwrap(), d)))
+        .collect();
+    let sources = r["rotation"]["fragments"].as_array().unwrap().len();
+    assert_eq!(rotated.len(), 2 * sources);
+    assert!(rotated.iter().all(|&(_, d)| d == 90.0 || d == 180.0));
+    assert_eq!(fragments.len() - rotated.len(), scene_fragments(&data));
+
+    // The logs of the run are results on the rotated data; scoring them with the same sweep reproduces the
+    // run's registration scores.
+    for estimator in ["relativenet", "ransac"] {
+        for d in ["0", "90", "180"] {
+            assert!(out.join(estimator).join(format!("rot{d}")).join("scene_00.log").is_file());
+        }
+        let rescored = dir.join(format!("rescored_{estimator}"));
+        let log = format!("{}/{estimator}/rot{{rotation}}/{{scene}}.log", out.display());
+        run(&[
+            "eval",
+            data.to_str().unwrap(),
+            "--log",
+            &log,
+            "--rotate",
+            "0,90,180",
+            "--out",
+            rescored.to_str().unwrap(),
+        ]);
+        let rescored = report(&rescored);
+        for ((_, run_entry), (_, log_entry)) in entries(&r, estimator).iter().zip(entries(&rescored, "log")) {
+            let (a, b) = (&run_entry["scenes"][0], &log_entry["scenes"][0]);
+            assert_eq!(a["good"], b["good"]);
+            for (p, q) in a["pairs"].as_array().unwrap().iter().zip(b["pairs"].as_array().unwrap()) {
+                assert_eq!((&p["i"], &p["j"], &p["success"]), (&q["i"], &q["j"], &q["success"]));
+                if let (Some(x), Some(y)) = (p["error"].as_f64(), q["error"].as_f64()) {
+                    // The log format keeps 9 significant digits.
+                    assert!((x - y).abs() <= 1e-6 * (1.0 + x.abs()), "{x} vs {y}");
+                }
+            }
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Number of fragments (cloud_bin_*.ply) in the single scene under `data`.
+fn scene_fragments(data: &Path) -> usize {
+    load_dataset(data).unwrap()[0].fragment_count()
 }

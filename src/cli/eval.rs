@@ -33,8 +33,8 @@ and every metric is reported per angle and estimator (report.json: one `estimato
 estimator with `rotation_deg`, and a `rotation` object listing each fragment's axis and centre). Registration is \
 scored in the original frames (T_est' M against gt.log and gt.info), feature matches on the moved data with \
 T_gt M^-1. Result logs go to OUT/<estimator>/rot<DEG>/<scene>.log and hold target_from_rotated_source. With \
---log, the logs are results on the moved data: the path must contain {rotation} (replaced by each angle as \
-written, e.g. 90).")]
+--log, the logs are results on the moved data: the path must contain {rotation} (replaced by each angle in \
+shortest form, e.g. 90 or 22.5).")]
 pub struct Args {
     /// A folder of scenes (each with cloud_bin_*.ply, gt.log and gt.info), one scene folder, or a pairs file
     /// (`source target` + 16 numbers, p_target = T p_source, paths relative to the file).
@@ -142,8 +142,8 @@ fn score_logs_sweep(
             logs.push(read_result_log(&scene, &path)?);
             paths.push(path.display().to_string());
         }
-        let (scores, r) = score_log_sweep(&mut scene, &logs, opts, sweep)
-            .with_context(|| format!("scoring {}", paths.join(", ")))?;
+        let (scores, r) =
+            score_log_sweep(&mut scene, &logs, opts, sweep).with_context(|| format!("scoring {}", paths.join(", ")))?;
         for (v, score) in scores.into_iter().enumerate() {
             per_angle[v].push(score);
         }
@@ -223,8 +223,8 @@ fn run_pipeline(
         let context = || format!("evaluating scene {name}");
         let angles = match sweep {
             None => {
-                let run = run_scene(&mut scene, &registrar, &estimators, opts, &mut || bar.inc(1))
-                    .with_context(context)?;
+                let run =
+                    run_scene(&mut scene, &registrar, &estimators, opts, &mut || bar.inc(1)).with_context(context)?;
                 fragments.extend(run.fragments);
                 vec![(None, run.estimators)]
             }

@@ -26,6 +26,6 @@ pub mod score;
 
 pub use dataset::{GtEntry, Protocol, SceneData, load_dataset};
 pub use report::{EstimatorReport, MeanScore, Report};
-pub use run::{EvalOptions, run_scene, run_scene_sweep, score_log, score_log_sweep};
 pub use rotate::RotationSweep;
+pub use run::{EvalOptions, run_scene, run_scene_sweep, score_log, score_log_sweep};
 pub use score::{SceneScore, Thresholds};

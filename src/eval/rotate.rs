@@ -9,6 +9,11 @@
 //! against T_gt with the unchanged gt.info matrix), so the protocol error of a result does not depend on M:
 //! T_gt⁻¹ (T'_est M) = M⁻¹ (T'_gt⁻¹ T'_est) M exactly. Feature matches are counted on the moved data with T'_gt.
 //!
+//! Why not re-express gt.info in the moved frame instead: the protocol's error vector e = [t; q_xyz] of
+//! ΔT = T_gt⁻¹ T_est is linear in the frame change only when M fixes the source origin. For a rotation about
+//! the centroid c, the moved frame's translation part is R t + (I − R_Δ') (c − R c), which depends on the rotation
+//! error itself, so no 6x6 matrix on e' reproduces eᵀΣe exactly; mapping the estimate back does, by construction.
+//!
 //! Axis: per scene and source fragment, drawn uniformly on the sphere from `Rng::derived(seed, stream)` with
 //! `stream` = FNV-1a of `"<scene>/<fragment index>"`; it is the same for every angle of a sweep (only the angle
 //! changes) and independent of scheduling. Centre: the mean of the fragment's points as loaded (after
@@ -209,7 +214,8 @@ mod tests {
         assert_ne!(a, rotation_axis(0, "t", 1));
         assert_ne!(a, rotation_axis(1, "s", 1));
         // Roughly uniform: the mean of many axes is near the origin.
-        let mean: Vector3<f64> = (0..2000).map(|k| rotation_axis(3, "u", k).into_inner()).sum::<Vector3<f64>>() / 2000.0;
+        let mean: Vector3<f64> =
+            (0..2000).map(|k| rotation_axis(3, "u", k).into_inner()).sum::<Vector3<f64>>() / 2000.0;
         assert!(mean.norm() < 0.08, "{mean}");
     }
 

@@ -238,7 +238,12 @@ fn source_key(j: usize, sweep: Option<&RotationSweep>, v: usize) -> DescKey {
 }
 
 /// M of fragment `f` for view `v` (identity without a sweep).
-fn motion(rotations: &HashMap<usize, FragmentRotation>, sweep: Option<&RotationSweep>, f: usize, v: usize) -> Matrix4<f64> {
+fn motion(
+    rotations: &HashMap<usize, FragmentRotation>,
+    sweep: Option<&RotationSweep>,
+    f: usize,
+    v: usize,
+) -> Matrix4<f64> {
     match (sweep, rotations.get(&f)) {
         (Some(s), Some(r)) => r.rotated_from_original(s.degrees[v]),
         _ => Matrix4::identity(),
@@ -360,12 +365,8 @@ fn run_views(
                         run.estimator_inliers = p.inliers;
                         let report = match (&target.index, &source.index) {
                             (Some(ti), Some(si)) if opts.all_pairs => {
-                                let overlap = estimated_overlap(
-                                    ti,
-                                    si,
-                                    &p.target_from_source,
-                                    opts.thresholds.overlap_distance,
-                                );
+                                let overlap =
+                                    estimated_overlap(ti, si, &p.target_from_source, opts.thresholds.overlap_distance);
                                 run.estimated_overlap = Some(overlap);
                                 overlap > opts.min_overlap
                             }
