@@ -4,8 +4,11 @@
 use crate::cli::register::{RegisterOptions, parse_estimator};
 use crate::eval::dataset::{SceneData, load_dataset};
 use crate::eval::gtlog::{LogRecord, format_log, read_log};
-use crate::eval::report::{EstimatorReport, Report, format_table, protocol_notes};
-use crate::eval::run::{EvalOptions, estimator_name, pairs_to_run, run_scene, score_log};
+use crate::eval::report::{EstimatorReport, Report, RotationReport, format_table, protocol_notes, rotation_notes};
+use crate::eval::rotate::{FragmentRotation, RotationSweep, angle_label};
+use crate::eval::run::{
+    EvalOptions, estimator_name, pairs_to_run, run_scene, run_scene_sweep, score_log, score_log_sweep,
+};
 use crate::eval::score::{REFERENCE_RADIUS, Thresholds};
 use crate::io::{LoadOptions, write_atomic};
 use crate::pipeline::Registrar;
@@ -21,7 +24,17 @@ use std::path::{Path, PathBuf};
 side. Registration recall counts gt.log pairs with j - i > 1 (success: e^T Sigma e / Sigma_11 <= 0.04; for a pairs \
 file: source-point RMSE <= 0.2 m); feature-match recall counts every gt.log pair (inlier: |x_i - T_ij x_j| < 0.10 m; \
 matched: inlier ratio > 0.05, strict). Distances scale with --radius / 0.30. Results go to \
-OUT/<estimator>/<scene>.log (3DMatch format) and OUT/report.json.")]
+OUT/<estimator>/<scene>.log (3DMatch format) and OUT/report.json.
+
+Rotation sweep (--rotate DEG[,DEG...]): every source fragment j of a pair (i, j) is moved by M, a rotation by \
+exactly DEG degrees about a random unit axis through the centroid of its points (one axis per scene and fragment, \
+seeded by --rotate-seed, the same for every angle); targets stay put. Every pair is registered again at each angle \
+and every metric is reported per angle and estimator (report.json: one `estimators` entry per angle and \
+estimator with `rotation_deg`, and a `rotation` object listing each fragment's axis and centre). Registration is \
+scored in the original frames (T_est' M against gt.log and gt.info), feature matches on the moved data with \
+T_gt M^-1. Result logs go to OUT/<estimator>/rot<DEG>/<scene>.log and hold target_from_rotated_source. With \
+--log, the logs are results on the moved data: the path must contain {rotation} (replaced by each angle in \
+shortest form, e.g. 90 or 22.5).")]
 pub struct Args {
     /// A folder of scenes (each with cloud_bin_*.ply, gt.log and gt.info), one scene folder, or a pairs file
     /// (`source target` + 16 numbers, p_target = T p_source, paths relative to the file).
@@ -44,6 +57,13 @@ pub struct Args {
     /// Estimated overlap needed to report a pair with --all-pairs.
     #[arg(long, default_value_t = 0.23)]
     pub min_overlap: f64,
+    /// Rotation sweep: rotate every source fragment by each of these angles (degrees, comma-separated) about a
+    /// seeded random axis through its centroid, and report every metric per angle (see below).
+    #[arg(long, value_name = "DEG[,DEG...]", value_delimiter = ',', allow_hyphen_values = true)]
+    pub rotate: Option<Vec<f64>>,
+    /// Seed of the rotation axes of --rotate [default: 0].
+    #[arg(long, value_name = "S")]
+    pub rotate_seed: Option<u64>,
 }
 
 /// The estimators named by `--estimator` (`relativenet`, `ransac` or `both`).
@@ -82,17 +102,77 @@ fn write_report(out: &Path, report: &Report) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Reads the result log of `scene` at `path`; a missing file warns and counts every pair as missing.
+fn read_result_log(scene: &SceneData, path: &Path) -> anyhow::Result<Vec<LogRecord>> {
+    if path.is_file() {
+        Ok(read_log(path)?)
+    } else {
+        eprintln!("warning: {}: no result log at {}; every pair counts as missing", scene.name, path.display());
+        Ok(Vec::new())
+    }
+}
+
+/// The rotation part of a report.
+fn rotation_report(sweep: &RotationSweep, fragments: Vec<FragmentRotation>) -> RotationReport {
+    RotationReport { degrees: sweep.degrees.clone(), seed: sweep.seed, notes: rotation_notes(), fragments }
+}
+
+/// `--log` with `--rotate`: the logs (one per angle, `{rotation}` in the path) are results on the moved data.
+fn score_logs_sweep(
+    args: &Args,
+    log: &str,
+    scenes: Vec<SceneData>,
+    opts: &EvalOptions,
+    sweep: &RotationSweep,
+) -> anyhow::Result<Report> {
+    if !log.contains("{rotation}") {
+        bail!(
+            "--log {log}: with --rotate the result logs are results on the rotated data, one per angle; put \
+             {{rotation}} in the path (e.g. OUT/ransac/rot{{rotation}})"
+        );
+    }
+    let count = scenes.len();
+    let mut per_angle: Vec<Vec<_>> = vec![Vec::new(); sweep.degrees.len()];
+    let mut rotations = Vec::new();
+    for mut scene in scenes {
+        let mut logs = Vec::new();
+        let mut paths = Vec::new();
+        for &d in &sweep.degrees {
+            let path = log_path_for(&log.replace("{rotation}", &angle_label(d)), &scene, count)?;
+            logs.push(read_result_log(&scene, &path)?);
+            paths.push(path.display().to_string());
+        }
+        let (scores, r) =
+            score_log_sweep(&mut scene, &logs, opts, sweep).with_context(|| format!("scoring {}", paths.join(", ")))?;
+        for (v, score) in scores.into_iter().enumerate() {
+            per_angle[v].push(score);
+        }
+        rotations.extend(r);
+    }
+    Ok(Report {
+        dataset: args.dataset.display().to_string(),
+        mode: "log".into(),
+        log: Some(log.to_string()),
+        thresholds: opts.thresholds,
+        protocol: protocol_notes(&opts.thresholds),
+        settings: None,
+        rotation: Some(rotation_report(sweep, rotations)),
+        estimators: sweep
+            .degrees
+            .iter()
+            .zip(per_angle)
+            .map(|(&d, scores)| EstimatorReport::new("log", scores).at_rotation(d))
+            .collect(),
+        fragments: Vec::new(),
+    })
+}
+
 fn score_logs(args: &Args, log: &str, scenes: Vec<SceneData>, opts: &EvalOptions) -> anyhow::Result<Report> {
     let count = scenes.len();
     let mut scores = Vec::new();
     for mut scene in scenes {
         let path = log_path_for(log, &scene, count)?;
-        let records: Vec<LogRecord> = if path.is_file() {
-            read_log(&path)?
-        } else {
-            eprintln!("warning: {}: no result log at {}; every pair counts as missing", scene.name, path.display());
-            Vec::new()
-        };
+        let records = read_result_log(&scene, &path)?;
         scores.push(score_log(&mut scene, &records, opts).with_context(|| format!("scoring {}", path.display()))?);
     }
     Ok(Report {
@@ -102,37 +182,82 @@ fn score_logs(args: &Args, log: &str, scenes: Vec<SceneData>, opts: &EvalOptions
         thresholds: opts.thresholds,
         protocol: protocol_notes(&opts.thresholds),
         settings: None,
+        rotation: None,
         estimators: vec![EstimatorReport::new("log", scores)],
         fragments: Vec::new(),
     })
 }
 
-fn run_pipeline(args: &Args, scenes: Vec<SceneData>, opts: &EvalOptions) -> anyhow::Result<Report> {
+/// Writes one result log, creating its folder.
+fn write_result_log(path: &Path, log: &[LogRecord]) -> anyhow::Result<()> {
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    write_atomic(path, format_log(log).as_bytes())?;
+    Ok(())
+}
+
+fn run_pipeline(
+    args: &Args,
+    scenes: Vec<SceneData>,
+    opts: &EvalOptions,
+    sweep: Option<&RotationSweep>,
+) -> anyhow::Result<Report> {
     let estimators = parse_estimators(&args.register.estimator)?;
     let settings = args.register.to_settings()?;
     let registrar = Registrar::new(&settings).context("preparing the pipeline")?;
-    let total: usize = scenes.iter().map(|s| pairs_to_run(s, opts).len()).sum();
+    let views = sweep.map_or(1, |s| s.degrees.len());
+    let total: usize = scenes.iter().map(|s| pairs_to_run(s, opts).len() * views).sum();
     let bar = if std::io::stderr().is_terminal() { ProgressBar::new(total as u64) } else { ProgressBar::hidden() };
     bar.set_style(
         ProgressStyle::with_template("{bar:40} {pos}/{len} pairs {msg} [{elapsed_precise} < {eta_precise}]")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    let mut per_estimator: Vec<Vec<_>> = vec![Vec::new(); estimators.len()];
+    // Indexed [angle][estimator] (one angle without a sweep).
+    let mut scores: Vec<Vec<Vec<_>>> = vec![vec![Vec::new(); estimators.len()]; views];
     let mut fragments = Vec::new();
+    let mut rotations = Vec::new();
     for mut scene in scenes {
         bar.set_message(scene.name.clone());
-        let run = run_scene(&mut scene, &registrar, &estimators, opts, &mut || bar.inc(1))
-            .with_context(|| format!("evaluating scene {}", scene.name))?;
-        for (k, (estimator, score, log)) in run.estimators.into_iter().enumerate() {
-            let path = args.out.join(estimator_name(estimator)).join(format!("{}.log", scene.name));
-            std::fs::create_dir_all(path.parent().unwrap_or(&args.out))
-                .with_context(|| format!("creating {}", path.display()))?;
-            write_atomic(&path, format_log(&log).as_bytes())?;
-            per_estimator[k].push(score);
+        let name = scene.name.clone();
+        let context = || format!("evaluating scene {name}");
+        let angles = match sweep {
+            None => {
+                let run =
+                    run_scene(&mut scene, &registrar, &estimators, opts, &mut || bar.inc(1)).with_context(context)?;
+                fragments.extend(run.fragments);
+                vec![(None, run.estimators)]
+            }
+            Some(s) => {
+                let run = run_scene_sweep(&mut scene, &registrar, &estimators, opts, s, &mut || bar.inc(1))
+                    .with_context(context)?;
+                fragments.extend(run.fragments);
+                rotations.extend(run.rotations);
+                run.angles.into_iter().map(|a| (Some(a.rotation_deg), a.estimators)).collect()
+            }
+        };
+        for (v, (rotation, runs)) in angles.into_iter().enumerate() {
+            for (e, (estimator, score, log)) in runs.into_iter().enumerate() {
+                let mut dir = args.out.join(estimator_name(estimator));
+                if let Some(d) = rotation {
+                    dir = dir.join(format!("rot{}", angle_label(d)));
+                }
+                write_result_log(&dir.join(format!("{}.log", scene.name)), &log)?;
+                scores[v][e].push(score);
+            }
         }
-        fragments.extend(run.fragments);
     }
     bar.finish_and_clear();
+    let mut entries = Vec::new();
+    for (v, per_estimator) in scores.into_iter().enumerate() {
+        for (&e, s) in estimators.iter().zip(per_estimator) {
+            let entry = EstimatorReport::new(estimator_name(e), s);
+            entries.push(match sweep {
+                Some(sw) => entry.at_rotation(sw.degrees[v]),
+                None => entry,
+            });
+        }
+    }
     Ok(Report {
         dataset: args.dataset.display().to_string(),
         mode: "pipeline".into(),
@@ -140,11 +265,8 @@ fn run_pipeline(args: &Args, scenes: Vec<SceneData>, opts: &EvalOptions) -> anyh
         thresholds: opts.thresholds,
         protocol: protocol_notes(&opts.thresholds),
         settings: Some(settings),
-        estimators: estimators
-            .iter()
-            .zip(per_estimator)
-            .map(|(&e, scores)| EstimatorReport::new(estimator_name(e), scores))
-            .collect(),
+        rotation: sweep.map(|s| rotation_report(s, rotations)),
+        estimators: entries,
         fragments,
     })
 }
@@ -162,11 +284,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         all_pairs: args.all_pairs,
         min_overlap: args.min_overlap,
     };
+    let sweep = match &args.rotate {
+        Some(degrees) => Some(RotationSweep::new(degrees.clone(), args.rotate_seed.unwrap_or(0))?),
+        None if args.rotate_seed.is_some() => bail!("--rotate-seed needs --rotate"),
+        None => None,
+    };
+    if sweep.is_none()
+        && let Some(log) = &args.log
+        && log.contains("{rotation}")
+    {
+        bail!("--log {log} contains {{rotation}}, which only --rotate fills in");
+    }
     let scenes = load_dataset(&args.dataset).with_context(|| format!("loading {}", args.dataset.display()))?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let report = match &args.log {
-        Some(log) => score_logs(&args, log, scenes, &opts)?,
-        None => run_pipeline(&args, scenes, &opts)?,
+    let report = match (&args.log, &sweep) {
+        (Some(log), Some(s)) => score_logs_sweep(&args, log, scenes, &opts, s)?,
+        (Some(log), None) => score_logs(&args, log, scenes, &opts)?,
+        (None, s) => run_pipeline(&args, scenes, &opts, s.as_ref())?,
     };
     write_report(&args.out, &report)
 }

@@ -8,6 +8,7 @@
 //! - [`score`]: registration recall and precision (spec 3.5) and feature-match recall (spec 3.6).
 //! - [`run`]: scoring an existing log, or running the pipeline on every pair.
 //! - [`report`]: JSON report and printed table.
+//! - [`rotate`]: the rotation sweep (`eval --rotate`): moving source fragments and mapping poses between frames.
 //!
 //! Conventions: gt.log record `i j` maps fragment j into fragment i (x_i = T x_j), so registration uses
 //! source = fragment j and target = fragment i. Registration recall counts only pairs with j - i > 1;
@@ -19,10 +20,12 @@ pub mod groundtruth;
 pub mod gtlog;
 pub mod metrics;
 pub mod report;
+pub mod rotate;
 pub mod run;
 pub mod score;
 
 pub use dataset::{GtEntry, Protocol, SceneData, load_dataset};
 pub use report::{EstimatorReport, MeanScore, Report};
-pub use run::{EvalOptions, run_scene, score_log};
+pub use rotate::RotationSweep;
+pub use run::{EvalOptions, run_scene, run_scene_sweep, score_log, score_log_sweep};
 pub use score::{SceneScore, Thresholds};

@@ -42,6 +42,9 @@ impl MeanScore {
 pub struct EstimatorReport {
     /// "relativenet", "ransac" or "log".
     pub estimator: String,
+    /// The sweep angle the source fragments were rotated by (rotation sweeps only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rotation_deg: Option<f64>,
     /// Per-scene scores.
     pub scenes: Vec<SceneScore>,
     /// Mean over scenes.
@@ -52,8 +55,37 @@ impl EstimatorReport {
     /// A report with its mean computed.
     pub fn new(estimator: impl Into<String>, scenes: Vec<SceneScore>) -> EstimatorReport {
         let mean = MeanScore::of(&scenes);
-        EstimatorReport { estimator: estimator.into(), scenes, mean }
+        EstimatorReport { estimator: estimator.into(), rotation_deg: None, scenes, mean }
     }
+
+    /// The same report, marked as the sweep angle `degrees`.
+    pub fn at_rotation(self, degrees: f64) -> EstimatorReport {
+        EstimatorReport { rotation_deg: Some(degrees), ..self }
+    }
+}
+
+/// The rotation sweep of a report (see [`super::rotate`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct RotationReport {
+    /// The angles, in degrees, in the order given.
+    pub degrees: Vec<f64>,
+    /// `--rotate-seed`.
+    pub seed: u64,
+    /// The rules, in words.
+    pub notes: Vec<String>,
+    /// Axis and centre of every rotated source fragment (M = rotation by the angle about `axis` through
+    /// `center`, fragment frame).
+    pub fragments: Vec<super::rotate::FragmentRotation>,
+}
+
+/// The sweep rules, as printed in reports.
+pub fn rotation_notes() -> Vec<String> {
+    vec![
+        "every source fragment j of a pair (i, j) is moved by M: rotation by the angle about a seeded random unit axis through the centroid of its points as loaded; targets are not moved".into(),
+        "axis per scene and fragment: uniform on the sphere from --rotate-seed and FNV-1a(\"<scene>/<j>\"), the same for every angle".into(),
+        "registration is scored in the original frames (T_est' M against T_gt with gt.info), rotation/translation errors likewise; feature matches are counted on the moved data with T_gt M^-1".into(),
+        "result logs hold target_from_rotated_source (T_est'); T_est = T_est' M".into(),
+    ]
 }
 
 /// How one fragment was described (pipeline runs).
@@ -63,6 +95,9 @@ pub struct FragmentReport {
     pub scene: String,
     /// Fragment index.
     pub index: usize,
+    /// The sweep angle this description's fragment was rotated by (rotation sweeps only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rotation_deg: Option<f64>,
     /// Points after preprocessing.
     pub points: usize,
     /// Keypoints described.
@@ -86,7 +121,10 @@ pub struct Report {
     pub protocol: Vec<String>,
     /// Registration settings (pipeline mode).
     pub settings: Option<RegistrationSettings>,
-    /// One entry per estimator.
+    /// The rotation sweep (`--rotate` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rotation: Option<RotationReport>,
+    /// One entry per estimator; with a rotation sweep, one per angle and estimator (angle-major).
     pub estimators: Vec<EstimatorReport>,
     /// Per-fragment description statistics (pipeline mode).
     pub fragments: Vec<FragmentReport>,
@@ -116,39 +154,163 @@ fn cell(v: Option<f64>) -> String {
     v.map_or_else(|| "-".into(), |x| format!("{x:.4}"))
 }
 
-/// The summary table: one row per estimator and scene, then the mean.
+/// One row of the table: the label columns, then the counts and the scores.
+fn row(labels: &[String], counts: [String; 3], scores: [String; 4]) -> String {
+    let mut out = String::new();
+    for (k, l) in labels.iter().enumerate() {
+        // The first label is the estimator (12 wide, left); the scene (28 wide, left) is last; a rotation
+        // angle (6 wide, right) sits between them.
+        let w = if k == 0 {
+            format!("{l:<12}")
+        } else if k + 1 == labels.len() {
+            format!("{l:<28}")
+        } else {
+            format!("{l:>6}")
+        };
+        if k > 0 {
+            out.push(' ');
+        }
+        out.push_str(&w);
+    }
+    for c in counts {
+        out.push_str(&format!(" {c:>6}"));
+    }
+    for v in scores {
+        out.push_str(&format!(" {v:>8}"));
+    }
+    out.push('\n');
+    out
+}
+
+/// The summary table: one row per estimator and scene, then the mean. With a rotation sweep a `rot` column
+/// gives each row's angle, and a summary of the means per angle and estimator follows.
 pub fn format_table(report: &Report) -> String {
-    let mut out = format!(
-        "{:<12} {:<28} {:>6} {:>6} {:>6} {:>8} {:>8} {:>8} {:>8}\n",
-        "estimator", "scene", "pairs", "RRset", "good", "FMR", "IR", "RR", "prec"
+    let sweep = report.rotation.is_some();
+    let labels = |estimator: &str, rotation: Option<f64>, scene: String| -> Vec<String> {
+        match (sweep, rotation) {
+            (true, Some(d)) => vec![estimator.to_string(), super::rotate::angle_label(d), scene],
+            (true, None) => vec![estimator.to_string(), String::new(), scene],
+            (false, _) => vec![estimator.to_string(), scene],
+        }
+    };
+    let header: Vec<String> = if sweep {
+        vec!["estimator".into(), "rot".into(), "scene".into()]
+    } else {
+        vec!["estimator".into(), "scene".into()]
+    };
+    let mut out = row(
+        &header,
+        ["pairs".into(), "RRset".into(), "good".into()],
+        ["FMR".into(), "IR".into(), "RR".into(), "prec".into()],
     );
     for e in &report.estimators {
         for s in &e.scenes {
-            out.push_str(&format!(
-                "{:<12} {:<28} {:>6} {:>6} {:>6} {:>8} {:>8} {:>8} {:>8}\n",
-                e.estimator,
-                s.scene,
-                s.gt_pairs,
-                s.recall_pairs,
-                s.good,
-                cell(s.feature_match_recall),
-                cell(s.mean_inlier_ratio),
-                cell(s.registration_recall),
-                cell(s.precision)
+            out.push_str(&row(
+                &labels(&e.estimator, e.rotation_deg, s.scene.clone()),
+                [s.gt_pairs.to_string(), s.recall_pairs.to_string(), s.good.to_string()],
+                [s.feature_match_recall, s.mean_inlier_ratio, s.registration_recall, s.precision].map(cell),
             ));
         }
-        out.push_str(&format!(
-            "{:<12} {:<28} {:>6} {:>6} {:>6} {:>8} {:>8} {:>8} {:>8}\n",
-            e.estimator,
-            format!("mean ({} scenes)", e.mean.scenes),
-            "",
-            "",
-            "",
-            cell(e.mean.feature_match_recall),
-            cell(e.mean.mean_inlier_ratio),
-            cell(e.mean.registration_recall),
-            cell(e.mean.precision)
+        out.push_str(&row(
+            &labels(&e.estimator, e.rotation_deg, format!("mean ({} scenes)", e.mean.scenes)),
+            [String::new(), String::new(), String::new()],
+            [e.mean.feature_match_recall, e.mean.mean_inlier_ratio, e.mean.registration_recall, e.mean.precision]
+                .map(cell),
         ));
     }
+    if sweep {
+        out.push_str("rotation sweep, means over scenes:\n");
+        out.push_str(&format!(
+            "{:>8} {:<12} {:>8} {:>8} {:>8} {:>8}\n",
+            "rot(deg)", "estimator", "FMR", "IR", "RR", "prec"
+        ));
+        for e in &report.estimators {
+            out.push_str(&format!(
+                "{:>8} {:<12} {:>8} {:>8} {:>8} {:>8}\n",
+                e.rotation_deg.map(super::rotate::angle_label).unwrap_or_default(),
+                e.estimator,
+                cell(e.mean.feature_match_recall),
+                cell(e.mean.mean_inlier_ratio),
+                cell(e.mean.registration_recall),
+                cell(e.mean.precision)
+            ));
+        }
+    }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn score(scene: &str, rr: Option<f64>) -> SceneScore {
+        SceneScore {
+            scene: scene.into(),
+            gt_pairs: 7,
+            recall_pairs: 4,
+            reported: 4,
+            good: 3,
+            registration_recall: rr,
+            precision: Some(0.75),
+            feature_match_recall: Some(0.5),
+            mean_inlier_ratio: None,
+            pairs: Vec::new(),
+        }
+    }
+
+    fn report(estimators: Vec<EstimatorReport>, rotation: Option<RotationReport>) -> Report {
+        Report {
+            dataset: "d".into(),
+            mode: "log".into(),
+            log: None,
+            thresholds: Thresholds::default(),
+            protocol: Vec::new(),
+            settings: None,
+            rotation,
+            estimators,
+            fragments: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn table_without_a_sweep_keeps_the_fixed_column_layout() {
+        let r = report(vec![EstimatorReport::new("ransac", vec![score("kitchen", Some(0.75))])], None);
+        // The layout as a single format string (the table's original definition).
+        let line = |a: &str, b: &str, c: [&str; 3], d: [&str; 4]| {
+            format!(
+                "{:<12} {:<28} {:>6} {:>6} {:>6} {:>8} {:>8} {:>8} {:>8}\n",
+                a, b, c[0], c[1], c[2], d[0], d[1], d[2], d[3]
+            )
+        };
+        let expected = line("estimator", "scene", ["pairs", "RRset", "good"], ["FMR", "IR", "RR", "prec"])
+            + &line("ransac", "kitchen", ["7", "4", "3"], ["0.5000", "-", "0.7500", "0.7500"])
+            + &line("ransac", "mean (1 scenes)", ["", "", ""], ["0.5000", "-", "0.7500", "0.7500"]);
+        assert_eq!(format_table(&r), expected);
+        let json = serde_json::to_value(&r).unwrap();
+        assert!(json.get("rotation").is_none() && json["estimators"][0].get("rotation_deg").is_none());
+    }
+
+    #[test]
+    fn table_with_a_sweep_labels_every_row_with_its_angle() {
+        let sweep = RotationReport { degrees: vec![0.0, 90.0], seed: 0, notes: Vec::new(), fragments: Vec::new() };
+        let r = report(
+            vec![
+                EstimatorReport::new("ransac", vec![score("kitchen", Some(1.0))]).at_rotation(0.0),
+                EstimatorReport::new("ransac", vec![score("kitchen", Some(0.25))]).at_rotation(90.0),
+            ],
+            Some(sweep),
+        );
+        let table = format_table(&r);
+        assert!(table.lines().next().unwrap().contains(" rot "), "{table}");
+        let rows: Vec<&str> = table.lines().filter(|l| l.contains("kitchen")).collect();
+        assert_eq!(rows.len(), 2);
+        assert!(rows[0].contains("     0 kitchen") && rows[0].contains("1.0000"), "{table}");
+        assert!(rows[1].contains("    90 kitchen") && rows[1].contains("0.2500"), "{table}");
+        let summary: Vec<&str> = table.lines().skip_while(|l| !l.starts_with("rotation sweep")).collect();
+        assert_eq!(summary.len(), 4, "{table}");
+        assert!(summary[3].trim_start().starts_with("90 ransac"), "{table}");
+        let json = serde_json::to_value(&r).unwrap();
+        assert_eq!(json["estimators"][1]["rotation_deg"], 90.0);
+        assert_eq!(json["rotation"]["degrees"][1], 90.0);
+    }
 }

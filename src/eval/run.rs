@@ -2,12 +2,17 @@
 //!
 //! Direction: gt.log record `i j` maps fragment j into fragment i, so the pipeline registers source =
 //! fragment j onto target = fragment i and its target_from_source goes into the result log under `i j`.
+//! A rotation sweep ([`run_scene_sweep`], [`score_log_sweep`]) moves every source first; see
+//! [`super::rotate`] for its frames.
 
 use super::dataset::{GtEntry, Protocol, SceneData};
 use super::groundtruth::{GroundTruthRule, PreparedFragment, pair_information};
 use super::gtlog::LogRecord;
 use super::metrics::{count_feature_inliers, information_error, rmse_between};
 use super::report::FragmentReport;
+use super::rotate::{
+    FragmentRotation, RotationSweep, is_identity_angle, original_frame_estimate, rotated_ground_truth,
+};
 use super::score::{
     FeatureMatch, PairReport, PairRun, SceneScore, Thresholds, add_feature_matches, score_registration,
 };
@@ -154,11 +159,33 @@ pub struct SceneRun {
     pub fragments: Vec<FragmentReport>,
 }
 
+/// The results of one angle of a rotation sweep.
+pub struct AngleRun {
+    /// The angle (degrees).
+    pub rotation_deg: f64,
+    /// Per estimator: its scores (original frames) and its result log (target_from_rotated_source).
+    pub estimators: Vec<(Estimator, SceneScore, Vec<LogRecord>)>,
+}
+
+/// What [`run_scene_sweep`] produced.
+pub struct SweepRun {
+    /// One entry per angle, in sweep order.
+    pub angles: Vec<AngleRun>,
+    /// How each fragment was described (rotated descriptions carry their angle).
+    pub fragments: Vec<FragmentReport>,
+    /// The rotation of every fragment used as a source, by index.
+    pub rotations: Vec<FragmentRotation>,
+}
+
 /// A described fragment and, with `all_pairs`, an index over its preprocessed points.
 struct Described {
     features: ScanFeatures,
     index: Option<PreparedFragment>,
 }
+
+/// A description in the cache: fragment index and the sweep angle (index into the angles) it was rotated by,
+/// `None` when it is as loaded.
+type DescKey = (usize, Option<usize>);
 
 /// The pairs [`run_scene`] registers, in order.
 pub fn pairs_to_run(scene: &SceneData, opts: &EvalOptions) -> Vec<(usize, usize)> {
@@ -180,124 +207,270 @@ pub fn run_scene(
     opts: &EvalOptions,
     on_pair: &mut dyn FnMut(),
 ) -> Result<SceneRun> {
+    let mut run = run_views(scene, registrar, estimators, opts, None, on_pair)?;
+    let view = run.angles.pop().expect("one view");
+    Ok(SceneRun { estimators: view.estimators, fragments: run.fragments })
+}
+
+/// [`run_scene`] once per angle of `sweep`, with every source fragment moved by its sweep rotation (see
+/// [`super::rotate`]). Targets are never moved, so their descriptions serve every angle; a source is described
+/// once per angle (with the same random stream, its index), and not at all again for angles that are multiples
+/// of 360 degrees. Result logs hold target_from_rotated_source; scores are computed in the original frames
+/// (T'_est M against gt.log), feature matches on the moved data with T_gt M⁻¹. `on_pair` is called after each
+/// pair and angle.
+pub fn run_scene_sweep(
+    scene: &mut SceneData,
+    registrar: &Registrar,
+    estimators: &[Estimator],
+    opts: &EvalOptions,
+    sweep: &RotationSweep,
+    on_pair: &mut dyn FnMut(),
+) -> Result<SweepRun> {
+    run_views(scene, registrar, estimators, opts, Some(sweep), on_pair)
+}
+
+/// The cache key of the source of view `v` (`None` = no sweep, one view).
+fn source_key(j: usize, sweep: Option<&RotationSweep>, v: usize) -> DescKey {
+    match sweep {
+        Some(s) if !is_identity_angle(s.degrees[v]) => (j, Some(v)),
+        _ => (j, None),
+    }
+}
+
+/// M of fragment `f` for view `v` (identity without a sweep).
+fn motion(
+    rotations: &HashMap<usize, FragmentRotation>,
+    sweep: Option<&RotationSweep>,
+    f: usize,
+    v: usize,
+) -> Matrix4<f64> {
+    match (sweep, rotations.get(&f)) {
+        (Some(s), Some(r)) => r.rotated_from_original(s.degrees[v]),
+        _ => Matrix4::identity(),
+    }
+}
+
+/// Loads a fragment's cloud, naming the pair that needs it when it has no file.
+fn load_fragment(scene: &SceneData, f: usize, pair: (usize, usize), opts: &EvalOptions) -> Result<PointCloud> {
+    let path = scene.files.get(f).ok_or_else(|| {
+        Error::invalid(format!("{}: pair ({}, {}) names fragment {f}, which has no file", scene.name, pair.0, pair.1))
+    })?;
+    load_cloud(path, &opts.load)
+}
+
+/// The shared body of [`run_scene`] (one view, no sweep) and [`run_scene_sweep`] (one view per angle).
+fn run_views(
+    scene: &mut SceneData,
+    registrar: &Registrar,
+    estimators: &[Estimator],
+    opts: &EvalOptions,
+    sweep: Option<&RotationSweep>,
+    on_pair: &mut dyn FnMut(),
+) -> Result<SweepRun> {
     let criterion = prepare_criterion(scene, opts)?;
     let pairs = pairs_to_run(scene, opts);
-    let mut last_use: HashMap<usize, usize> = HashMap::new();
+    let views = sweep.map_or(1, |s| s.degrees.len());
+    let mut last_use: HashMap<DescKey, usize> = HashMap::new();
     for (k, &(i, j)) in pairs.iter().enumerate() {
-        last_use.insert(i, k);
-        last_use.insert(j, k);
+        last_use.insert((i, None), k);
+        for v in 0..views {
+            last_use.insert(source_key(j, sweep, v), k);
+        }
     }
     let n = scene.fragment_count();
-    let mut cache: HashMap<usize, Described> = HashMap::new();
+    let mut cache: HashMap<DescKey, Described> = HashMap::new();
+    let mut rotations: HashMap<usize, FragmentRotation> = HashMap::new();
     let mut fragments = Vec::new();
-    let mut logs: Vec<Vec<LogRecord>> = vec![Vec::new(); estimators.len()];
-    let mut runs: Vec<HashMap<(usize, usize), PairRun>> = vec![HashMap::new(); estimators.len()];
-    let mut matches: HashMap<(usize, usize), FeatureMatch> = HashMap::new();
+    // Indexed [view][estimator].
+    let mut logs: Vec<Vec<Vec<LogRecord>>> = vec![vec![Vec::new(); estimators.len()]; views];
+    let mut runs: Vec<Vec<HashMap<(usize, usize), PairRun>>> = vec![vec![HashMap::new(); estimators.len()]; views];
+    let mut matches: Vec<HashMap<(usize, usize), FeatureMatch>> = vec![HashMap::new(); views];
     for (k, &(i, j)) in pairs.iter().enumerate() {
+        let mut needed: Vec<DescKey> = (0..views).map(|v| source_key(j, sweep, v)).collect();
+        needed.push((i, None));
+        needed.retain(|key| !cache.contains_key(key));
+        needed.sort_unstable();
+        needed.dedup();
         for f in [j, i] {
-            if cache.contains_key(&f) {
+            let keys: Vec<DescKey> = needed.iter().copied().filter(|key| key.0 == f).collect();
+            let rotation_missing = sweep.is_some() && f == j && !rotations.contains_key(&j);
+            if keys.is_empty() && !rotation_missing {
                 continue;
             }
-            let path = scene.files.get(f).ok_or_else(|| {
-                Error::invalid(format!("{}: pair ({i}, {j}) names fragment {f}, which has no file", scene.name))
-            })?;
-            let cloud = load_cloud(path, &opts.load)?;
-            let features = registrar.describe(&cloud, f as u64)?;
-            fragments.push(FragmentReport {
-                scene: scene.name.clone(),
-                index: f,
-                points: features.cloud.len(),
-                keypoints: features.keypoints.len(),
-                timings: features.timings.clone(),
-            });
-            let index = opts.all_pairs.then(|| {
-                PreparedFragment::from_points(
-                    features.cloud.points.iter().map(|p| p.map(f64::from)).collect(),
-                    opts.thresholds.overlap_distance,
-                )
-            });
-            cache.insert(f, Described { features, index });
-        }
-        let (source, target) = (&cache[&j], &cache[&i]);
-        let started = Instant::now();
-        let correspondences = registrar.correspond(&source.features, &target.features);
-        let correspond_s = started.elapsed().as_secs_f64();
-        let gt = scene.lookup(i, j);
-        if let (Some(g), Ok(c)) = (gt, &correspondences) {
-            let inliers = count_feature_inliers(
-                c.iter().map(|c| (c.target_point, c.source_point)),
-                &g.transform,
-                opts.thresholds.tau1,
-            );
-            matches.insert((i, j), FeatureMatch { correspondences: c.len(), inliers });
-        }
-        for (e, &estimator) in estimators.iter().enumerate() {
-            let mut run = PairRun {
-                timings: vec![StageTime { stage: "correspond".into(), seconds: correspond_s }],
-                ..PairRun::default()
-            };
-            let pose = match &correspondences {
-                Ok(c) => {
-                    run.correspondences = c.len();
-                    let started = Instant::now();
-                    let pose = registrar.estimate(&source.features, &target.features, c, estimator);
-                    run.timings.push(StageTime { stage: "estimate".into(), seconds: started.elapsed().as_secs_f64() });
-                    pose
-                }
-                Err(err) => Err(Error::invalid(err.to_string())),
-            };
-            match pose {
-                Ok(p) => {
-                    run.hypotheses = p.hypotheses_scored;
-                    run.estimator_inliers = p.inliers;
-                    let report = match (&target.index, &source.index) {
-                        (Some(ti), Some(si)) if opts.all_pairs => {
-                            let overlap =
-                                estimated_overlap(ti, si, &p.target_from_source, opts.thresholds.overlap_distance);
-                            run.estimated_overlap = Some(overlap);
-                            overlap > opts.min_overlap
-                        }
-                        _ => true,
-                    };
-                    if report {
-                        logs[e].push(LogRecord { i, j, n, matrix: p.target_from_source });
-                    }
-                }
-                Err(err) => run.error = Some(err.to_string()),
+            let cloud = load_fragment(scene, f, (i, j), opts)?;
+            if let Some(s) = sweep
+                && rotation_missing
+            {
+                rotations.insert(f, FragmentRotation::for_fragment(s.seed, &scene.name, f, &cloud));
             }
-            runs[e].insert((i, j), run);
+            for key in keys {
+                let (features, rotation_deg) = match key.1 {
+                    Some(v) => {
+                        let moved = cloud.transformed(&motion(&rotations, sweep, f, v));
+                        (registrar.describe(&moved, f as u64)?, sweep.map(|s| s.degrees[v]))
+                    }
+                    None => (registrar.describe(&cloud, f as u64)?, None),
+                };
+                fragments.push(FragmentReport {
+                    scene: scene.name.clone(),
+                    index: f,
+                    rotation_deg,
+                    points: features.cloud.len(),
+                    keypoints: features.keypoints.len(),
+                    timings: features.timings.clone(),
+                });
+                let index = opts.all_pairs.then(|| {
+                    PreparedFragment::from_points(
+                        features.cloud.points.iter().map(|p| p.map(f64::from)).collect(),
+                        opts.thresholds.overlap_distance,
+                    )
+                });
+                cache.insert(key, Described { features, index });
+            }
         }
-        cache.retain(|f, _| last_use.get(f).is_some_and(|&last| last > k));
-        on_pair();
+        let target = &cache[&(i, None)];
+        for v in 0..views {
+            let source = &cache[&source_key(j, sweep, v)];
+            let m = motion(&rotations, sweep, j, v);
+            let started = Instant::now();
+            let correspondences = registrar.correspond(&source.features, &target.features);
+            let correspond_s = started.elapsed().as_secs_f64();
+            if let (Some(g), Ok(c)) = (scene.lookup(i, j), &correspondences) {
+                let inliers = count_feature_inliers(
+                    c.iter().map(|c| (c.target_point, c.source_point)),
+                    &rotated_ground_truth(&g.transform, &m),
+                    opts.thresholds.tau1,
+                );
+                matches[v].insert((i, j), FeatureMatch { correspondences: c.len(), inliers });
+            }
+            for (e, &estimator) in estimators.iter().enumerate() {
+                let mut run = PairRun {
+                    timings: vec![StageTime { stage: "correspond".into(), seconds: correspond_s }],
+                    ..PairRun::default()
+                };
+                let pose = match &correspondences {
+                    Ok(c) => {
+                        run.correspondences = c.len();
+                        let started = Instant::now();
+                        let pose = registrar.estimate(&source.features, &target.features, c, estimator);
+                        run.timings
+                            .push(StageTime { stage: "estimate".into(), seconds: started.elapsed().as_secs_f64() });
+                        pose
+                    }
+                    Err(err) => Err(Error::invalid(err.to_string())),
+                };
+                match pose {
+                    Ok(p) => {
+                        run.hypotheses = p.hypotheses_scored;
+                        run.estimator_inliers = p.inliers;
+                        let report = match (&target.index, &source.index) {
+                            (Some(ti), Some(si)) if opts.all_pairs => {
+                                let overlap =
+                                    estimated_overlap(ti, si, &p.target_from_source, opts.thresholds.overlap_distance);
+                                run.estimated_overlap = Some(overlap);
+                                overlap > opts.min_overlap
+                            }
+                            _ => true,
+                        };
+                        if report {
+                            logs[v][e].push(LogRecord { i, j, n, matrix: p.target_from_source });
+                        }
+                    }
+                    Err(err) => run.error = Some(err.to_string()),
+                }
+                runs[v][e].insert((i, j), run);
+            }
+            on_pair();
+        }
+        cache.retain(|key, _| last_use.get(key).is_some_and(|&last| last > k));
     }
     let max_error = criterion.max_error(&opts.thresholds);
-    let mut out = Vec::new();
-    for (e, &estimator) in estimators.iter().enumerate() {
-        let mut score = score_registration(scene, &logs[e], &|g, t| criterion.error(g, t), max_error)?;
-        add_feature_matches(&mut score, &matches, opts.thresholds.tau2);
-        for p in score.pairs.iter_mut() {
-            p.run = runs[e].remove(&(p.i, p.j));
+    let mut angles = Vec::new();
+    for v in 0..views {
+        let mut out = Vec::new();
+        for (e, &estimator) in estimators.iter().enumerate() {
+            let log = std::mem::take(&mut logs[v][e]);
+            let original: Vec<LogRecord> = log
+                .iter()
+                .map(|r| LogRecord {
+                    matrix: original_frame_estimate(&r.matrix, &motion(&rotations, sweep, r.j, v)),
+                    ..r.clone()
+                })
+                .collect();
+            let mut score = score_registration(scene, &original, &|g, t| criterion.error(g, t), max_error)?;
+            add_feature_matches(&mut score, &matches[v], opts.thresholds.tau2);
+            let runs = &mut runs[v][e];
+            for p in score.pairs.iter_mut() {
+                p.run = runs.remove(&(p.i, p.j));
+            }
+            // Pairs that were registered but neither reported nor in gt.log (with --all-pairs) are listed too.
+            for ((i, j), run) in runs.drain() {
+                score.pairs.push(PairReport {
+                    i,
+                    j,
+                    in_gt: false,
+                    counts_for_recall: scene.counts_for_recall(i, j),
+                    reported: false,
+                    error: None,
+                    success: None,
+                    rotation_error_deg: None,
+                    translation_error: None,
+                    feature_match: None,
+                    run: Some(run),
+                });
+            }
+            score.pairs.sort_by_key(|p| (p.i, p.j));
+            out.push((estimator, score, log));
         }
-        // Pairs that were registered but neither reported nor in gt.log (with --all-pairs) are listed too.
-        for ((i, j), run) in runs[e].drain() {
-            score.pairs.push(PairReport {
-                i,
-                j,
-                in_gt: false,
-                counts_for_recall: scene.counts_for_recall(i, j),
-                reported: false,
-                error: None,
-                success: None,
-                rotation_error_deg: None,
-                translation_error: None,
-                feature_match: None,
-                run: Some(run),
-            });
-        }
-        score.pairs.sort_by_key(|p| (p.i, p.j));
-        out.push((estimator, score, std::mem::take(&mut logs[e])));
+        angles.push(AngleRun { rotation_deg: sweep.map_or(0.0, |s| s.degrees[v]), estimators: out });
     }
-    Ok(SceneRun { estimators: out, fragments })
+    let mut rotations: Vec<FragmentRotation> = rotations.into_values().collect();
+    rotations.sort_by_key(|r| r.index);
+    Ok(SweepRun { angles, fragments, rotations })
+}
+
+/// Scores result logs on rotated data, one per angle of `sweep` (`logs[v]` holds target_from_rotated_source for
+/// angle v): each estimate is mapped back with the source's sweep rotation (T'_est M) and scored against
+/// gt.log. Also returns the rotation of every source fragment the logs name.
+pub fn score_log_sweep(
+    scene: &mut SceneData,
+    logs: &[Vec<LogRecord>],
+    opts: &EvalOptions,
+    sweep: &RotationSweep,
+) -> Result<(Vec<SceneScore>, Vec<FragmentRotation>)> {
+    if logs.len() != sweep.degrees.len() {
+        return Err(Error::invalid(format!("{} result logs for {} angles", logs.len(), sweep.degrees.len())));
+    }
+    let criterion = prepare_criterion(scene, opts)?;
+    // Each source fragment the logs name, with one record naming it (for error messages).
+    let mut sources: std::collections::BTreeMap<usize, usize> = std::collections::BTreeMap::new();
+    for r in logs.iter().flatten() {
+        sources.entry(r.j).or_insert(r.i);
+    }
+    let mut rotations = HashMap::new();
+    for (j, i) in sources {
+        let cloud = load_fragment(scene, j, (i, j), opts)?;
+        rotations.insert(j, FragmentRotation::for_fragment(sweep.seed, &scene.name, j, &cloud));
+    }
+    let mut scores = Vec::new();
+    for (v, log) in logs.iter().enumerate() {
+        let original: Vec<LogRecord> = log
+            .iter()
+            .map(|r| LogRecord {
+                matrix: original_frame_estimate(&r.matrix, &motion(&rotations, Some(sweep), r.j, v)),
+                ..r.clone()
+            })
+            .collect();
+        scores.push(score_registration(
+            scene,
+            &original,
+            &|g, t| criterion.error(g, t),
+            criterion.max_error(&opts.thresholds),
+        )?);
+    }
+    let mut rotations: Vec<FragmentRotation> = rotations.into_values().collect();
+    rotations.sort_by_key(|r| r.index);
+    Ok((scores, rotations))
 }
 
 /// Share of target (fragment i) points within `distance` of the source (fragment j) points mapped by
