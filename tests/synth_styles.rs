@@ -27,7 +27,12 @@ fn styled(style: Style, fragments: usize, width: usize, frames: usize, objects: 
     SynthSettings {
         fragments,
         style,
-        overrides: Overrides { width: Some(width), frames_per_fragment: Some(frames), voxel: None, object_scenes: objects },
+        overrides: Overrides {
+            width: Some(width),
+            frames_per_fragment: Some(frames),
+            voxel: None,
+            object_scenes: objects,
+        },
         ground_truth: dpr_gpu::eval::groundtruth::GroundTruthRule {
             min_overlap: style.default_min_overlap(),
             ..Default::default()
@@ -64,11 +69,14 @@ fn fnv_hash(files: &BTreeMap<String, Vec<u8>>) -> u64 {
     h
 }
 
+/// A fragment's points and normals.
+type PointsNormals = (Vec<[f64; 3]>, Vec<[f64; 3]>);
+
 fn load_points(path: &Path) -> Vec<[f64; 3]> {
     load_with_normals(path).0
 }
 
-fn load_with_normals(path: &Path) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+fn load_with_normals(path: &Path) -> PointsNormals {
     let (cloud, _) = read_cloud(path, &LoadOptions::default()).unwrap();
     let widen = |v: &[[f32; 3]]| v.iter().map(|p| p.map(|c| c as f64)).collect::<Vec<_>>();
     let normals = widen(cloud.normals.as_ref().expect("synth writes normals"));
@@ -141,19 +149,12 @@ fn overlap(frag_i: &[[f64; 3]], frag_j: &[[f64; 3]], t_ij: &Matrix4<f64>) -> f64
 /// residual that the best small rigid correction explains, i.e. how far off the transform is along the
 /// directions the overlap constrains. Noise averages out over the overlap, so a correct transform gives about
 /// zero however noisy the points are.
-fn misalignment(
-    frag_i: &(Vec<[f64; 3]>, Vec<[f64; 3]>),
-    frag_j: &(Vec<[f64; 3]>, Vec<[f64; 3]>),
-    t_ij: &Matrix4<f64>,
-) -> f64 {
+fn misalignment(frag_i: &PointsNormals, frag_j: &PointsNormals, t_ij: &Matrix4<f64>) -> f64 {
     let r = t_ij.fixed_view::<3, 3>(0, 0).into_owned();
     let pts_j: Vec<[f64; 3]> = frag_j.0.iter().map(|p| apply(t_ij, p)).collect();
     let grid = Grid::new(&pts_j, 0.03);
-    let normal_of: HashMap<[u64; 3], [f64; 3]> = pts_j
-        .iter()
-        .zip(&frag_j.1)
-        .map(|(p, n)| (p.map(f64::to_bits), (r * Vector3::from(*n)).into()))
-        .collect();
+    let normal_of: HashMap<[u64; 3], [f64; 3]> =
+        pts_j.iter().zip(&frag_j.1).map(|(p, n)| (p.map(f64::to_bits), (r * Vector3::from(*n)).into())).collect();
     let centroid = frag_i.0.iter().fold(Vector3::zeros(), |a, p| a + Vector3::from(*p)) / frag_i.0.len() as f64;
     let mut ata = nalgebra::Matrix6::<f64>::identity() * 1e-9;
     let mut count = 0usize;
@@ -188,12 +189,15 @@ fn recipe(dir: &Path) -> serde_json::Value {
 fn every_style_is_deterministic_per_seed_and_thread_count() {
     let dir = temp_dir("determinism");
     for (name, settings) in [
-        ("kinect", SynthSettings {
-            fragments: 2,
-            frames_per_fragment: 3,
-            camera: CameraModel { width: 48, height: 36, ..CameraModel::default() },
-            ..SynthSettings::default()
-        }),
+        (
+            "kinect",
+            SynthSettings {
+                fragments: 2,
+                frames_per_fragment: 3,
+                camera: CameraModel { width: 48, height: 36, ..CameraModel::default() },
+                ..SynthSettings::default()
+            },
+        ),
         ("randomized_room", styled(Style::Randomized, 2, 48, 3, Some(false))),
         ("randomized_object", styled(Style::Randomized, 2, 64, 1, Some(true))),
         ("heldout", styled(Style::Heldout, 2, 48, 3, None)),
@@ -277,7 +281,7 @@ fn randomized_scenes_draw_different_parameters() {
 /// under 3 mm of residual, where a transform 3 cm and 2 degrees off shows over 6 mm), every pair passes
 /// `min_overlap`, and every pair not listed fails it. Returns (rotation angle in degrees, overlap) per pair.
 fn check_ground_truth(scene: &Path, fragments: usize, min_overlap: f64) -> Vec<(f64, f64)> {
-    let with_normals: Vec<(Vec<[f64; 3]>, Vec<[f64; 3]>)> =
+    let with_normals: Vec<PointsNormals> =
         (0..fragments).map(|k| load_with_normals(&scene.join(format!("cloud_bin_{k}.ply")))).collect();
     let clouds: Vec<Vec<[f64; 3]>> = with_normals.iter().map(|c| c.0.clone()).collect();
     let log = read_log(&scene.join("gt.log")).unwrap();

@@ -450,7 +450,10 @@ pub fn coat_rack(rng: &mut Rng) -> Furniture {
             1 => {
                 let len = rng.uniform(0.5, 0.9);
                 let half = v(0.04, rng.uniform(0.12, 0.2), len / 2.0);
-                parts.push(Primitive { rotation: rot_z(a), ..Primitive::cuboid(v(0.12 * c, 0.12 * s, h - 0.1 - len / 2.0), half, 0.0) });
+                parts.push(Primitive {
+                    rotation: rot_z(a),
+                    ..Primitive::cuboid(v(0.12 * c, 0.12 * s, h - 0.1 - len / 2.0), half, 0.0)
+                });
             }
             _ => {}
         }

@@ -128,7 +128,9 @@ impl Primitive {
     pub fn scaled(&self, s: f64) -> Primitive {
         let shape = match &self.shape {
             Shape::Cuboid { half } => Shape::Cuboid { half: half * s },
-            Shape::Cylinder { radius, half_height } => Shape::Cylinder { radius: radius * s, half_height: half_height * s },
+            Shape::Cylinder { radius, half_height } => {
+                Shape::Cylinder { radius: radius * s, half_height: half_height * s }
+            }
             Shape::Sphere { radius } => Shape::Sphere { radius: radius * s },
         };
         Primitive { shape, center: self.center * s, rotation: self.rotation }

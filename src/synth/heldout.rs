@@ -59,7 +59,12 @@ fn counter(rng: &mut Rng) -> Furniture {
     let sx = rng.uniform(-hx + 0.4, hx - 0.4);
     parts.push(slab(sx - 0.25, sx + 0.25, -0.15, 0.15, top, top + 0.015));
     parts.push(Primitive::upright_cylinder(v(sx, 0.2, top + 0.15), 0.015, 0.15));
-    parts.push(Primitive::cylinder(v(sx, 0.12, top + 0.3), 0.012, 0.08, rot_y(FRAC_PI_2) * super::geometry::rot_x(0.0)));
+    parts.push(Primitive::cylinder(
+        v(sx, 0.12, top + 0.3),
+        0.012,
+        0.08,
+        rot_y(FRAC_PI_2) * super::geometry::rot_x(0.0),
+    ));
     let upper = rng.below(3) > 0;
     let mut height = top + 0.3;
     if upper {
@@ -146,7 +151,8 @@ fn workbench(rng: &mut Rng) -> Furniture {
     let (w, d) = (rng.uniform(1.2, 2.2), rng.uniform(0.6, 0.8));
     let (hx, hy) = (w / 2.0, d / 2.0);
     let top = rng.uniform(0.85, 0.95);
-    let mut parts = vec![slab(-hx, hx, -hy, hy, top - 0.06, top), slab(-hx + 0.05, hx - 0.05, -hy + 0.05, hy - 0.05, 0.15, 0.18)];
+    let mut parts =
+        vec![slab(-hx, hx, -hy, hy, top - 0.06, top), slab(-hx + 0.05, hx - 0.05, -hy + 0.05, hy - 0.05, 0.15, 0.18)];
     for (sx, sy) in [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)] {
         let (x, y) = (sx * (hx - 0.05), sy * (hy - 0.05));
         parts.push(slab(x - 0.025, x + 0.025, y - 0.025, y + 0.025, 0.0, top - 0.06));
@@ -164,7 +170,8 @@ pub fn generate_hall(rng: &mut Rng) -> (Room, HallRecord) {
     let (w, d) = (rng.uniform(6.0, 11.0), rng.uniform(5.0, 9.0));
     let height = rng.uniform(2.8, 4.0);
     let polygon = vec![[0.0, 0.0], [w, 0.0], [w, d], [0.0, d]];
-    let mut room = Room { polygon, height, kernel_center: [w / 2.0, d / 2.0], objects: Vec::new(), footprints: Vec::new() };
+    let mut room =
+        Room { polygon, height, kernel_center: [w / 2.0, d / 2.0], objects: Vec::new(), footprints: Vec::new() };
     let t = 0.2;
     room.objects.push(Object::new("floor", vec![slab(-t, w + t, -t, d + t, -t, 0.0)]));
     room.objects.push(Object::new("ceiling", vec![slab(-t, w + t, -t, d + t, height, height + t)]));
@@ -189,10 +196,8 @@ pub fn generate_hall(rng: &mut Rng) -> (Room, HallRecord) {
         let r = rng.uniform(0.03, 0.1);
         let y = 0.2 + k as f64 * 0.25;
         let z = height - bh - 0.2 - k as f64 * 0.05;
-        room.objects.push(Object::new(
-            "pipe",
-            vec![Primitive::cylinder(v(w / 2.0, y, z), r, w / 2.0, rot_y(FRAC_PI_2))],
-        ));
+        room.objects
+            .push(Object::new("pipe", vec![Primitive::cylinder(v(w / 2.0, y, z), r, w / 2.0, rot_y(FRAC_PI_2))]));
     }
     // A grid of columns (square or round), kept away from the centre where the scanner stands.
     let round = rng.below(2) == 0;
@@ -237,7 +242,9 @@ pub fn generate_hall(rng: &mut Rng) -> (Room, HallRecord) {
             room.place_free(rng, &f, 0.8)
         } else {
             let (x, y) = (rng.uniform(1.0, w - 1.0), rng.uniform(1.0, d - 1.0));
-            let yaw = (rng.below(4) as f64) * FRAC_PI_2 + rng.uniform(-0.1, 0.1) + if rng.below(5) == 0 { PI / 4.0 } else { 0.0 };
+            let yaw = (rng.below(4) as f64) * FRAC_PI_2
+                + rng.uniform(-0.1, 0.1)
+                + if rng.below(5) == 0 { PI / 4.0 } else { 0.0 };
             room.place(&f, x, y, yaw, 0.3, None)
         };
         if placed.is_some() {

@@ -49,8 +49,8 @@ fn blob(rng: &mut Rng) -> Vec<Primitive> {
         let axis = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
         let len = rng.uniform(0.3, 0.7);
         let radius = r0 * rng.uniform(0.15, 0.35);
-        let rotation = nalgebra::Rotation3::rotation_between(&Vector3::z(), &axis)
-            .map_or(Matrix3::identity(), |r| r.into_inner());
+        let rotation =
+            nalgebra::Rotation3::rotation_between(&Vector3::z(), &axis).map_or(Matrix3::identity(), |r| r.into_inner());
         parts.push(Primitive::cylinder(base + axis * len / 2.0, radius, len / 2.0, rotation));
         parts.push(Primitive::sphere(base + axis * len, radius * rng.uniform(1.0, 1.8)));
     }
@@ -59,9 +59,11 @@ fn blob(rng: &mut Rng) -> Vec<Primitive> {
 
 fn assembly(rng: &mut Rng) -> Vec<Primitive> {
     let core = Vector3::new(rng.uniform(0.3, 0.6), rng.uniform(0.3, 0.6), rng.uniform(0.2, 0.5));
-    let mut parts = vec![Primitive { rotation: random_rotation(rng), ..Primitive::cuboid(Vector3::zeros(), core, 0.0) }];
+    let mut parts =
+        vec![Primitive { rotation: random_rotation(rng), ..Primitive::cuboid(Vector3::zeros(), core, 0.0) }];
     for _ in 0..3 + rng.below(8) {
-        let at = Vector3::new(rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0)).component_mul(&core);
+        let at =
+            Vector3::new(rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0)).component_mul(&core);
         let rotation = random_rotation(rng);
         parts.push(match rng.below(3) {
             0 => Primitive {
@@ -104,7 +106,10 @@ fn normalised(parts: &[Primitive], rotation: &Matrix3<f64>, size: f64, center: V
     let extent = (b.max - b.min).max();
     let s = size / extent.max(1e-9);
     let mid = (b.max + b.min) / 2.0;
-    rotated.iter().map(|p| p.placed(&Matrix3::identity(), &-mid).scaled(s).placed(&Matrix3::identity(), &center)).collect()
+    rotated
+        .iter()
+        .map(|p| p.placed(&Matrix3::identity(), &-mid).scaled(s).placed(&Matrix3::identity(), &center))
+        .collect()
 }
 
 /// One object of `family` (not a cluster) in a random orientation about z (miniatures stay upright; the

@@ -231,7 +231,6 @@ fn scaled_noise(sensor: &Sensor, s: f64) -> DepthNoise {
 
 /// Camera poses around an object centred on the origin: fragment k looks at the object from azimuth
 /// `az[k]` and elevation `el[k]` at distance `dist[k]`; its frames are small perturbations of that view.
-#[allow(clippy::too_many_arguments)]
 fn object_poses(
     rng: &mut Rng,
     fragments: usize,
@@ -308,14 +307,16 @@ pub fn generate_styled_scene(
     let mut rng = Rng::derived(seed, STREAM_RECIPE);
     let drawn_object = rng.unit_f64() < 0.3;
     let object = style == Style::Randomized && overrides.object_scenes.unwrap_or(drawn_object);
-    let mut sensor = if style == Style::Heldout { heldout_sensor(&mut rng) } else { randomized_sensor(&mut rng, object) };
+    let mut sensor =
+        if style == Style::Heldout { heldout_sensor(&mut rng) } else { randomized_sensor(&mut rng, object) };
     let (voxel_range, frames_range) = match (style, object) {
         (Style::Heldout, _) => ([0.006, 0.01], [8, 15]),
-        (_, true) => ([0.004, 0.008], [2, 4]),
+        (_, true) => ([0.003, 0.006], [2, 5]),
         _ => ([0.004, 0.012], [6, 20]),
     };
     let voxel = overrides.voxel.unwrap_or(rng.uniform(voxel_range[0], voxel_range[1]));
-    let frames = overrides.frames_per_fragment.unwrap_or(frames_range[0] + rng.below(frames_range[1] - frames_range[0] + 1));
+    let frames =
+        overrides.frames_per_fragment.unwrap_or(frames_range[0] + rng.below(frames_range[1] - frames_range[0] + 1));
     if let Some(w) = overrides.width {
         sensor.height = aspect_height(w, sensor.hfov_deg, sensor.vfov_deg);
         sensor.width = w;
@@ -325,15 +326,17 @@ pub fn generate_styled_scene(
     let mut scene_rng = Rng::derived(seed, STREAM_SCENE);
     let mut pose_rng = Rng::derived(seed, STREAM_POSES);
     let (room, poses, kind, room_record, hall, object_record) = if object {
-        let family = [ObjectFamily::Blob, ObjectFamily::Assembly, ObjectFamily::Miniature, ObjectFamily::Cluster]
-            [rng.below(4)];
+        let family =
+            [ObjectFamily::Blob, ObjectFamily::Assembly, ObjectFamily::Miniature, ObjectFamily::Cluster][rng.below(4)];
         let size = rng.uniform(1.5, 2.5);
         let objects = generate_object(&mut scene_rng, family, size);
-        let (poses, distance, azimuth_deg, elevation_deg) = object_poses(&mut pose_rng, fragments, frames, size, &sensor);
+        let (poses, distance, azimuth_deg, elevation_deg) =
+            object_poses(&mut pose_rng, fragments, frames, size, &sensor);
         let far = distance.iter().fold(0.0f64, |m, &d| m.max(d));
         sensor.min_depth = 0.2;
         sensor.max_depth = far + size;
-        let room = Room { polygon: Vec::new(), height: 0.0, kernel_center: [0.0, 0.0], objects, footprints: Vec::new() };
+        let room =
+            Room { polygon: Vec::new(), height: 0.0, kernel_center: [0.0, 0.0], objects, footprints: Vec::new() };
         let record = ObjectRecord { family, size, distance, azimuth_deg, elevation_deg };
         (room, poses, "object".to_string(), None, None, Some(record))
     } else if style == Style::Heldout {
