@@ -159,7 +159,7 @@ fn randomized_sensor(rng: &mut Rng, object: bool) -> Sensor {
     let hfov = rng.uniform(45.0, 90.0);
     let aspect = [4.0 / 3.0, 16.0 / 9.0, 5.0 / 4.0, 16.0 / 10.0][rng.below(4)];
     let vfov = 2.0 * ((hfov / 2.0f64).to_radians().tan() / aspect).atan().to_degrees();
-    let width = if object { 320 + rng.below(241) } else { 96 + rng.below(129) };
+    let width = if object { 320 + rng.below(241) } else { 128 + rng.below(97) };
     // Object scenes are in units of about a tenth of a metre: noise levels scale down accordingly.
     let unit = if object { 0.5 } else { 1.0 };
     let noise = match rng.below(3) {
@@ -312,7 +312,7 @@ pub fn generate_styled_scene(
     let (voxel_range, frames_range) = match (style, object) {
         (Style::Heldout, _) => ([0.006, 0.01], [8, 15]),
         (_, true) => ([0.003, 0.006], [2, 5]),
-        _ => ([0.004, 0.012], [6, 20]),
+        _ => ([0.004, 0.010], [8, 20]),
     };
     let voxel = overrides.voxel.unwrap_or(rng.uniform(voxel_range[0], voxel_range[1]));
     let frames =
