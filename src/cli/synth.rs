@@ -1,10 +1,23 @@
 //! `dpr-gpu synth`: procedural indoor scenes scanned by a simulated depth camera, in the 3DMatch layout.
 
+use crate::eval::groundtruth::GroundTruthRule;
 use crate::synth::camera::CameraModel;
+use crate::synth::style::{Overrides, Style};
 use crate::synth::{SynthSettings, write_dataset};
 use anyhow::{Context, bail};
 use std::path::PathBuf;
 use std::time::Instant;
+
+/// Which scene kinds `--style randomized` generates.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum SceneKind {
+    /// Rooms and corridors, and about 30 % object-scale scenes.
+    Mixed,
+    /// Rooms and corridors only.
+    Room,
+    /// Object-scale scenes only.
+    Object,
+}
 
 /// Arguments of `dpr-gpu synth`.
 #[derive(clap::Args, Debug)]
@@ -17,18 +30,32 @@ pub struct Args {
     /// Fragments per scene.
     #[arg(long, default_value_t = 10)]
     pub fragments: usize,
-    /// Seed; the same seed gives identical files.
+    /// Seed; the same seed (and arguments) gives identical files.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Fusion voxel size in metres.
-    #[arg(long, default_value_t = 0.006)]
-    pub voxel: f64,
-    /// Depth frames fused into each fragment.
-    #[arg(long, default_value_t = 15)]
-    pub frames: usize,
-    /// Camera rays per row (the column count follows the 4:3 aspect ratio).
-    #[arg(long, default_value_t = 160)]
-    pub width: usize,
+    /// Generator style. kinect: the original Kinect-like generator. randomized: domain randomisation for
+    /// training (noise model and level, density, voxel, dropouts and holes, intrinsics and range, room and
+    /// furniture families, wide trajectories, about 30 % object-scale scenes); writes the drawn parameters to
+    /// style.json. heldout: structured-light camera in halls with families no other style builds; the
+    /// generalisation check - never train or tune on it.
+    #[arg(long, value_enum, default_value_t = Style::Kinect)]
+    pub style: Style,
+    /// Smallest overlap for a pair to enter gt.log [default: 0.30 (3DMatch rule); 0.20 for --style randomized].
+    #[arg(long)]
+    pub min_overlap: Option<f64>,
+    /// Scene kinds of --style randomized: mixed (about 30 % object-scale scenes), room or object.
+    #[arg(long, value_enum, default_value_t = SceneKind::Mixed)]
+    pub scene_kind: SceneKind,
+    /// Fusion voxel size in metres [default: 0.006 for kinect; drawn per scene by the other styles].
+    #[arg(long)]
+    pub voxel: Option<f64>,
+    /// Depth frames fused into each fragment [default: 15 for kinect; drawn per scene by the other styles].
+    #[arg(long)]
+    pub frames: Option<usize>,
+    /// Camera rays per row [default: 160 for kinect, 4:3; drawn per scene by the other styles, which keep their
+    /// drawn aspect ratio].
+    #[arg(long)]
+    pub width: Option<usize>,
     /// Overwrite existing non-empty scene folders.
     #[arg(long)]
     pub force: bool,
@@ -39,15 +66,36 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.scenes == 0 {
         bail!("--scenes must be at least 1");
     }
-    if args.width < 4 {
+    if args.width.is_some_and(|w| w < 4) {
         bail!("--width must be at least 4");
     }
+    if args.scene_kind != SceneKind::Mixed && args.style != Style::Randomized {
+        bail!("--scene-kind applies to --style randomized only");
+    }
+    let min_overlap = args.min_overlap.unwrap_or(args.style.default_min_overlap());
+    if !(0.0..=1.0).contains(&min_overlap) {
+        bail!("--min-overlap must be between 0 and 1, got {min_overlap}");
+    }
+    let defaults = SynthSettings::default();
+    let width = args.width.unwrap_or(defaults.camera.width);
     let settings = SynthSettings {
         fragments: args.fragments,
-        frames_per_fragment: args.frames,
-        voxel: args.voxel,
-        camera: CameraModel { width: args.width, height: args.width * 3 / 4, ..CameraModel::default() },
-        ..SynthSettings::default()
+        frames_per_fragment: args.frames.unwrap_or(defaults.frames_per_fragment),
+        voxel: args.voxel.unwrap_or(defaults.voxel),
+        camera: CameraModel { width, height: width * 3 / 4, ..CameraModel::default() },
+        ground_truth: GroundTruthRule { min_overlap, ..GroundTruthRule::default() },
+        style: args.style,
+        overrides: Overrides {
+            voxel: args.voxel,
+            frames_per_fragment: args.frames,
+            width: args.width,
+            object_scenes: match args.scene_kind {
+                SceneKind::Mixed => None,
+                SceneKind::Room => Some(false),
+                SceneKind::Object => Some(true),
+            },
+        },
+        ..defaults
     };
     let started = Instant::now();
     let mut last = Instant::now();
@@ -55,8 +103,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let mean_points = s.points.iter().sum::<usize>() / s.points.len().max(1);
         let overlap = s.overlap_range.map_or_else(|| "-".into(), |[lo, hi]| format!("{lo:.2}-{hi:.2}"));
         println!(
-            "{}: {} fragments, {} points per fragment on average, {} gt pairs ({} non-consecutive), overlap {}, {:.1} s",
+            "{} ({}): {} fragments, {} points per fragment on average, {} gt pairs ({} non-consecutive), overlap {}, {:.1} s",
             s.dir.display(),
+            s.kind,
             s.points.len(),
             mean_points,
             s.pairs,

@@ -128,6 +128,12 @@ pub struct MotionModel {
     pub height: [f64; 2],
     /// The camera keeps at least this distance from walls (metres).
     pub wall_margin: f64,
+    /// Range of the fraction of the free distance behind the room centre that the camera backs away by.
+    pub back_fraction: [f64; 2],
+    /// Sideways offset of the camera from the room centre, drawn in `[-lateral, lateral]` (metres).
+    pub lateral: f64,
+    /// Camera roll, drawn in `[-roll_deg, roll_deg]` (degrees).
+    pub roll_deg: f64,
 }
 
 impl Default for MotionModel {
@@ -137,6 +143,9 @@ impl Default for MotionModel {
             pitch_deg: [-35.0, -5.0],
             height: [1.2, 1.8],
             wall_margin: 0.4,
+            back_fraction: [0.15, 0.75],
+            lateral: 0.4,
+            roll_deg: 5.0,
         }
     }
 }
@@ -164,13 +173,13 @@ pub fn plan_trajectory(
             let u = [yaw.cos(), yaw.sin()];
             let perp = [-u[1], u[0]];
             let back = (room.distance_along(room.kernel_center, [-u[0], -u[1]]) - motion.wall_margin - 0.2).max(0.0);
-            let f = rng.uniform(0.15, 0.75) * shrink;
-            let lat = rng.uniform(-0.4, 0.4) * shrink;
+            let f = rng.uniform(motion.back_fraction[0], motion.back_fraction[1]) * shrink;
+            let lat = rng.uniform(-motion.lateral, motion.lateral) * shrink;
             let x = room.kernel_center[0] - f * back * u[0] + lat * perp[0];
             let y = room.kernel_center[1] - f * back * u[1] + lat * perp[1];
             let z = rng.uniform(motion.height[0], motion.height[1]);
             let pitch = rng.uniform(motion.pitch_deg[0], motion.pitch_deg[1]).to_radians();
-            let roll = rng.uniform(-5.0f64, 5.0).to_radians();
+            let roll = rng.uniform(-motion.roll_deg, motion.roll_deg).to_radians();
             k.push([x, y, z, yaw, pitch, roll]);
             let [lo, hi] = motion.yaw_per_fragment_deg;
             yaw += sense * rng.uniform(lo, hi).to_radians() / 2.0;

@@ -389,6 +389,121 @@ pub fn plant(rng: &mut Rng) -> Furniture {
     Furniture { kind: "plant", parts, half: [r * 2.6, r * 2.6], height: top }
 }
 
+/// Furniture families that only the `randomized` style uses (the `kinect` style keeps its original set).
+pub const EXTRA_FAMILIES: [fn(&mut Rng) -> Furniture; 5] = [bench, stool, coat_rack, tv_unit, drum_cluster];
+
+/// A bench: a long seat board on two slab or post legs, sometimes with a backrest.
+pub fn bench(rng: &mut Rng) -> Furniture {
+    let (w, d, h) = (rng.uniform(0.9, 2.0), rng.uniform(0.3, 0.45), rng.uniform(0.4, 0.48));
+    let (hx, hy) = (w / 2.0, d / 2.0);
+    let th = rng.uniform(0.03, 0.06);
+    let mut parts = vec![slab(-hx, hx, -hy, hy, h - th, h)];
+    let inset = rng.uniform(0.05, 0.2);
+    if rng.below(2) == 0 {
+        for sx in [-1.0, 1.0] {
+            let x = sx * (hx - inset);
+            parts.push(slab(x - 0.025, x + 0.025, -hy + 0.02, hy - 0.02, 0.0, h - th));
+        }
+    } else {
+        for (sx, sy) in [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)] {
+            parts.push(post(sx * (hx - inset), sy * (hy - 0.04), 0.0, 0.02, h - th));
+        }
+    }
+    let mut height = h;
+    if rng.below(2) == 0 {
+        height = h + rng.uniform(0.3, 0.45);
+        parts.push(slab(-hx, hx, hy - 0.03, hy, h + 0.08, height));
+    }
+    Furniture { kind: "bench", parts, half: [hx, hy], height }
+}
+
+/// A bar stool: round seat on a central post with a foot ring and a disc base.
+pub fn stool(rng: &mut Rng) -> Furniture {
+    let r = rng.uniform(0.16, 0.22);
+    let h = rng.uniform(0.45, 0.8);
+    let mut parts = vec![
+        post(0.0, 0.0, h - 0.05, r, 0.05),
+        post(0.0, 0.0, 0.0, rng.uniform(0.02, 0.035), h - 0.05),
+        post(0.0, 0.0, 0.0, r * rng.uniform(0.8, 1.1), 0.025),
+    ];
+    if rng.below(2) == 0 {
+        parts.push(post(0.0, 0.0, h * 0.35, r * 0.8, 0.02));
+    }
+    Furniture { kind: "stool", parts, half: [r * 1.1, r * 1.1], height: h }
+}
+
+/// A coat rack: a pole on crossed feet with hooks and hanging coats (boxes) or hats (spheres).
+pub fn coat_rack(rng: &mut Rng) -> Furniture {
+    let h = rng.uniform(1.6, 1.9);
+    let foot = rng.uniform(0.2, 0.3);
+    let mut parts = vec![
+        post(0.0, 0.0, 0.0, 0.02, h),
+        slab(-foot, foot, -0.02, 0.02, 0.0, 0.03),
+        slab(-0.02, 0.02, -foot, foot, 0.0, 0.03),
+    ];
+    for k in 0..4 {
+        let a = k as f64 * FRAC_PI_2 + rng.uniform(-0.2, 0.2);
+        let (c, s) = (a.cos(), a.sin());
+        parts.push(Primitive::cylinder(v(0.07 * c, 0.07 * s, h - 0.1), 0.008, 0.07, rot_z(a) * rot_y(FRAC_PI_2)));
+        match rng.below(3) {
+            0 => parts.push(Primitive::sphere(v(0.13 * c, 0.13 * s, h - 0.05), rng.uniform(0.06, 0.1))),
+            1 => {
+                let len = rng.uniform(0.5, 0.9);
+                let half = v(0.04, rng.uniform(0.12, 0.2), len / 2.0);
+                parts.push(Primitive {
+                    rotation: rot_z(a),
+                    ..Primitive::cuboid(v(0.12 * c, 0.12 * s, h - 0.1 - len / 2.0), half, 0.0)
+                });
+            }
+            _ => {}
+        }
+    }
+    Furniture { kind: "coat rack", parts, half: [foot.max(0.35), foot.max(0.35)], height: h }
+}
+
+/// A low TV unit with a flat screen on a foot and a speaker bar.
+pub fn tv_unit(rng: &mut Rng) -> Furniture {
+    let (w, d, h) = (rng.uniform(1.0, 2.0), rng.uniform(0.35, 0.5), rng.uniform(0.35, 0.55));
+    let (hx, hy) = (w / 2.0, d / 2.0);
+    let mut parts = vec![slab(-hx, hx, -hy, hy, 0.05, h)];
+    for sx in [-1.0, 1.0] {
+        parts.push(post(sx * (hx - 0.06), 0.0, 0.0, 0.025, 0.05));
+    }
+    let sw = rng.uniform(0.8, 1.4).min(w);
+    let sh = sw * 9.0 / 16.0;
+    parts.push(slab(-0.15, 0.15, -0.1, 0.1, h, h + 0.02));
+    parts.push(slab(-0.03, 0.03, 0.0, 0.04, h, h + 0.1));
+    parts.push(slab(-sw / 2.0, sw / 2.0, 0.0, rng.uniform(0.02, 0.06), h + 0.08, h + 0.08 + sh));
+    if rng.below(2) == 0 {
+        parts.push(Primitive::cylinder(v(0.0, -hy + 0.08, h + 0.04), 0.04, sw * 0.35, rot_y(FRAC_PI_2)));
+    }
+    Furniture { kind: "tv unit", parts, half: [hx, hy], height: h + 0.08 + sh }
+}
+
+/// A cluster of drums or tubes of different radii and heights, some with lids.
+pub fn drum_cluster(rng: &mut Rng) -> Furniture {
+    let mut parts = Vec::new();
+    let mut reach: f64 = 0.0;
+    let mut height: f64 = 0.0;
+    let mut placed: Vec<(f64, f64, f64)> = Vec::new();
+    for _ in 0..2 + rng.below(4) {
+        let r = rng.uniform(0.08, 0.3);
+        let h = rng.uniform(0.2, 1.0);
+        let (x, y) = (rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4));
+        if placed.iter().any(|&(px, py, pr)| (px - x).hypot(py - y) < pr + r + 0.01) {
+            continue;
+        }
+        placed.push((x, y, r));
+        parts.push(post(x, y, 0.0, r, h));
+        if rng.below(2) == 0 {
+            parts.push(post(x, y, h, r * 1.05, 0.02));
+        }
+        reach = reach.max(x.abs() + r * 1.05).max(y.abs() + r * 1.05);
+        height = height.max(h + 0.02);
+    }
+    Furniture { kind: "drums", parts, half: [reach, reach], height }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -399,7 +514,7 @@ mod tests {
             [table, round_table, chair, shelf, sofa, cabinet, desk, bed, box_stack, bin, ball, floor_lamp, plant];
         for seed in 0..20 {
             let mut rng = Rng::new(seed);
-            for b in builders {
+            for b in builders.into_iter().chain(EXTRA_FAMILIES) {
                 let f = b(&mut rng);
                 for p in &f.parts {
                     let bb = p.aabb();

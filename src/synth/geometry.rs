@@ -124,6 +124,18 @@ impl Primitive {
         }
     }
 
+    /// The primitive scaled by `s` about the world origin (centre and every size multiplied by `s > 0`).
+    pub fn scaled(&self, s: f64) -> Primitive {
+        let shape = match &self.shape {
+            Shape::Cuboid { half } => Shape::Cuboid { half: half * s },
+            Shape::Cylinder { radius, half_height } => {
+                Shape::Cylinder { radius: radius * s, half_height: half_height * s }
+            }
+            Shape::Sphere { radius } => Shape::Sphere { radius: radius * s },
+        };
+        Primitive { shape, center: self.center * s, rotation: self.rotation }
+    }
+
     /// World-frame bounding box.
     pub fn aabb(&self) -> Aabb {
         let half = match &self.shape {
@@ -254,17 +266,27 @@ impl Object {
 
 /// The nearest entry point of the ray `origin + t dir` (unit `dir`) into any object, closer than `t_max`.
 pub fn cast_ray(objects: &[Object], origin: &Vector3<f64>, dir: &Vector3<f64>, t_max: f64) -> Option<Hit> {
+    cast_ray_object(objects, origin, dir, t_max).map(|(hit, _)| hit)
+}
+
+/// As [`cast_ray`], also returning the index of the object that was hit.
+pub fn cast_ray_object(
+    objects: &[Object],
+    origin: &Vector3<f64>,
+    dir: &Vector3<f64>,
+    t_max: f64,
+) -> Option<(Hit, usize)> {
     let inv_dir = dir.map(|c| 1.0 / c);
-    let mut best: Option<Hit> = None;
+    let mut best: Option<(Hit, usize)> = None;
     let mut limit = t_max;
-    for object in objects {
+    for (k, object) in objects.iter().enumerate() {
         if !object.aabb.hit_by(origin, &inv_dir, limit) {
             continue;
         }
         for p in &object.primitives {
             if let Some(hit) = p.intersect(origin, dir, limit) {
                 limit = hit.t;
-                best = Some(hit);
+                best = Some((hit, k));
             }
         }
     }

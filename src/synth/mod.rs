@@ -7,6 +7,11 @@
 //! [`write_dataset`] writes `scene_XX/cloud_bin_k.ply` with the official ground truth (`gt.log`, `gt.info`,
 //! spec 3.3) plus `pairs.txt` and `poses.txt`.
 //!
+//! [`style`] selects the generator: `kinect` (the one described above, the default), `randomized` (domain
+//! randomisation for training, including object-scale scenes) or `heldout` (a different sensor and scene
+//! families, kept for the generalisation check); styled scenes also write the parameters they drew to
+//! `style.json`.
+//!
 //! Everything is deterministic per seed: each frame draws from its own derived random stream and results are
 //! collected in order, so thread scheduling does not matter.
 
@@ -14,7 +19,11 @@ pub mod camera;
 pub mod furniture;
 pub mod fuse;
 pub mod geometry;
+pub mod heldout;
+pub mod object;
 pub mod room;
+pub mod sensor;
+pub mod style;
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
@@ -27,6 +36,7 @@ use rayon::prelude::*;
 use room::Room;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
+use style::{Overrides, SceneRecipe, Style};
 
 /// Everything that shapes a synthetic scene besides its seed.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -43,6 +53,11 @@ pub struct SynthSettings {
     pub motion: MotionModel,
     /// The ground-truth rule for gt.log / gt.info.
     pub ground_truth: GroundTruthRule,
+    /// The generator. `frames_per_fragment`, `voxel` and `camera` apply to [`Style::Kinect`] only; the other
+    /// styles draw them per scene unless `overrides` fixes them.
+    pub style: Style,
+    /// Fixed values for the drawn parameters of the `randomized` and `heldout` styles.
+    pub overrides: Overrides,
 }
 
 impl Default for SynthSettings {
@@ -54,6 +69,8 @@ impl Default for SynthSettings {
             camera: CameraModel::default(),
             motion: MotionModel::default(),
             ground_truth: GroundTruthRule::default(),
+            style: Style::Kinect,
+            overrides: Overrides::default(),
         }
     }
 }
@@ -67,8 +84,10 @@ pub struct Scene {
     pub world_from_fragment: Vec<Matrix4<f64>>,
     /// Every frame's world_from_camera pose, in scanning order.
     pub world_from_camera: Vec<Matrix4<f64>>,
-    /// The room that was scanned.
+    /// The room that was scanned (for object scenes: an empty floor plan whose objects are the object's parts).
     pub room: Room,
+    /// What a `randomized` or `heldout` scene drew (`None` for `kinect`).
+    pub recipe: Option<SceneRecipe>,
 }
 
 impl Scene {
@@ -89,8 +108,18 @@ const STREAM_TRAJECTORY: u64 = 1;
 const STREAM_GROUND_TRUTH: u64 = 2;
 const STREAM_FRAMES: u64 = 1 << 32;
 
-/// Builds a room, plans the trajectory, scans and fuses the fragments.
+/// Builds a room (or an object), plans the trajectory, scans and fuses the fragments, in `settings.style`.
 pub fn generate_scene(seed: u64, settings: &SynthSettings) -> Result<Scene> {
+    if settings.style != Style::Kinect {
+        let s = style::generate_styled_scene(seed, settings.style, settings.fragments, &settings.overrides)?;
+        return Ok(Scene {
+            fragments: s.fragments,
+            world_from_fragment: s.world_from_fragment,
+            world_from_camera: s.world_from_camera,
+            room: s.room,
+            recipe: Some(s.recipe),
+        });
+    }
     if settings.fragments == 0 || settings.frames_per_fragment == 0 {
         return Err(Error::invalid("synth: fragments and frames per fragment must be at least 1"));
     }
@@ -125,7 +154,7 @@ pub fn generate_scene(seed: u64, settings: &SynthSettings) -> Result<Scene> {
         fragments.push(fuse::fuse_voxels(&samples, settings.voxel));
         world_from_fragment.push(base);
     }
-    Ok(Scene { fragments, world_from_fragment, world_from_camera: poses, room })
+    Ok(Scene { fragments, world_from_fragment, world_from_camera: poses, room, recipe: None })
 }
 
 /// What [`write_dataset`] produced for one scene.
@@ -145,6 +174,8 @@ pub struct SceneSummary {
     pub non_consecutive: usize,
     /// Smallest and largest overlap among the gt.log pairs.
     pub overlap_range: Option<[f64; 2]>,
+    /// What the scene is ("room" for `kinect`; see [`SceneRecipe::kind`]).
+    pub kind: String,
 }
 
 /// The seed of scene `index` of a dataset generated with `seed`.
@@ -154,7 +185,7 @@ pub fn scene_seed(seed: u64, index: usize) -> u64 {
 
 /// Files this generator writes in a scene folder (what `--force` replaces).
 fn is_generated_file(name: &str) -> bool {
-    matches!(name, "gt.log" | "gt.info" | "pairs.txt" | "poses.txt")
+    matches!(name, "gt.log" | "gt.info" | "pairs.txt" | "poses.txt" | "style.json")
         || (name.starts_with("cloud_bin_") && name.ends_with(".ply"))
 }
 
@@ -191,8 +222,8 @@ fn matrix_row_major(m: &Matrix4<f64>) -> String {
     (0..16).map(|k| format!("{}", m[(k / 4, k % 4)])).collect::<Vec<_>>().join(" ")
 }
 
-/// Writes one scene folder: `cloud_bin_k.ply`, `gt.log`, `gt.info`, `pairs.txt` and `poses.txt`. The folder
-/// must be empty or missing unless `force`.
+/// Writes one scene folder: `cloud_bin_k.ply`, `gt.log`, `gt.info`, `pairs.txt`, `poses.txt` and, for styled
+/// scenes, `style.json` (the drawn parameters). The folder must be empty or missing unless `force`.
 pub fn write_scene(dir: &Path, scene: &Scene, gt: &[GtPair], force: bool) -> Result<()> {
     prepare_dir(dir, force)?;
     let n = scene.fragments.len();
@@ -223,6 +254,11 @@ pub fn write_scene(dir: &Path, scene: &Scene, gt: &[GtPair], force: bool) -> Res
         poses.push_str(&format!("{k} {}\n", matrix_row_major(m)));
     }
     crate::io::write_atomic(&dir.join("poses.txt"), poses.as_bytes())?;
+    if let Some(recipe) = &scene.recipe {
+        let json = serde_json::to_string_pretty(recipe)
+            .map_err(|e| Error::invalid(format!("synth: cannot serialise the scene recipe: {e}")))?;
+        crate::io::write_atomic(&dir.join("style.json"), format!("{json}\n").as_bytes())?;
+    }
     Ok(())
 }
 
@@ -270,6 +306,7 @@ pub fn write_dataset(
             pairs: gt.len(),
             non_consecutive: gt.iter().filter(|p| p.j > p.i + 1).count(),
             overlap_range,
+            kind: scene.recipe.as_ref().map_or_else(|| "room".to_string(), |r| r.kind.clone()),
         };
         on_scene(&summary);
         summaries.push(summary);

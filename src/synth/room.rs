@@ -8,6 +8,7 @@ use super::furniture::{self, Furniture};
 use super::geometry::{Object, Primitive, rot_y, rot_z};
 use crate::rng::Rng;
 use nalgebra::Vector3;
+use serde::Serialize;
 use std::f64::consts::{FRAC_PI_2, PI};
 
 /// A 2D oriented rectangle on the floor plan, with the height of what stands on it.
@@ -149,7 +150,7 @@ impl Room {
     }
 
     /// Places `f` at (x, y) with `yaw` when it fits; returns its footprint index.
-    fn place(
+    pub(crate) fn place(
         &mut self,
         f: &Furniture,
         x: f64,
@@ -170,7 +171,7 @@ impl Room {
     }
 
     /// Places `f` with its back against a random wall (edges chosen by length); tries a few positions.
-    fn place_against_wall(&mut self, rng: &mut Rng, f: &Furniture) -> Option<usize> {
+    pub(crate) fn place_against_wall(&mut self, rng: &mut Rng, f: &Furniture) -> Option<usize> {
         let edges: Vec<_> = self.edges().collect();
         let total: f64 = edges.iter().map(|(a, b)| (b[0] - a[0]).hypot(b[1] - a[1])).sum();
         for _ in 0..30 {
@@ -201,7 +202,7 @@ impl Room {
     }
 
     /// Places `f` at a random free spot with random yaw.
-    fn place_free(&mut self, rng: &mut Rng, f: &Furniture, wall_margin: f64) -> Option<usize> {
+    pub(crate) fn place_free(&mut self, rng: &mut Rng, f: &Furniture, wall_margin: f64) -> Option<usize> {
         let (lo, hi) = self.bounds();
         for _ in 0..40 {
             let p = [rng.uniform(lo[0], hi[0]), rng.uniform(lo[1], hi[1])];
@@ -215,26 +216,91 @@ impl Room {
         None
     }
 
-    fn bounds(&self) -> ([f64; 2], [f64; 2]) {
+    /// The bounding rectangle of the floor plan (min, max).
+    pub fn bounds(&self) -> ([f64; 2], [f64; 2]) {
         let lo = self.polygon.iter().fold([f64::INFINITY; 2], |m, p| [m[0].min(p[0]), m[1].min(p[1])]);
         let hi = self.polygon.iter().fold([f64::NEG_INFINITY; 2], |m, p| [m[0].max(p[0]), m[1].max(p[1])]);
         (lo, hi)
     }
 }
 
-/// A random furnished room.
+/// The floor-plan family of a room.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RoomShape {
+    /// A rectangle.
+    Rectangle,
+    /// A rectangle with one corner cut away.
+    LShape,
+    /// A long narrow rectangle (the width range is replaced by [`RoomSpec::corridor_width`]).
+    Corridor,
+}
+
+/// The ranges a room is drawn from. The default is the `kinect` style's room.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RoomSpec {
+    /// Range of the extent along x (metres).
+    pub width: [f64; 2],
+    /// Range of the extent along y (metres).
+    pub depth: [f64; 2],
+    /// Range of the floor-to-ceiling height (metres).
+    pub height: [f64; 2],
+    /// The floor plan; `None` draws a rectangle or an L-shape with equal odds.
+    pub shape: Option<RoomShape>,
+    /// Width range of a corridor (metres).
+    pub corridor_width: [f64; 2],
+    /// Multiplies the number of furniture pieces.
+    pub density: f64,
+    /// Also use the furniture families that the `kinect` style lacks ([`furniture::EXTRA_FAMILIES`]).
+    pub extra_families: bool,
+}
+
+impl Default for RoomSpec {
+    fn default() -> Self {
+        RoomSpec {
+            width: [3.5, 7.0],
+            depth: [3.0, 6.0],
+            height: [2.4, 3.0],
+            shape: None,
+            corridor_width: [1.6, 2.4],
+            density: 1.0,
+            extra_families: false,
+        }
+    }
+}
+
+/// A random furnished room (the `kinect` style's room: [`RoomSpec::default`]).
 pub fn generate_room(rng: &mut Rng) -> Room {
-    let (w, d) = (rng.uniform(3.5, 7.0), rng.uniform(3.0, 6.0));
-    let height = rng.uniform(2.4, 3.0);
-    let (polygon, kernel_center) = if rng.below(2) == 0 {
-        (vec![[0.0, 0.0], [w, 0.0], [w, d], [0.0, d]], [w / 2.0, d / 2.0])
-    } else {
-        let (a, b) = (w * rng.uniform(0.3, 0.5), d * rng.uniform(0.3, 0.5));
-        (vec![[0.0, 0.0], [w, 0.0], [w, d - b], [w - a, d - b], [w - a, d], [0.0, d]], [(w - a) / 2.0, (d - b) / 2.0])
+    generate_room_with(rng, &RoomSpec::default())
+}
+
+/// A random furnished room drawn from `spec`.
+pub fn generate_room_with(rng: &mut Rng, spec: &RoomSpec) -> Room {
+    let (mut w, d) = (rng.uniform(spec.width[0], spec.width[1]), rng.uniform(spec.depth[0], spec.depth[1]));
+    let height = rng.uniform(spec.height[0], spec.height[1]);
+    let shape = match spec.shape {
+        Some(shape) => shape,
+        None if rng.below(2) == 0 => RoomShape::Rectangle,
+        None => RoomShape::LShape,
+    };
+    let (polygon, kernel_center) = match shape {
+        RoomShape::Rectangle | RoomShape::Corridor => {
+            if shape == RoomShape::Corridor {
+                w = rng.uniform(spec.corridor_width[0], spec.corridor_width[1]);
+            }
+            (vec![[0.0, 0.0], [w, 0.0], [w, d], [0.0, d]], [w / 2.0, d / 2.0])
+        }
+        RoomShape::LShape => {
+            let (a, b) = (w * rng.uniform(0.3, 0.5), d * rng.uniform(0.3, 0.5));
+            (
+                vec![[0.0, 0.0], [w, 0.0], [w, d - b], [w - a, d - b], [w - a, d], [0.0, d]],
+                [(w - a) / 2.0, (d - b) / 2.0],
+            )
+        }
     };
     let mut room = Room { polygon, height, kernel_center, objects: Vec::new(), footprints: Vec::new() };
     build_shell(&mut room, rng);
-    furnish(&mut room, rng);
+    furnish(&mut room, rng, spec);
     room
 }
 
@@ -444,11 +510,18 @@ fn build_shell(room: &mut Room, rng: &mut Rng) {
 }
 
 /// Furniture against the walls, then table groups and small free-standing things.
-fn furnish(room: &mut Room, rng: &mut Rng) {
+fn furnish(room: &mut Room, rng: &mut Rng, spec: &RoomSpec) {
     let perimeter: f64 = room.edges().map(|(a, b)| (b[0] - a[0]).hypot(b[1] - a[1])).sum();
-    let wall_items = (perimeter / 1.5) as usize + rng.below(3);
+    let wall_items = (perimeter / 1.5 * spec.density) as usize + rng.below(3);
+    let extra = if spec.extra_families { furniture::EXTRA_FAMILIES.len() } else { 0 };
     for _ in 0..wall_items {
-        let f = match rng.below(10) {
+        let pick = rng.below(10 + extra);
+        if pick >= 10 {
+            let f = furniture::EXTRA_FAMILIES[pick - 10](rng);
+            room.place_against_wall(rng, &f);
+            continue;
+        }
+        let f = match pick {
             0..=2 => furniture::shelf(rng),
             3..=4 => furniture::cabinet(rng),
             5 => furniture::sofa(rng),
@@ -480,8 +553,10 @@ fn furnish(room: &mut Room, rng: &mut Rng) {
     }
     let (lo, hi) = room.bounds();
     let area = (hi[0] - lo[0]) * (hi[1] - lo[1]);
-    for _ in 0..(area / 2.5) as usize + rng.below(4) {
-        let f = match rng.below(7) {
+    for _ in 0..(area / 2.5 * spec.density) as usize + rng.below(4) {
+        let pick = rng.below(7 + extra);
+        let f = match pick {
+            7.. => furniture::EXTRA_FAMILIES[pick - 7](rng),
             0 | 1 => furniture::box_stack(rng),
             2 => furniture::bin(rng),
             3 => furniture::ball(rng),

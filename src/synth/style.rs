@@ -1,0 +1,443 @@
+//! Scene styles: `kinect` (the original generator), `randomized` (domain randomisation for training) and
+//! `heldout` (a different sensor and scene families, never to be trained or tuned on: the generalisation
+//! check).
+//!
+//! A styled scene first draws a [`SceneRecipe`] from its seed (sensor, noise model and level, density, fusion
+//! voxel, room or object family, trajectory or viewpoints, per-fragment variations), then scans it. The recipe
+//! is written next to the fragments as `style.json`.
+
+use super::camera::{MotionModel, look_pose, plan_trajectory};
+use super::heldout::{HallRecord, generate_hall};
+use super::object::{ObjectFamily, generate_object};
+use super::room::{Room, RoomShape, RoomSpec, generate_room_with};
+use super::sensor::{DepthNoise, Sensor};
+use crate::cloud::PointCloud;
+use crate::rng::Rng;
+use nalgebra::{Matrix4, Vector3};
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// How a scene is generated.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Style {
+    /// The original generator: Kinect-like camera, hand-held trajectory, fixed ranges (byte-identical to
+    /// earlier versions for the same arguments).
+    #[default]
+    Kinect,
+    /// Domain randomisation for training: noise model and level, density, fusion voxel, dropouts and holes,
+    /// intrinsics and range, room and furniture families, wide trajectories, and object-scale scenes.
+    Randomized,
+    /// The generalisation check: a structured-light camera (quantised disparity, projector shadows) in halls
+    /// with families no other style builds. Never train or tune on it.
+    Heldout,
+}
+
+impl Style {
+    /// The default gt.log overlap threshold: 0.30 (the 3DMatch rule), 0.20 for `randomized` so training sees
+    /// low-overlap pairs.
+    pub fn default_min_overlap(self) -> f64 {
+        match self {
+            Style::Randomized => 0.20,
+            Style::Kinect | Style::Heldout => 0.30,
+        }
+    }
+}
+
+/// Values that replace drawn ones in the `randomized` and `heldout` styles (`None`: drawn).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Overrides {
+    /// Fusion voxel size.
+    pub voxel: Option<f64>,
+    /// Frames fused into each fragment.
+    pub frames_per_fragment: Option<usize>,
+    /// Rays per image row (the column count keeps the drawn aspect ratio).
+    pub width: Option<usize>,
+    /// `randomized` only: `Some(true)` makes every scene object-scale, `Some(false)` none (about 30 % are by
+    /// default).
+    pub object_scenes: Option<bool>,
+}
+
+/// Fragments larger than this are fused again with a coarser voxel.
+pub const MAX_FRAGMENT_POINTS: usize = 300_000;
+
+/// What an object scene drew.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ObjectRecord {
+    /// The object family.
+    pub family: ObjectFamily,
+    /// Largest extent of the object (scene units).
+    pub size: f64,
+    /// Camera distance from the object centre, per fragment.
+    pub distance: Vec<f64>,
+    /// Camera azimuth per fragment (degrees).
+    pub azimuth_deg: Vec<f64>,
+    /// Camera elevation per fragment (degrees).
+    pub elevation_deg: Vec<f64>,
+}
+
+/// What a room scene drew.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RoomRecord {
+    /// The ranges the room was drawn from (the floor plan is fixed by the style).
+    pub spec: RoomSpec,
+    /// How the camera moved.
+    pub motion: MotionModel,
+}
+
+/// Per-fragment variation of the scene's sensor.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FragmentRecord {
+    /// Noise level relative to the scene's.
+    pub noise_scale: f64,
+    /// Random dropout probability of this fragment.
+    pub dropout: f64,
+    /// Fusion voxel actually used (larger than the scene's when the fragment had to be capped).
+    pub voxel: f64,
+    /// Points in the fused fragment.
+    pub points: usize,
+}
+
+/// Every parameter a styled scene drew (written as `style.json`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SceneRecipe {
+    /// The style.
+    pub style: Style,
+    /// The scene seed.
+    pub seed: u64,
+    /// "room", "corridor", "l_room", "hall" or "object".
+    pub kind: String,
+    /// The sensor (scene-level values; see `fragments` for per-fragment changes).
+    pub sensor: Sensor,
+    /// Fusion voxel size.
+    pub voxel: f64,
+    /// Frames fused into each fragment.
+    pub frames_per_fragment: usize,
+    /// Probability that an object has an absorbing material.
+    pub dark_probability: f64,
+    /// Extra dropout of absorbing objects.
+    pub dark_dropout: f64,
+    /// Room draws (room and corridor scenes).
+    pub room: Option<RoomRecord>,
+    /// Hall draws (`heldout`).
+    pub hall: Option<HallRecord>,
+    /// Object draws (object scenes).
+    pub object: Option<ObjectRecord>,
+    /// Per fragment.
+    pub fragments: Vec<FragmentRecord>,
+}
+
+/// Random stream ids of a styled scene.
+const STREAM_RECIPE: u64 = 3;
+const STREAM_SCENE: u64 = 4;
+const STREAM_POSES: u64 = 5;
+const STREAM_MATERIALS: u64 = 6;
+const STREAM_FRAGMENT: u64 = 1 << 20;
+const STREAM_FRAMES: u64 = 1 << 32;
+
+/// A fully generated styled scene.
+pub struct StyledScene {
+    /// Fused fragments in their first camera's frame.
+    pub fragments: Vec<PointCloud>,
+    /// x_world = world_from_fragment[k] x_fragment.
+    pub world_from_fragment: Vec<Matrix4<f64>>,
+    /// Every frame's pose.
+    pub world_from_camera: Vec<Matrix4<f64>>,
+    /// The scanned scene (for object scenes: an empty floor plan holding the object's parts).
+    pub room: Room,
+    /// What was drawn.
+    pub recipe: SceneRecipe,
+}
+
+fn aspect_height(width: usize, hfov_deg: f64, vfov_deg: f64) -> usize {
+    let ratio = (vfov_deg.to_radians() / 2.0).tan() / (hfov_deg.to_radians() / 2.0).tan();
+    ((width as f64 * ratio).round() as usize).max(1)
+}
+
+/// The randomized style's sensor, before resolution and range are fitted to the scene kind.
+fn randomized_sensor(rng: &mut Rng, object: bool) -> Sensor {
+    let hfov = rng.uniform(45.0, 90.0);
+    let aspect = [4.0 / 3.0, 16.0 / 9.0, 5.0 / 4.0, 16.0 / 10.0][rng.below(4)];
+    let vfov = 2.0 * ((hfov / 2.0f64).to_radians().tan() / aspect).atan().to_degrees();
+    let width = if object { 320 + rng.below(241) } else { 128 + rng.below(97) };
+    // Object scenes are in units of about a tenth of a metre: noise levels scale down accordingly.
+    let unit = if object { 0.5 } else { 1.0 };
+    let noise = match rng.below(3) {
+        0 => DepthNoise::Constant { sigma: rng.uniform(0.0005, 0.006) * unit },
+        1 => DepthNoise::Proportional { per_unit: rng.uniform(0.0005, 0.004) * unit * unit },
+        _ => DepthNoise::Quadratic {
+            a: rng.uniform(0.0005, 0.002) * unit,
+            b: rng.uniform(0.0008, 0.004) * unit * unit * unit,
+            z0: rng.uniform(0.3, 0.6),
+        },
+    };
+    let small_hole = rng.uniform(0.02, 0.05);
+    Sensor {
+        width,
+        height: aspect_height(width, hfov, vfov),
+        hfov_deg: hfov,
+        vfov_deg: vfov,
+        min_depth: rng.uniform(0.2, 0.6),
+        max_depth: rng.uniform(3.0, 8.0),
+        dropout: rng.uniform(0.0, 0.12),
+        max_incidence_deg: rng.uniform(65.0, 85.0),
+        noise,
+        max_holes: rng.below(5),
+        hole_radius: [small_hole, small_hole + rng.uniform(0.02, 0.1)],
+        projector_baseline: None,
+    }
+}
+
+/// The held-out structured-light camera.
+fn heldout_sensor(rng: &mut Rng) -> Sensor {
+    let hfov = rng.uniform(58.0, 72.0);
+    let aspect = [4.0 / 3.0, 16.0 / 10.0][rng.below(2)];
+    let vfov = 2.0 * ((hfov / 2.0f64).to_radians().tan() / aspect).atan().to_degrees();
+    let width = 128 + rng.below(65);
+    let native_width = [640.0, 848.0, 1280.0][rng.below(3)];
+    let baseline = rng.uniform(0.05, 0.09);
+    Sensor {
+        width,
+        height: aspect_height(width, hfov, vfov),
+        hfov_deg: hfov,
+        vfov_deg: vfov,
+        min_depth: rng.uniform(0.4, 0.6),
+        max_depth: rng.uniform(4.0, 6.0),
+        dropout: rng.uniform(0.01, 0.04),
+        max_incidence_deg: rng.uniform(70.0, 80.0),
+        noise: DepthNoise::Disparity {
+            focal_px: native_width / 2.0 / (hfov.to_radians() / 2.0).tan(),
+            baseline,
+            sigma_px: rng.uniform(0.05, 0.15),
+            subpixel: [4.0, 8.0][rng.below(2)],
+        },
+        max_holes: rng.below(2),
+        hole_radius: [0.02, 0.05],
+        projector_baseline: Some(baseline),
+    }
+}
+
+/// The sensor with its noise level scaled by `s`.
+fn scaled_noise(sensor: &Sensor, s: f64) -> DepthNoise {
+    match sensor.noise.clone() {
+        DepthNoise::Constant { sigma } => DepthNoise::Constant { sigma: sigma * s },
+        DepthNoise::Proportional { per_unit } => DepthNoise::Proportional { per_unit: per_unit * s },
+        DepthNoise::Quadratic { a, b, z0 } => DepthNoise::Quadratic { a: a * s, b: b * s, z0 },
+        DepthNoise::Disparity { focal_px, baseline, sigma_px, subpixel } => {
+            DepthNoise::Disparity { focal_px, baseline, sigma_px: sigma_px * s, subpixel }
+        }
+    }
+}
+
+/// Camera poses around an object centred on the origin: fragment k looks at the object from azimuth
+/// `az[k]` and elevation `el[k]` at distance `dist[k]`; its frames are small perturbations of that view.
+fn object_poses(
+    rng: &mut Rng,
+    fragments: usize,
+    frames: usize,
+    size: f64,
+    sensor: &Sensor,
+) -> (Vec<Matrix4<f64>>, Vec<f64>, Vec<f64>, Vec<f64>) {
+    let radius = size * 0.75;
+    let half_fov = sensor.hfov_deg.min(sensor.vfov_deg).to_radians() / 2.0;
+    let az0 = rng.uniform(0.0, 360.0);
+    let step = 360.0 / fragments as f64 * rng.uniform(0.6, 1.0);
+    let sense = if rng.below(2) == 0 { 1.0 } else { -1.0 };
+    let (mut poses, mut dists, mut azs, mut els) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for k in 0..fragments {
+        let az = az0 + sense * k as f64 * step + rng.uniform(-0.25, 0.25) * step;
+        let el = rng.uniform(-25.0, 65.0);
+        let dist = radius / half_fov.sin() * rng.uniform(0.8, 1.3);
+        let roll = rng.uniform(-25.0, 25.0);
+        azs.push(az);
+        els.push(el);
+        dists.push(dist);
+        for f in 0..frames {
+            let (daz, del, dd) = if f == 0 {
+                (0.0, 0.0, 0.0)
+            } else {
+                (rng.uniform(-3.0, 3.0), rng.uniform(-3.0, 3.0), rng.uniform(-0.05, 0.05) * dist)
+            };
+            let (a, e, d) = ((az + daz).to_radians(), (el + del).to_radians(), dist + dd);
+            let position = Vector3::new(d * e.cos() * a.cos(), d * e.cos() * a.sin(), d * e.sin());
+            let target = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 0.03 * size;
+            let f = (target - position).normalize();
+            let yaw = f.y.atan2(f.x);
+            let pitch = f.z.clamp(-1.0, 1.0).asin();
+            poses.push(look_pose(position, yaw, pitch, (roll + rng.uniform(-1.0, 1.0)).to_radians()));
+        }
+    }
+    (poses, dists, azs, els)
+}
+
+/// Fuses `samples` at `voxel`, coarsening the voxel by 25 % steps until at most [`MAX_FRAGMENT_POINTS`].
+fn fuse_capped(samples: &[([f64; 3], [f64; 3])], voxel: f64) -> (PointCloud, f64) {
+    let mut v = voxel;
+    loop {
+        let cloud = super::fuse::fuse_voxels(samples, v);
+        if cloud.len() <= MAX_FRAGMENT_POINTS {
+            return (cloud, v);
+        }
+        v *= 1.25;
+    }
+}
+
+/// Draws the recipe of a `randomized` or `heldout` scene from `seed` and scans it into `fragments` fragments.
+pub fn generate_styled_scene(
+    seed: u64,
+    style: Style,
+    fragments: usize,
+    overrides: &Overrides,
+) -> crate::error::Result<StyledScene> {
+    use crate::error::Error;
+    if style == Style::Kinect {
+        return Err(Error::invalid("synth: the kinect style is generated by generate_scene"));
+    }
+    if fragments == 0 || overrides.frames_per_fragment == Some(0) {
+        return Err(Error::invalid("synth: fragments and frames per fragment must be at least 1"));
+    }
+    if let Some(v) = overrides.voxel
+        && !(v > 0.0 && v.is_finite())
+    {
+        return Err(Error::invalid(format!("synth: voxel size must be positive, got {v}")));
+    }
+    if overrides.width.is_some_and(|w| w < 4) {
+        return Err(Error::invalid("synth: the camera needs at least 4 rays per row"));
+    }
+    let mut rng = Rng::derived(seed, STREAM_RECIPE);
+    let drawn_object = rng.unit_f64() < 0.3;
+    let object = style == Style::Randomized && overrides.object_scenes.unwrap_or(drawn_object);
+    let mut sensor =
+        if style == Style::Heldout { heldout_sensor(&mut rng) } else { randomized_sensor(&mut rng, object) };
+    let (voxel_range, frames_range) = match (style, object) {
+        (Style::Heldout, _) => ([0.006, 0.01], [8, 15]),
+        (_, true) => ([0.003, 0.006], [2, 5]),
+        _ => ([0.004, 0.010], [8, 20]),
+    };
+    let voxel = overrides.voxel.unwrap_or(rng.uniform(voxel_range[0], voxel_range[1]));
+    let frames =
+        overrides.frames_per_fragment.unwrap_or(frames_range[0] + rng.below(frames_range[1] - frames_range[0] + 1));
+    if let Some(w) = overrides.width {
+        sensor.height = aspect_height(w, sensor.hfov_deg, sensor.vfov_deg);
+        sensor.width = w;
+    }
+    let (dark_probability, dark_dropout) =
+        if style == Style::Heldout { (0.0, 0.0) } else { (rng.uniform(0.0, 0.15), rng.uniform(0.4, 0.95)) };
+    let mut scene_rng = Rng::derived(seed, STREAM_SCENE);
+    let mut pose_rng = Rng::derived(seed, STREAM_POSES);
+    let (room, poses, kind, room_record, hall, object_record) = if object {
+        let family =
+            [ObjectFamily::Blob, ObjectFamily::Assembly, ObjectFamily::Miniature, ObjectFamily::Cluster][rng.below(4)];
+        let size = rng.uniform(1.5, 2.5);
+        let objects = generate_object(&mut scene_rng, family, size);
+        let (poses, distance, azimuth_deg, elevation_deg) =
+            object_poses(&mut pose_rng, fragments, frames, size, &sensor);
+        let far = distance.iter().fold(0.0f64, |m, &d| m.max(d));
+        sensor.min_depth = 0.2;
+        sensor.max_depth = far + size;
+        let room =
+            Room { polygon: Vec::new(), height: 0.0, kernel_center: [0.0, 0.0], objects, footprints: Vec::new() };
+        let record = ObjectRecord { family, size, distance, azimuth_deg, elevation_deg };
+        (room, poses, "object".to_string(), None, None, Some(record))
+    } else if style == Style::Heldout {
+        let (room, hall) = generate_hall(&mut scene_rng);
+        let motion = MotionModel {
+            yaw_per_fragment_deg: [rng.uniform(20.0, 30.0), rng.uniform(40.0, 60.0)],
+            pitch_deg: [-30.0, -5.0],
+            height: [1.2, 1.8],
+            wall_margin: 0.5,
+            back_fraction: [0.1, 0.8],
+            lateral: 0.8,
+            roll_deg: 5.0,
+        };
+        let poses = plan_trajectory(&room, &motion, fragments, frames, &mut pose_rng);
+        let record = RoomRecord { spec: RoomSpec::default(), motion };
+        (room, poses, "hall".to_string(), Some(record), Some(hall), None)
+    } else {
+        let shape = match rng.below(20) {
+            0..=7 => RoomShape::Rectangle,
+            8..=15 => RoomShape::LShape,
+            _ => RoomShape::Corridor,
+        };
+        let spec = RoomSpec {
+            width: [3.0, 9.0],
+            depth: if shape == RoomShape::Corridor { [5.0, 11.0] } else { [3.0, 8.0] },
+            height: [2.3, 3.5],
+            shape: Some(shape),
+            corridor_width: [1.6, 2.6],
+            density: rng.uniform(0.6, 1.4),
+            extra_families: true,
+        };
+        let yaw_lo = rng.uniform(15.0, 40.0);
+        let pitch_lo = rng.uniform(-45.0, -20.0);
+        let height_lo = rng.uniform(1.0, 1.4);
+        let motion = MotionModel {
+            yaw_per_fragment_deg: [yaw_lo, yaw_lo + rng.uniform(10.0, 60.0)],
+            pitch_deg: [pitch_lo, rng.uniform(-10.0, 10.0)],
+            height: [height_lo, rng.uniform(1.5, 2.0)],
+            wall_margin: 0.4,
+            back_fraction: [rng.uniform(0.0, 0.2), rng.uniform(0.6, 0.95)],
+            lateral: rng.uniform(0.3, 1.2),
+            roll_deg: rng.uniform(3.0, 15.0),
+        };
+        let room = generate_room_with(&mut scene_rng, &spec);
+        let poses = plan_trajectory(&room, &motion, fragments, frames, &mut pose_rng);
+        let kind = match shape {
+            RoomShape::Rectangle => "room",
+            RoomShape::LShape => "l_room",
+            RoomShape::Corridor => "corridor",
+        };
+        (room, poses, kind.to_string(), Some(RoomRecord { spec, motion }), None, None)
+    };
+    let mut material_rng = Rng::derived(seed, STREAM_MATERIALS);
+    let object_dropout: Vec<f64> = room
+        .objects
+        .iter()
+        .map(|_| if material_rng.unit_f64() < dark_probability { dark_dropout } else { 0.0 })
+        .collect();
+    let per_fragment: Vec<(Sensor, f64, f64)> = (0..fragments)
+        .map(|k| {
+            let mut r = Rng::derived(seed, STREAM_FRAGMENT + k as u64);
+            let noise_scale = if style == Style::Heldout { 1.0 } else { r.uniform(0.7, 1.4) };
+            let dropout = (sensor.dropout + r.uniform(-0.02, 0.05)).clamp(0.0, 0.2);
+            let s = Sensor { noise: scaled_noise(&sensor, noise_scale), dropout, ..sensor.clone() };
+            (s, noise_scale, dropout)
+        })
+        .collect();
+    let mut clouds = Vec::with_capacity(fragments);
+    let mut world_from_fragment = Vec::with_capacity(fragments);
+    let mut records = Vec::with_capacity(fragments);
+    for (k, (frag_sensor, noise_scale, dropout)) in per_fragment.into_iter().enumerate() {
+        let base = poses[k * frames];
+        let fragment_from_world = crate::eval::metrics::inverse(&base);
+        let samples: Vec<_> = (k * frames..(k + 1) * frames)
+            .into_par_iter()
+            .map(|n| {
+                let mut r = Rng::derived(seed, STREAM_FRAMES + n as u64);
+                frag_sensor.scan(&room.objects, &object_dropout, &poses[n], &(fragment_from_world * poses[n]), &mut r)
+            })
+            .collect::<Vec<_>>()
+            .into_iter()
+            .flatten()
+            .collect();
+        let (cloud, used_voxel) = fuse_capped(&samples, voxel);
+        records.push(FragmentRecord { noise_scale, dropout, voxel: used_voxel, points: cloud.len() });
+        clouds.push(cloud);
+        world_from_fragment.push(base);
+    }
+    let recipe = SceneRecipe {
+        style,
+        seed,
+        kind,
+        sensor,
+        voxel,
+        frames_per_fragment: frames,
+        dark_probability,
+        dark_dropout,
+        room: room_record,
+        hall,
+        object: object_record,
+        fragments: records,
+    };
+    Ok(StyledScene { fragments: clouds, world_from_fragment, world_from_camera: poses, room, recipe })
+}
