@@ -1,9 +1,10 @@
-//! Rigid-transform helpers: least-squares rigid fit (Kabsch/Umeyama without scale), conversions between
-//! 4x4 matrices, hypotheses and quaternions, and error measures. Matrices are `target_from_source`
+//! Rotations and rigid transforms, the one module every part of dpr-gpu uses for them: least-squares rigid fit
+//! (Kabsch/Umeyama without scale), conversions between 4x4 matrices, hypotheses, quaternions and rotation
+//! matrices, projection onto SO(3), and the rotation / translation error measures. Matrices are `target_from_source`
 //! (p_target = T p_source) unless a name says otherwise.
 
 use crate::cpu::hypotheses::Hypothesis;
-use nalgebra::{Matrix3, Matrix4, Rotation3, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Matrix4, UnitQuaternion, Vector3};
 
 /// f32 point to f64 vector.
 pub fn v3(p: [f32; 3]) -> Vector3<f64> {
@@ -41,11 +42,31 @@ pub fn hypothesis_from_matrix(m: &Matrix4<f64>) -> Hypothesis {
     Hypothesis { rotation, translation: [m[(0, 3)] as f32, m[(1, 3)] as f32, m[(2, 3)] as f32] }
 }
 
-/// Unit quaternion `[w, x, y, z]` (w >= 0) of a rotation matrix.
+/// The unit quaternion `[w, x, y, z]` (Hamilton) of a rotation matrix, with `w >= 0`.
+///
+/// Equal to the protocol's w = sqrt(1 + trace R) / 2, x = (R32 - R23) / (4w), ... wherever that formula is well
+/// conditioned, but computed with Shepperd's method (largest of w, x, y, z first) so that rotations near 180
+/// degrees (w near 0) stay accurate. The sign is then chosen so that `w >= 0`.
 pub fn quaternion_from_matrix(r: &Matrix3<f64>) -> [f64; 4] {
-    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(*r));
-    let s = if q.w < 0.0 { -1.0 } else { 1.0 };
-    [s * q.w, s * q.i, s * q.j, s * q.k]
+    let trace = r[(0, 0)] + r[(1, 1)] + r[(2, 2)];
+    let q = if trace >= r[(0, 0)].max(r[(1, 1)]).max(r[(2, 2)]) {
+        let w = 0.5 * (1.0 + trace).max(0.0).sqrt();
+        let s = 0.25 / w;
+        [w, (r[(2, 1)] - r[(1, 2)]) * s, (r[(0, 2)] - r[(2, 0)]) * s, (r[(1, 0)] - r[(0, 1)]) * s]
+    } else if r[(0, 0)] >= r[(1, 1)] && r[(0, 0)] >= r[(2, 2)] {
+        let x = 0.5 * (1.0 + r[(0, 0)] - r[(1, 1)] - r[(2, 2)]).max(0.0).sqrt();
+        let s = 0.25 / x;
+        [(r[(2, 1)] - r[(1, 2)]) * s, x, (r[(0, 1)] + r[(1, 0)]) * s, (r[(0, 2)] + r[(2, 0)]) * s]
+    } else if r[(1, 1)] >= r[(2, 2)] {
+        let y = 0.5 * (1.0 - r[(0, 0)] + r[(1, 1)] - r[(2, 2)]).max(0.0).sqrt();
+        let s = 0.25 / y;
+        [(r[(0, 2)] - r[(2, 0)]) * s, (r[(0, 1)] + r[(1, 0)]) * s, y, (r[(1, 2)] + r[(2, 1)]) * s]
+    } else {
+        let z = 0.5 * (1.0 - r[(0, 0)] - r[(1, 1)] + r[(2, 2)]).max(0.0).sqrt();
+        let s = 0.25 / z;
+        [(r[(1, 0)] - r[(0, 1)]) * s, (r[(0, 2)] + r[(2, 0)]) * s, (r[(1, 2)] + r[(2, 1)]) * s, z]
+    };
+    if q[0] < 0.0 { q.map(|c| -c) } else { q }
 }
 
 /// The rotation nearest to `r` (SVD projection onto SO(3), reflection-corrected), so slightly non-orthonormal
@@ -62,12 +83,11 @@ pub fn matrix_from_quaternion(q: [f64; 4]) -> Matrix3<f64> {
     UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3])).to_rotation_matrix().into_inner()
 }
 
-/// Angle of the relative rotation between two transforms, in degrees.
+/// Geodesic angle between the rotations of two transforms, in degrees (atan2 form, accurate near 0 and 180).
 pub fn rotation_error_deg(a: &Matrix4<f64>, b: &Matrix4<f64>) -> f64 {
-    let ra = a.fixed_view::<3, 3>(0, 0);
-    let rb = b.fixed_view::<3, 3>(0, 0);
-    let c = (((ra.transpose() * rb).trace() - 1.0) / 2.0).clamp(-1.0, 1.0);
-    c.acos().to_degrees()
+    let r = a.fixed_view::<3, 3>(0, 0).transpose() * b.fixed_view::<3, 3>(0, 0);
+    let sin = 0.5 * Vector3::new(r[(2, 1)] - r[(1, 2)], r[(0, 2)] - r[(2, 0)], r[(1, 0)] - r[(0, 1)]).norm();
+    sin.atan2((r.trace() - 1.0) / 2.0).to_degrees()
 }
 
 /// Distance between the translations of two transforms.

@@ -1,34 +1,8 @@
 //! The 3DMatch registration metrics (spec 3.5, 3.6): the information-matrix error of an estimate, registration
 //! recall and precision, feature-match inliers, and plain rotation / translation errors.
 
+use crate::pose::quaternion_from_matrix;
 use nalgebra::{Matrix3, Matrix4, Matrix6, Vector3, Vector6};
-
-/// The unit quaternion `[w, x, y, z]` (Hamilton) of a rotation matrix, with `w >= 0`.
-///
-/// Equal to the protocol's w = sqrt(1 + trace R) / 2, x = (R32 - R23) / (4w), ... wherever that formula is well
-/// conditioned, but computed with Shepperd's method (largest of w, x, y, z first) so that rotations near 180
-/// degrees (w near 0) stay accurate. The sign is then chosen so that `w >= 0`.
-pub fn quaternion_from_rotation(r: &Matrix3<f64>) -> [f64; 4] {
-    let trace = r[(0, 0)] + r[(1, 1)] + r[(2, 2)];
-    let q = if trace >= r[(0, 0)].max(r[(1, 1)]).max(r[(2, 2)]) {
-        let w = 0.5 * (1.0 + trace).max(0.0).sqrt();
-        let s = 0.25 / w;
-        [w, (r[(2, 1)] - r[(1, 2)]) * s, (r[(0, 2)] - r[(2, 0)]) * s, (r[(1, 0)] - r[(0, 1)]) * s]
-    } else if r[(0, 0)] >= r[(1, 1)] && r[(0, 0)] >= r[(2, 2)] {
-        let x = 0.5 * (1.0 + r[(0, 0)] - r[(1, 1)] - r[(2, 2)]).max(0.0).sqrt();
-        let s = 0.25 / x;
-        [(r[(2, 1)] - r[(1, 2)]) * s, x, (r[(0, 1)] + r[(1, 0)]) * s, (r[(0, 2)] + r[(2, 0)]) * s]
-    } else if r[(1, 1)] >= r[(2, 2)] {
-        let y = 0.5 * (1.0 - r[(0, 0)] + r[(1, 1)] - r[(2, 2)]).max(0.0).sqrt();
-        let s = 0.25 / y;
-        [(r[(0, 2)] - r[(2, 0)]) * s, (r[(0, 1)] + r[(1, 0)]) * s, y, (r[(1, 2)] + r[(2, 1)]) * s]
-    } else {
-        let z = 0.5 * (1.0 - r[(0, 0)] - r[(1, 1)] + r[(2, 2)]).max(0.0).sqrt();
-        let s = 0.25 / z;
-        [(r[(1, 0)] - r[(0, 1)]) * s, (r[(0, 2)] + r[(2, 0)]) * s, (r[(1, 2)] + r[(2, 1)]) * s, z]
-    };
-    if q[0] < 0.0 { q.map(|c| -c) } else { q }
-}
 
 /// The inverse of a 4x4 transform: the general inverse (as the MATLAB evaluation uses), or the rigid inverse
 /// when the matrix is singular.
@@ -47,7 +21,7 @@ pub fn inverse(t: &Matrix4<f64>) -> Matrix4<f64> {
 /// part with w >= 0).
 pub fn error_vector(gt: &Matrix4<f64>, estimate: &Matrix4<f64>) -> Vector6<f64> {
     let delta = inverse(gt) * estimate;
-    let q = quaternion_from_rotation(&delta.fixed_view::<3, 3>(0, 0).into_owned());
+    let q = quaternion_from_matrix(&delta.fixed_view::<3, 3>(0, 0).into_owned());
     Vector6::new(delta[(0, 3)], delta[(1, 3)], delta[(2, 3)], q[1], q[2], q[3])
 }
 
@@ -74,18 +48,6 @@ pub fn information_matrix(points: &[[f64; 3]]) -> Matrix6<f64> {
         info += g.transpose() * g;
     }
     info
-}
-
-/// Geodesic angle between the rotations of two transforms, in degrees (atan2 form, accurate near 0 and 180).
-pub fn rotation_error_deg(a: &Matrix4<f64>, b: &Matrix4<f64>) -> f64 {
-    let r = a.fixed_view::<3, 3>(0, 0).transpose() * b.fixed_view::<3, 3>(0, 0);
-    let sin = 0.5 * Vector3::new(r[(2, 1)] - r[(1, 2)], r[(0, 2)] - r[(2, 0)], r[(1, 0)] - r[(0, 1)]).norm();
-    sin.atan2((r.trace() - 1.0) / 2.0).to_degrees()
-}
-
-/// Distance between the translations of two transforms.
-pub fn translation_error(a: &Matrix4<f64>, b: &Matrix4<f64>) -> f64 {
-    (a.fixed_view::<3, 1>(0, 3) - b.fixed_view::<3, 1>(0, 3)).norm()
 }
 
 /// Root mean square distance between `a p` and `b p` over `points` (0 for no points).
@@ -120,6 +82,7 @@ pub fn count_feature_inliers(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::pose::rotation_error_deg;
     use nalgebra::{Rotation3, Unit};
 
     fn transform(axis: [f64; 3], angle_deg: f64, t: [f64; 3]) -> Matrix4<f64> {
@@ -135,7 +98,7 @@ mod tests {
         for (axis, deg) in [([1.0, 2.0, 3.0], 10.0), ([0.0, 0.0, 1.0], 90.0), ([1.0, -1.0, 0.5], 170.0)] {
             let m = transform(axis, deg, [0.0; 3]);
             let r = m.fixed_view::<3, 3>(0, 0).into_owned();
-            let q = quaternion_from_rotation(&r);
+            let q = quaternion_from_matrix(&r);
             let w = 0.5 * (1.0 + r.trace()).sqrt();
             let expected = [
                 w,
@@ -150,16 +113,16 @@ mod tests {
         // 350 degrees about z is -10 degrees: nalgebra gives w = cos(175°) < 0; ours flips to w >= 0 and the vector
         // part becomes sin(5°) * (-z).
         let r = transform([0.0, 0.0, 1.0], 350.0, [0.0; 3]).fixed_view::<3, 3>(0, 0).into_owned();
-        let q = quaternion_from_rotation(&r);
+        let q = quaternion_from_matrix(&r);
         assert!(q[0] > 0.0 && (q[3] + 5f64.to_radians().sin()).abs() < 1e-12, "{q:?}");
         // Near 180 degrees (w ~ 0.0009): the vector part is still a unit axis.
         let r = transform([0.0, 1.0, 0.0], 179.9, [0.0; 3]).fixed_view::<3, 3>(0, 0).into_owned();
-        let q = quaternion_from_rotation(&r);
+        let q = quaternion_from_matrix(&r);
         assert!(q[0] >= 0.0 && q[0] < 1e-3 && (q[2].abs() - 1.0).abs() < 1e-6, "{q:?}");
         assert!((q.iter().map(|c| c * c).sum::<f64>() - 1.0).abs() < 1e-12);
         // Exactly 180 degrees: w = 0, vector part +-axis.
         let r = transform([1.0, 0.0, 0.0], 180.0, [0.0; 3]).fixed_view::<3, 3>(0, 0).into_owned();
-        let q = quaternion_from_rotation(&r);
+        let q = quaternion_from_matrix(&r);
         assert!(q[0].abs() < 1e-12 && (q[1].abs() - 1.0).abs() < 1e-12, "{q:?}");
     }
 

@@ -146,7 +146,7 @@ impl FragmentRotation {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::eval::metrics::rotation_error_deg;
+    use crate::pose::rotation_error_deg;
     use crate::pose::{rigid_fit, transform_point};
 
     fn cloud(seed: u64) -> PointCloud {

@@ -3,8 +3,8 @@
 
 use super::dataset::{GtEntry, SceneData};
 use super::gtlog::LogRecord;
-use super::metrics::{rotation_error_deg, translation_error};
 use crate::error::Result;
+use crate::pose::{rotation_error_deg, translation_error};
 use crate::settings::StageTime;
 use nalgebra::Matrix4;
 use serde::Serialize;
