@@ -1,21 +1,31 @@
 // SPDX-License-Identifier: MIT OR Apache-2.0
 // rotation_head: RelativeNet's raw outputs to rotations target_from_source in the fragments' frames. Per row,
-// the raw output (width 4: a quaternion [w, x, y, z], normalised; width 6: two columns made orthonormal by
-// Gram-Schmidt, the third their cross product) is the rotation between the two patches as PC-FoldNet saw them;
+// the raw output (mode 0, width 4: a quaternion [w, x, y, z], normalised; mode 1, width 6: two columns made
+// orthonormal by Gram-Schmidt, the third their cross product; mode 2, width = bins: angle logits about +z, of
+// which the `candidates` best bins (ties to the lower bin), each refined by the parabola through its wrapped
+// neighbours (clamped to half a bin), give one rotation each) is the rotation between the two patches as
+// PC-FoldNet saw them;
 // with normal-aligned patches (frame = 1) the fragment-frame rotation is F(n_t)^T R F(n_s), F(n) the normal frame
 // of a keypoint normal (rows t1, t2, n; Duff et al. 2017). A degenerate output (norm not above min_norm, or NaN)
 // gives the identity; a zero normal gives the identity frame. One invocation per row, the workgroup grid
 // linearised.
 // Bindings: 0 params (uniform) | 1 raw (width per row) | 2 source_normals, 3 target_normals (xyz per row)
-//           (read) | 4 out (9 per row, row-major, written).
+//           (read) | 4 out (candidates x 9 per row, row-major, written).
 // CPU twin: src/cpu/rotation_head.rs
 
 struct RotationHeadParams {
     rows: u32,
     width: u32,
     frame: u32,
+    mode: u32,
+    candidates: u32,
     min_norm: f32,
+    _pad0: u32,
+    _pad1: u32,
 }
+
+const TAU: f32 = 6.28318530717958647692528676655900577;
+const PI: f32 = 3.14159265358979323846264338327950288;
 
 const WG_SIZE: u32 = 64u;
 
@@ -94,22 +104,28 @@ fn six_d_rotation(base: u32) -> array<f32, 9> {
     return array<f32, 9>(b1.x, b2.x, b3.x, b1.y, b2.y, b3.y, b1.z, b2.z, b3.z);
 }
 
-@compute @workgroup_size(WG_SIZE)
-fn main(
-    @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
-    @builtin(local_invocation_index) lid: u32,
-) {
-    let i = (wid.x + wid.y * nwg.x) * WG_SIZE + lid;
-    if i >= params.rows {
-        return;
+// The angle (radians, in [-pi, pi)) of bin `best` of the row at `base`, refined by the parabola through its
+// logit and its two wrapped neighbours' (clamped to half a bin; no shift unless the parabola opens downwards).
+fn bin_angle(base: u32, best: u32) -> f32 {
+    let k_bins = params.width;
+    let l0 = raw[base + (best + k_bins - 1u) % k_bins];
+    let l1 = raw[base + best];
+    let l2 = raw[base + (best + 1u) % k_bins];
+    let den = l0 - 2.0 * l1 + l2;
+    var offset = 0.0;
+    if den < 0.0 {
+        offset = clamp(0.5 * (l0 - l2) / den, -0.5, 0.5);
     }
-    var r: array<f32, 9>;
-    if params.width == 6u {
-        r = six_d_rotation(i * 6u);
-    } else {
-        r = quaternion_rotation(i * 4u);
+    var angle = TAU * (f32(best) + offset) / f32(k_bins);
+    if angle >= PI {
+        angle -= TAU;
     }
+    return angle;
+}
+
+// `r` (network frames) to the fragments' frames of row i, then written as candidate `slot` of row i.
+fn emit(i: u32, slot: u32, net: array<f32, 9>) {
+    var r = net;
     if params.frame == 1u {
         let fs = normal_frame(vec3<f32>(source_normals[i * 3u], source_normals[i * 3u + 1u], source_normals[i * 3u + 2u]));
         let ft = normal_frame(vec3<f32>(target_normals[i * 3u], target_normals[i * 3u + 1u], target_normals[i * 3u + 2u]));
@@ -126,7 +142,52 @@ fn main(
             }
         }
     }
+    let o = (i * params.candidates + slot) * 9u;
     for (var e = 0u; e < 9u; e++) {
-        out[i * 9u + e] = r[e];
+        out[o + e] = r[e];
+    }
+}
+
+@compute @workgroup_size(WG_SIZE)
+fn main(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let i = (wid.x + wid.y * nwg.x) * WG_SIZE + lid;
+    if i >= params.rows {
+        return;
+    }
+    if params.mode == 0u {
+        emit(i, 0u, quaternion_rotation(i * 4u));
+        return;
+    }
+    if params.mode == 1u {
+        emit(i, 0u, six_d_rotation(i * 6u));
+        return;
+    }
+    // Angle bins: candidate j is the best bin ranked after candidate j - 1 (by logit, then lower bin first).
+    let base = i * params.width;
+    var prev_v = 0.0;
+    var prev_k = 0u;
+    for (var j = 0u; j < params.candidates; j++) {
+        var best = params.width;
+        var best_v = 0.0;
+        for (var k = 0u; k < params.width; k++) {
+            let v = raw[base + k];
+            if j > 0u && !(v < prev_v || (v == prev_v && k > prev_k)) {
+                continue;
+            }
+            if best == params.width || v > best_v {
+                best = k;
+                best_v = v;
+            }
+        }
+        let angle = bin_angle(base, best);
+        let s = sin(angle);
+        let c = cos(angle);
+        emit(i, j, array<f32, 9>(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0));
+        prev_v = best_v;
+        prev_k = best;
     }
 }

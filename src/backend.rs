@@ -67,7 +67,7 @@ pub trait Backend: Send + Sync {
 
     /// RelativeNet's rotations target_from_source (row-major, fragment frames) for rows of [source | target]
     /// pose features, given the keypoint normals of each row's source and target patch (the normal frames of
-    /// `PoseFrame::Normal`).
+    /// `PoseFrame::Normal`): `rotation_output.candidates()` consecutive rotations per row.
     fn predict_rotations(&self, pose: RotationInputs<'_>) -> Result<Vec<[f32; 9]>>;
 
     /// One hypothesis per correspondence from its rotation.

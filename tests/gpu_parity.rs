@@ -51,6 +51,10 @@ const PC_FRAME_RTOL: f32 = 32.0 * EPS;
 /// two 3x3 products of unit-scale matrices; each step a few ulp on a GPU, so a few tens of ulp of 1 in all.
 const ROTATION_ATOL: f32 = 64.0 * EPS;
 
+/// rotation_head with angle bins: the angle's `sin` and `cos` on a GPU need only an absolute accuracy of 2^-11
+/// on [-pi, pi] (Vulkan's precision rules), so the rotation entries get that bound.
+const ROTATION_BINS_ATOL: f32 = 1.0 / 2048.0;
+
 /// hypotheses: R copied, t = p_t - R p_s (FMA-contractible); errors are a few ulp of the largest term.
 const HYPOTHESIS_ULPS: f32 = 16.0;
 
@@ -417,7 +421,8 @@ fn mutual_knn_matches_cpu_with_ties() {
 fn rotation_head_matches_cpu() {
     let Some(g) = gpu() else { return };
     let s = seed(51);
-    for output in [RotationOutput::Quaternion, RotationOutput::SixD] {
+    let bins = RotationOutput::AngleBins { bins: 36, candidates: 3 };
+    for output in [RotationOutput::Quaternion, RotationOutput::SixD, bins] {
         let mut rng = Rng::new(s);
         let w = output.width();
         let rows = 131;
@@ -427,9 +432,16 @@ fn rotation_head_matches_cpu() {
                 rng.normal() as f32 * scale
             })
             .collect();
-        // Degenerate rows: zero, below the minimum norm (identity), just above it, one-hot, NaN, and for 6-D a
-        // second column parallel to the first.
-        let mut extra: Vec<Vec<f32>> = vec![vec![0.0; w], vec![1e-13; w], vec![2e-12; w], vec![f32::NAN; w]];
+        // Degenerate rows: zero, below the minimum norm (identity), just above it, one-hot, NaN (not for angle
+        // bins, whose NaN ordering WGSL leaves undefined), and for 6-D a second column parallel to the first.
+        let mut extra: Vec<Vec<f32>> = vec![vec![0.0; w], vec![1e-13; w], vec![2e-12; w]];
+        if !matches!(output, RotationOutput::AngleBins { .. }) {
+            extra.push(vec![f32::NAN; w]);
+        } else {
+            // Ties everywhere, and a peak on the wrap-around.
+            extra.push((0..w).map(|k| (k % 3) as f32).collect());
+            extra.push((0..w).map(|k| if k == 0 || k == w - 1 { 2.0 } else { 0.0 }).collect());
+        }
         let mut one_hot = vec![0.0; w];
         one_hot[1] = -3.0;
         extra.push(one_hot);
@@ -445,10 +457,12 @@ fn rotation_head_matches_cpu() {
         ns[..4].copy_from_slice(&[[0.0; 3], [0.0, 0.0, -1.0], [1.0, 0.0, -0.0], [f32::NAN; 3]]);
         for frame in [PoseFrame::Fragment, PoseFrame::Normal] {
             let want = cpu_rotation_head(&raw, output, frame, &ns, &nt);
-            let mut got = vec![[SENTINEL; 9]; n];
+            assert_eq!(want.len(), n * output.candidates());
+            let mut got = vec![[SENTINEL; 9]; want.len()];
             gpu::rotation_head::run(&g, &raw, output, frame, [&ns, &nt], &mut got).unwrap();
             let name = format!("rotation_head ({output:?}, {frame:?})");
-            assert_close(&name, s, got.as_flattened(), want.as_flattened(), |_| ROTATION_ATOL);
+            let tol = if output == bins { ROTATION_BINS_ATOL } else { ROTATION_ATOL };
+            assert_close(&name, s, got.as_flattened(), want.as_flattened(), |_| tol);
         }
     }
 }
@@ -637,7 +651,8 @@ fn networks_match_cpu_at_default_widths() {
     };
     let want = cpu_b.predict_rotations(inputs).unwrap();
     let got = gpu_b.predict_rotations(inputs).unwrap();
-    assert_close("predict_rotations (default widths)", s, got.as_flattened(), want.as_flattened(), |_| NETWORK_RTOL);
+    let tol = if cpu_b.model().config.rotation_output.candidates() > 1 { ROTATION_BINS_ATOL } else { NETWORK_RTOL };
+    assert_close("predict_rotations (default widths)", s, got.as_flattened(), want.as_flattened(), |_| tol);
 }
 
 #[test]
@@ -692,6 +707,7 @@ fn relativenet_hypotheses_and_scores_match_cpu() {
     let Some(g) = gpu() else { return };
     let s = seed(64);
     let heads = [
+        (PoseFrame::Normal, RotationOutput::AngleBins { bins: 12, candidates: 2 }),
         (PoseFrame::Normal, RotationOutput::SixD),
         (PoseFrame::Fragment, RotationOutput::Quaternion),
         (PoseFrame::Normal, RotationOutput::Quaternion),
@@ -716,12 +732,14 @@ fn relativenet_matches_cpu(s: u64, gpu_b: &GpuBackend, cpu_b: &CpuBackend) {
     let want = cpu_b.predict_rotations(inputs).unwrap();
     let got = gpu_b.predict_rotations(inputs).unwrap();
     let name = format!("predict_rotations ({:?}, {:?})", config.pose_frame, config.rotation_output);
-    assert_close(&name, s, got.as_flattened(), want.as_flattened(), |_| NETWORK_RTOL);
+    assert_eq!(want.len(), rows * config.rotation_output.candidates());
+    let tol = if config.rotation_output.candidates() > 1 { ROTATION_BINS_ATOL } else { NETWORK_RTOL };
+    assert_close(&name, s, got.as_flattened(), want.as_flattened(), |_| tol);
     // Wrong lengths are errors on both backends.
     let short = RotationInputs { source_normals: &ns[1..], ..inputs };
     assert!(cpu_b.predict_rotations(short).is_err() && gpu_b.predict_rotations(short).is_err());
 
-    let (ps, pt) = (points(&mut rng, rows, 2.0), points(&mut rng, rows, 2.0));
+    let (ps, pt) = (points(&mut rng, want.len(), 2.0), points(&mut rng, want.len(), 2.0));
     let want_h = cpu_b.hypotheses(&want, &ps, &pt).unwrap();
     let got_h = gpu_b.hypotheses(&want, &ps, &pt).unwrap();
     let flat = |h: &[Hypothesis]| h.iter().flat_map(gpu::hypotheses::to_row).collect::<Vec<f32>>();

@@ -304,6 +304,45 @@ fn six_d_pose_loss_matches_finite_differences() {
 }
 
 #[test]
+fn angle_bin_loss_is_the_cross_entropy_and_matches_finite_differences() {
+    use dpr_gpu::cpu::rotation_head::rotation_about_z;
+    use dpr_gpu::train::loss::{ANGLE_TARGET_SIGMA_BINS, angle_bins_loss};
+    let mut rng = Rng::new(28);
+    let k = 12;
+    for trial in 0..6 {
+        let logits = randn(&mut rng, k, 2.0);
+        let angle = rng.uniform(-3.1, 3.1);
+        let label = rotation_about_z(angle as f32).map(f64::from);
+        // The definition: soft target over bins by wrapped distance to angle / bin width, cross-entropy.
+        let position = (angle.rem_euclid(std::f64::consts::TAU)) / std::f64::consts::TAU * k as f64;
+        let target: Vec<f64> = (0..k)
+            .map(|b| {
+                let d = (b as f64 - position).rem_euclid(k as f64);
+                let d = d.min(k as f64 - d);
+                (-0.5 * (d / ANGLE_TARGET_SIGMA_BINS).powi(2)).exp()
+            })
+            .collect();
+        let total: f64 = target.iter().sum();
+        let f = |z: &[f64]| {
+            let lse = z.iter().map(|v| v.exp()).sum::<f64>().ln();
+            -z.iter().zip(&target).map(|(v, t)| t / total * (v - lse)).sum::<f64>()
+        };
+        let (value, grad) = angle_bins_loss(&logits, &label);
+        assert!((value - f(&to64(&logits))).abs() < 1e-6, "trial {trial}");
+        let grad32: Vec<f32> = grad.iter().map(|&v| v as f32).collect();
+        check_all("angle-bin loss", &logits, &grad32, &f);
+        // Logits peaked at the true bin score lower than logits peaked half a turn away.
+        let peak = |bin: usize| (0..k).map(|b| if b == bin { 8.0 } else { 0.0 }).collect::<Vec<f32>>();
+        let true_bin = position.round() as usize % k;
+        assert!(angle_bins_loss(&peak(true_bin), &label).0 < angle_bins_loss(&peak((true_bin + k / 2) % k), &label).0);
+    }
+    // A label that flips the normal carries no angle: zero loss, zero gradient.
+    let flip = [1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0];
+    let (v, g) = angle_bins_loss(&randn(&mut rng, k, 1.0), &flip);
+    assert!(v == 0.0 && g.iter().all(|&x| x == 0.0));
+}
+
+#[test]
 fn feature_loss_matches_finite_differences() {
     let mut rng = Rng::new(9);
     let a = randn(&mut rng, 7, 1.0);
@@ -352,7 +391,13 @@ fn random_sample(config: &ModelConfig, rng: &mut Rng) -> PairSample {
     PairSample {
         ppf: (0..2 * n * 4).map(|_| rng.unit_f64() as f32).collect(),
         pc: (0..2 * n * 3).map(|_| rng.uniform(-1.0, 1.0) as f32).collect(),
-        label: rotation_rows(rng.unit_quaternion()),
+        label: match config.rotation_output {
+            // The angle-bin head learns rotations about the normal (z): the labels of normal-aligned patches.
+            RotationOutput::AngleBins { .. } => {
+                dpr_gpu::cpu::rotation_head::rotation_about_z(rng.uniform(-3.1, 3.1) as f32).map(f64::from)
+            }
+            _ => rotation_rows(rng.unit_quaternion()),
+        },
     }
 }
 
@@ -388,7 +433,8 @@ fn training_forward_equals_the_inference_forward_bit_for_bit() {
 
 #[test]
 fn whole_model_gradient_matches_finite_differences() {
-    for output in [RotationOutput::SixD, RotationOutput::Quaternion] {
+    let bins = RotationOutput::AngleBins { bins: 8, candidates: 2 };
+    for output in [RotationOutput::SixD, RotationOutput::Quaternion, bins] {
         whole_model_gradient_matches(ModelConfig { rotation_output: output, ..tiny_config() });
     }
 }

@@ -43,8 +43,9 @@ pub struct Args {
     /// `fragment` (the paper). With --init, a different head keeps the FoldNets and re-initialises RelativeNet.
     #[arg(long)]
     pub pose_frame: Option<PoseFrame>,
-    /// RelativeNet's rotation output: `six-d` (Gram-Schmidt, chordal loss; the default) or `quaternion` (the
-    /// paper's L2 loss).
+    /// RelativeNet's rotation output: `angle-bins[:BINS[:CANDIDATES]]` (the default, 36 bins and 3 candidates:
+    /// classify the angle about the normal, one hypothesis per candidate; normal frame only), `six-d`
+    /// (Gram-Schmidt, chordal loss) or `quaternion` (the paper's L2 loss).
     #[arg(long)]
     pub rotation_output: Option<RotationOutput>,
     /// Train until this many steps are done in total (a resumed run counts the checkpoint's steps).

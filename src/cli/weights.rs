@@ -22,7 +22,8 @@ pub struct ConfigOptions {
     /// Frame of PC-FoldNet's patches: normal (compact's default) or fragment (the paper's).
     #[arg(long)]
     pub pose_frame: Option<PoseFrame>,
-    /// RelativeNet's rotation output: six-d (compact's default) or quaternion (the paper's).
+    /// RelativeNet's rotation output: angle-bins[:BINS[:CANDIDATES]] (compact's default), six-d or quaternion
+    /// (the paper's).
     #[arg(long)]
     pub rotation_output: Option<RotationOutput>,
 }

@@ -6,6 +6,9 @@
 //! fragment-frame patches that is already the answer; with normal-aligned patches (each patch rotated by its
 //! keypoint's [`normal_frame`] `F`, so its normal is +z) the fragment-frame rotation is
 //! `R = F_target^T R_net F_source`. Matrices are row-major `[f32; 9]`.
+//!
+//! The angle-bin output gives several rotations per correspondence ([`angle_candidates`]): rows of `candidates`
+//! consecutive matrices, best bin first.
 
 use crate::model::config::{PoseFrame, RotationOutput};
 
@@ -98,16 +101,60 @@ pub fn mat_t_mul(a: &[f32; 9], b: &[f32; 9]) -> [f32; 9] {
     out
 }
 
-/// The rotation of one raw output, in the network's (patch) frames.
-pub fn network_rotation(raw: &[f32], output: RotationOutput) -> [f32; 9] {
+/// The rotation about +z by `angle` radians.
+pub fn rotation_about_z(angle: f32) -> [f32; 9] {
+    let (s, c) = (angle.sin(), angle.cos());
+    [c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0]
+}
+
+/// Logit ordering for the candidate search: NaN counts as below everything.
+fn above(a: f32, b: f32) -> bool {
+    !a.is_nan() && (b.is_nan() || a > b)
+}
+
+/// The `candidates` best angles (radians, in [-pi, pi)) of one row of `bins` angle logits, best first: bins by
+/// decreasing logit (ties to the lower bin), each refined by the vertex of the parabola through its own and its
+/// two neighbours' logits (wrapped), clamped to half a bin.
+pub fn angle_candidates(logits: &[f32], candidates: usize) -> Vec<f32> {
+    let k_bins = logits.len();
+    let mut chosen = vec![false; k_bins];
+    let mut out = Vec::with_capacity(candidates);
+    for _ in 0..candidates.min(k_bins) {
+        let mut best = usize::MAX;
+        for k in 0..k_bins {
+            if !chosen[k] && (best == usize::MAX || above(logits[k], logits[best])) {
+                best = k;
+            }
+        }
+        chosen[best] = true;
+        let l0 = logits[(best + k_bins - 1) % k_bins];
+        let l1 = logits[best];
+        let l2 = logits[(best + 1) % k_bins];
+        let den = l0 - 2.0 * l1 + l2;
+        let offset = if den < 0.0 { (0.5 * (l0 - l2) / den).clamp(-0.5, 0.5) } else { 0.0 };
+        let mut angle = std::f32::consts::TAU * (best as f32 + offset) / k_bins as f32;
+        if angle >= std::f32::consts::PI {
+            angle -= std::f32::consts::TAU;
+        }
+        out.push(angle);
+    }
+    out
+}
+
+/// The rotations of one raw output, in the network's (patch) frames: one, or one per angle candidate.
+pub fn network_rotations(raw: &[f32], output: RotationOutput) -> Vec<[f32; 9]> {
     match output {
-        RotationOutput::Quaternion => quaternion_rotation([raw[0], raw[1], raw[2], raw[3]]),
-        RotationOutput::SixD => six_d_rotation([raw[0], raw[1], raw[2], raw[3], raw[4], raw[5]]),
+        RotationOutput::Quaternion => vec![quaternion_rotation([raw[0], raw[1], raw[2], raw[3]])],
+        RotationOutput::SixD => vec![six_d_rotation([raw[0], raw[1], raw[2], raw[3], raw[4], raw[5]])],
+        RotationOutput::AngleBins { .. } => {
+            angle_candidates(raw, output.candidates()).into_iter().map(rotation_about_z).collect()
+        }
     }
 }
 
 /// Fragment-frame rotations (target_from_source) of `rows` raw outputs (`rows x output.width()`), given the
-/// keypoint normals of each correspondence's source and target patch (used by [`PoseFrame::Normal`]).
+/// keypoint normals of each correspondence's source and target patch (used by [`PoseFrame::Normal`]):
+/// `rows x output.candidates()` matrices.
 pub fn rotation_head(
     raw: &[f32],
     output: RotationOutput,
@@ -117,16 +164,15 @@ pub fn rotation_head(
 ) -> Vec<[f32; 9]> {
     raw.chunks_exact(output.width())
         .enumerate()
-        .map(|(i, r)| {
-            let net = network_rotation(r, output);
-            match frame {
+        .flat_map(|(i, r)| {
+            network_rotations(r, output).into_iter().map(move |net| match frame {
                 PoseFrame::Fragment => net,
                 PoseFrame::Normal => {
                     let fs = normal_frame(source_normals[i]);
                     let ft = normal_frame(target_normals[i]);
                     mat_mul(&mat_t_mul(&ft, &net), &fs)
                 }
-            }
+            })
         })
         .collect()
 }
@@ -198,6 +244,38 @@ mod tests {
         assert_eq!(quaternion_rotation([0.0; 4]), IDENTITY);
         assert_eq!(six_d_rotation([1.0, 0.0, 0.0, 2.0, 0.0, 0.0]), IDENTITY);
         assert_eq!(six_d_rotation([f32::NAN; 6]), IDENTITY);
+    }
+
+    #[test]
+    fn angle_candidates_are_ordered_refined_and_wrapped() {
+        // A peak at bin 3 of 12 with a heavier right neighbour: best is bin 3, shifted right by the parabola's
+        // vertex; the runner-up is the best remaining bin.
+        let mut logits = vec![0.0f32; 12];
+        logits[2] = 1.0;
+        logits[3] = 3.0;
+        logits[4] = 2.0;
+        logits[9] = 2.5;
+        let c = angle_candidates(&logits, 3);
+        let bin = std::f32::consts::TAU / 12.0;
+        let vertex = 0.5 * (1.0 - 2.0) / (1.0 - 6.0 + 2.0);
+        assert!((c[0] - bin * (3.0 + vertex)).abs() < 1e-6);
+        // Bin 9 (270 degrees) wraps to -90 degrees; its neighbours are equal, so no shift.
+        assert!((c[1] - (bin * 9.0 - std::f32::consts::TAU)).abs() < 1e-6);
+        // Bin 4's parabola peaks 1.5 bins to the left: clamped to half a bin.
+        assert!((c[2] - bin * 3.5).abs() < 1e-6, "{c:?}");
+        // Ties go to the lower bin, NaN ranks last, a flat row gives bin 0 unshifted.
+        assert_eq!(
+            angle_candidates(&[1.0, f32::NAN, 1.0, 0.5], 2),
+            vec![0.0, std::f32::consts::PI - std::f32::consts::TAU]
+        );
+        assert_eq!(angle_candidates(&[f32::NAN, 0.0, 0.0, 0.0], 1), vec![std::f32::consts::FRAC_PI_2 * 1.0]);
+        assert_eq!(angle_candidates(&[0.0; 4], 9).len(), 4);
+        // A one-hot row at the true angle's bin gives that angle's rotation about z.
+        let mut hot = vec![-10.0f32; 36];
+        hot[7] = 10.0;
+        let out = network_rotations(&hot, RotationOutput::AngleBins { bins: 36, candidates: 2 });
+        assert_eq!(out.len(), 2);
+        assert!((m(&out[0]) - m(&rotation_about_z(70f32.to_radians()))).norm() < 1e-5);
     }
 
     #[test]

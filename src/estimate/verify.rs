@@ -17,7 +17,9 @@ pub fn best_hypothesis(scores: &[HypothesisScore]) -> Option<usize> {
     })
 }
 
-/// Hypothesize and verify from per-correspondence rotations (row-major, target_from_source).
+/// Hypothesize and verify from per-correspondence rotations (row-major, target_from_source): `rotations` holds
+/// `m` consecutive candidates per correspondence (m = 1 but for the angle-bin head), each one hypothesis; all
+/// are scored over the correspondences.
 pub fn verify(
     backend: &dyn Backend,
     rotations: &[[f32; 9]],
@@ -25,7 +27,21 @@ pub fn verify(
     target: &[[f32; 3]],
     threshold: f32,
 ) -> Result<PoseEstimate> {
-    let hypotheses = backend.hypotheses(rotations, source, target)?;
+    if source.is_empty() || source.len() != target.len() || !rotations.len().is_multiple_of(source.len()) {
+        return Err(crate::Error::invalid(format!(
+            "verify: {} rotations for {} source and {} target points",
+            rotations.len(),
+            source.len(),
+            target.len()
+        )));
+    }
+    let m = rotations.len() / source.len();
+    let repeat = |p: &[[f32; 3]]| p.iter().flat_map(|&q| std::iter::repeat_n(q, m)).collect::<Vec<_>>();
+    let hypotheses = if m == 1 {
+        backend.hypotheses(rotations, source, target)?
+    } else {
+        backend.hypotheses(rotations, &repeat(source), &repeat(target))?
+    };
     let scores = backend.score_hypotheses(&hypotheses, source, target, threshold)?;
     let best = best_hypothesis(&scores).ok_or_else(|| crate::Error::invalid("no hypotheses to verify"))?;
     Ok(refine(matrix_from_hypothesis(&hypotheses[best]), source, target, threshold, hypotheses.len()))

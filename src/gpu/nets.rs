@@ -325,7 +325,8 @@ pub fn decode(gpu: &Gpu, ws: &mut Workspace, f: &GpuFoldNet, codewords: &[f32], 
     Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0)?))
 }
 
-/// RelativeNet's rotations (row-major, fragment frames) for the rows of `pose`, as `RelativeNet::predict`.
+/// RelativeNet's rotations (row-major, fragment frames; `candidates` per row) for the rows of `pose`, as
+/// `RelativeNet::predict`.
 pub fn relative(
     gpu: &Gpu,
     ws: &mut Workspace,
@@ -354,7 +355,8 @@ pub fn relative(
         return Ok(Vec::new());
     }
     let ctx = &gpu.context;
-    let widest = layers.iter().map(|l| l.out_dim).chain([f, 9]).max().unwrap_or(f);
+    let m = config.rotation_output.candidates();
+    let widest = layers.iter().map(|l| l.out_dim).chain([f, 9 * m]).max().unwrap_or(f);
     let chunk = items_per_chunk(ctx, (widest * 4) as u64, "RelativeNet row")?;
     let mut pending = Vec::new();
     for r0 in (0..rows).step_by(chunk) {
@@ -369,10 +371,10 @@ pub fn relative(
         dense_call(&mut rec, gpu, l0, (&s, f, 0), (n, n), Some(&l0.bias), (false, false), &bufs[0])?;
         dense_call(&mut rec, gpu, l0, (&t, f, f), (n, n), None, (true, relu0), &bufs[0])?;
         let raw = tail(&mut rec, gpu, layers, &bufs, n, false)?;
-        let rotations = ws.buffer(ctx, "rel_rotations", (n * 36) as u64)?;
+        let rotations = ws.buffer(ctx, "rel_rotations", (n * m * 36) as u64)?;
         let params = rotation_head::RotationHeadParams::new(n, config.rotation_output, config.pose_frame)?;
         rotation_head::record(&mut rec, gpu, &params, [&raw, &ns, &nt], &rotations)?;
-        rec.read(&rotations, 0, (n * 36) as u64);
+        rec.read(&rotations, 0, (n * m * 36) as u64);
         pending.push(rec.submit()?);
     }
     Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0)?))

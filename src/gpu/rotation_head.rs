@@ -13,23 +13,40 @@ gpu_params! {
     pub struct RotationHeadParams {
         /// Rows (correspondences).
         pub rows: u32,
-        /// Raw values per row: 4 (quaternion) or 6 (two columns).
+        /// Raw values per row: 4 (quaternion), 6 (two columns) or the angle bins.
         pub width: u32,
         /// 1 for normal-aligned patches, 0 for fragment-frame patches.
         pub frame: u32,
+        /// 0 quaternion, 1 6-D, 2 angle bins.
+        pub mode: u32,
+        /// Rotations per row (1, or the angle candidates).
+        pub candidates: u32,
         /// Norms not above this give the identity ([`MIN_NORM`]).
         pub min_norm: f32,
+        /// Padding.
+        pub _pad0: u32,
+        /// Padding.
+        pub _pad1: u32,
     }
 }
 
 impl RotationHeadParams {
     /// Parameters for `rows` rows of `output` in `frame`.
     pub fn new(rows: usize, output: RotationOutput, frame: PoseFrame) -> Result<RotationHeadParams> {
+        let mode = match output {
+            RotationOutput::Quaternion => 0,
+            RotationOutput::SixD => 1,
+            RotationOutput::AngleBins { .. } => 2,
+        };
         Ok(RotationHeadParams {
             rows: to_u32(rows, "rotations")?,
             width: to_u32(output.width(), "rotation output width")?,
             frame: u32::from(frame == PoseFrame::Normal),
+            mode,
+            candidates: to_u32(output.candidates(), "rotation candidates")?,
             min_norm: MIN_NORM,
+            _pad0: 0,
+            _pad1: 0,
         })
     }
 }
@@ -47,7 +64,7 @@ pub const SPEC: KernelSpec = KernelSpec {
 };
 
 /// Records the rotations of `params.rows` rows: `raw` outputs and the rows' keypoint normals into `out`
-/// (9 floats per row).
+/// (`candidates x 9` floats per row).
 pub fn record<'a>(
     rec: &mut Recorder<'a>,
     gpu: &'a Gpu,
@@ -68,8 +85,9 @@ pub fn run(
     [source_normals, target_normals]: [&[[f32; 3]]; 2],
     out: &mut [[f32; 9]],
 ) -> Result<()> {
-    let rows = out.len();
-    if raw.len() != rows * output.width() || source_normals.len() != rows || target_normals.len() != rows {
+    let rows = source_normals.len();
+    let m = output.candidates();
+    if raw.len() != rows * output.width() || target_normals.len() != rows || out.len() != rows * m {
         return Err(Error::invalid("rotation_head: raw outputs, normals and outputs differ in length"));
     }
     let ctx = &gpu.context;
@@ -80,7 +98,7 @@ pub fn run(
     let ob = super::buffer::GpuBuffer::from_slice(ctx, "rotations", out)?;
     let mut rec = Recorder::new(gpu, "rotation_head");
     record(&mut rec, gpu, &params, [rb.raw(), sb.raw(), tb.raw()], ob.raw())?;
-    let r = rec.read(ob.raw(), 0, (rows * 36) as u64);
+    let r = rec.read(ob.raw(), 0, (out.len() * 36) as u64);
     let bytes = rec.finish()?;
     out.copy_from_slice(bytemuck::cast_slice(&bytes[r]));
     Ok(())

@@ -27,7 +27,25 @@ pub enum RotationOutput {
     /// 6 values, the first two columns of the rotation, made orthonormal by Gram-Schmidt (Zhou et al., CVPR
     /// 2019: a continuous representation of SO(3)), trained with the chordal (Frobenius) distance.
     SixD,
+    /// Coarse to fine over the cyclic group about the normal (normal-aligned patches only): `bins` logits over
+    /// the angle about +z, bin k centred on `2 pi k / bins`, trained with cross-entropy against a wrapped
+    /// Gaussian around the true angle (so several plausible angles can keep probability); inference takes the
+    /// `candidates` best bins, refines each by a parabola through its neighbours' logits, and emits one rotation
+    /// (one hypothesis) per candidate.
+    AngleBins {
+        /// Angle bins over the full turn.
+        bins: u32,
+        /// Rotations (hypotheses) per correspondence at inference.
+        candidates: u32,
+    },
 }
+
+/// Angle bins of `RotationOutput::AngleBins` when none are given (10 degrees each).
+pub const DEFAULT_ANGLE_BINS: u32 = 36;
+/// Candidates per correspondence of `RotationOutput::AngleBins` when none are given.
+pub const DEFAULT_ANGLE_CANDIDATES: u32 = 3;
+/// Most candidates per correspondence (the GPU kernel's fixed-size selection).
+pub const MAX_ANGLE_CANDIDATES: u32 = 8;
 
 impl std::str::FromStr for PoseFrame {
     type Err = Error;
@@ -42,11 +60,29 @@ impl std::str::FromStr for PoseFrame {
 
 impl std::str::FromStr for RotationOutput {
     type Err = Error;
+    /// `quaternion`, `six-d`, or `angle-bins[:BINS[:CANDIDATES]]`.
     fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "quaternion" => Ok(RotationOutput::Quaternion),
-            "six-d" | "6d" => Ok(RotationOutput::SixD),
-            other => Err(Error::invalid(format!("unknown rotation output '{other}' (expected quaternion or six-d)"))),
+        let bad = || {
+            Error::invalid(format!(
+                "unknown rotation output '{s}' (expected quaternion, six-d or angle-bins[:BINS[:CANDIDATES]])"
+            ))
+        };
+        let mut parts = s.split(':');
+        match parts.next() {
+            Some("quaternion") if s == "quaternion" => Ok(RotationOutput::Quaternion),
+            Some("six-d" | "6d") if !s.contains(':') => Ok(RotationOutput::SixD),
+            Some("angle-bins") => {
+                let mut num = |default: u32| -> Result<u32> {
+                    parts.next().map_or(Ok(default), |v| v.parse().map_err(|_| bad()))
+                };
+                let bins = num(DEFAULT_ANGLE_BINS)?;
+                let candidates = num(DEFAULT_ANGLE_CANDIDATES)?;
+                if parts.next().is_some() {
+                    return Err(bad());
+                }
+                Ok(RotationOutput::AngleBins { bins, candidates })
+            }
+            _ => Err(bad()),
         }
     }
 }
@@ -57,6 +93,15 @@ impl RotationOutput {
         match self {
             RotationOutput::Quaternion => 4,
             RotationOutput::SixD => 6,
+            RotationOutput::AngleBins { bins, .. } => bins as usize,
+        }
+    }
+
+    /// Rotations (hypotheses) per correspondence.
+    pub fn candidates(self) -> usize {
+        match self {
+            RotationOutput::AngleBins { bins, candidates } => candidates.min(bins) as usize,
+            _ => 1,
         }
     }
 }
@@ -89,8 +134,9 @@ pub struct ModelConfig {
 }
 
 impl Default for ModelConfig {
-    /// The compact configuration the shipped weights use: the paper's widths, fewer points per patch
-    /// (256, grid 16 x 16) so that training and CPU inference fit a 2-core machine.
+    /// The compact configuration: the paper's widths, fewer points per patch (256, grid 16 x 16) so that
+    /// training and CPU inference fit a 2-core machine, and the pose head that covers all of SO(3):
+    /// normal-aligned patches with 36 angle bins, 3 candidates per correspondence (see `weights/README.md`).
     fn default() -> Self {
         ModelConfig {
             radius: 0.30,
@@ -102,7 +148,10 @@ impl Default for ModelConfig {
             grid_extent: 0.3,
             relative_widths: vec![512, 256, 128],
             pose_frame: PoseFrame::Normal,
-            rotation_output: RotationOutput::SixD,
+            rotation_output: RotationOutput::AngleBins {
+                bins: DEFAULT_ANGLE_BINS,
+                candidates: DEFAULT_ANGLE_CANDIDATES,
+            },
         }
     }
 }
@@ -166,6 +215,16 @@ impl ModelConfig {
         }
         if self.grid.contains(&0) {
             problems.push(format!("grid must be positive, got {:?}", self.grid));
+        }
+        if let RotationOutput::AngleBins { bins, candidates } = self.rotation_output {
+            if !(4..=360).contains(&bins) || !(1..=MAX_ANGLE_CANDIDATES).contains(&candidates) {
+                problems.push(format!(
+                    "angle-bins needs 4..=360 bins and 1..={MAX_ANGLE_CANDIDATES} candidates, got {bins} and {candidates}"
+                ));
+            }
+            if self.pose_frame != PoseFrame::Normal {
+                problems.push("angle-bins regresses the angle about the normal: it needs pose_frame normal".into());
+            }
         }
         if !(self.grid_extent.is_finite() && self.grid_extent > 0.0) {
             problems.push(format!("grid_extent must be positive, got {}", self.grid_extent));

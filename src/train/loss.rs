@@ -186,9 +186,46 @@ pub fn six_d_pose_loss(raw: [f32; 6], label: &[f64; 9]) -> (f64, [f64; 6]) {
     (0.5 * len, [g_a1[0], g_a1[1], g_a1[2], g_a2[0], g_a2[1], g_a2[2]])
 }
 
+/// Width (in bins) of the wrapped Gaussian the angle-bin target spreads over.
+pub const ANGLE_TARGET_SIGMA_BINS: f64 = 1.0;
+
+/// Below this z-z element the label does not keep the normal (the two viewpoints oriented the normals
+/// oppositely): no angle about the normal describes it, and the angle-bin loss skips the sample.
+pub const MIN_LABEL_NORMAL_COS: f64 = 0.5;
+
+/// The angle-bin pose loss: cross-entropy of the softmax over `logits` against a wrapped Gaussian
+/// (`ANGLE_TARGET_SIGMA_BINS`) centred on the label's angle about z, `atan2(R[1][0], R[0][0])`, and its gradient
+/// `softmax - target` w.r.t. the logits. A label that flips the normal (`R[2][2] <` [`MIN_LABEL_NORMAL_COS`])
+/// gives zero loss and gradient.
+pub fn angle_bins_loss(logits: &[f32], label: &[f64; 9]) -> (f64, Vec<f64>) {
+    let k = logits.len();
+    if k == 0 || label[8] < MIN_LABEL_NORMAL_COS {
+        return (0.0, vec![0.0; k]);
+    }
+    let angle = label[3].atan2(label[0]).rem_euclid(std::f64::consts::TAU);
+    let position = angle / std::f64::consts::TAU * k as f64;
+    let mut target: Vec<f64> = (0..k)
+        .map(|b| {
+            let d = (b as f64 - position).rem_euclid(k as f64);
+            let d = d.min(k as f64 - d);
+            (-0.5 * (d / ANGLE_TARGET_SIGMA_BINS).powi(2)).exp()
+        })
+        .collect();
+    let total: f64 = target.iter().sum();
+    target.iter_mut().for_each(|t| *t /= total);
+    let z: Vec<f64> = logits.iter().map(|&v| f64::from(v)).collect();
+    let max = z.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let sum: f64 = z.iter().map(|v| (v - max).exp()).sum();
+    let log_sum = max + sum.ln();
+    let loss = -z.iter().zip(&target).map(|(v, t)| t * (v - log_sum)).sum::<f64>();
+    let grad = z.iter().zip(&target).map(|(v, t)| (v - log_sum).exp() - t).collect();
+    (loss, grad)
+}
+
 /// The pose loss of a raw RelativeNet output of either encoding against the label rotation (row-major, in the
 /// frames the network sees), and its gradient w.r.t. the raw output: the paper's quaternion L2 loss
-/// ([`pose_loss`] after [`normalize_quaternion`]) or the 6-D chordal loss ([`six_d_pose_loss`]).
+/// ([`pose_loss`] after [`normalize_quaternion`]), the 6-D chordal loss ([`six_d_pose_loss`]) or the angle-bin
+/// cross-entropy ([`angle_bins_loss`]).
 pub fn rotation_loss(raw: &[f32], output: RotationOutput, label: &[f64; 9]) -> (f64, Vec<f32>) {
     match output {
         RotationOutput::Quaternion => {
@@ -200,6 +237,10 @@ pub fn rotation_loss(raw: &[f32], output: RotationOutput, label: &[f64; 9]) -> (
         RotationOutput::SixD => {
             let (loss, d) = six_d_pose_loss([raw[0], raw[1], raw[2], raw[3], raw[4], raw[5]], label);
             (loss, d.map(|v| v as f32).to_vec())
+        }
+        RotationOutput::AngleBins { .. } => {
+            let (loss, d) = angle_bins_loss(raw, label);
+            (loss, d.into_iter().map(|v| v as f32).collect())
         }
     }
 }
