@@ -34,14 +34,48 @@ pub struct Args {
     pub force: bool,
 }
 
+/// Most scenes per run.
+pub const MAX_SCENES: usize = 10_000;
+/// Most fragments per scene.
+pub const MAX_FRAGMENTS: usize = 10_000;
+/// Most depth frames per fragment.
+pub const MAX_FRAMES: usize = 1_000;
+/// Widest camera (rays per row; 4096 x 3072 rays per frame).
+pub const MAX_WIDTH: usize = 4_096;
+/// Most camera rays per fragment (width x height x frames): bounds the memory of one fused fragment.
+pub const MAX_RAYS_PER_FRAGMENT: usize = 1 << 30;
+
+/// Checks every size against its bound before anything is allocated; the error names the option and limit.
+fn check_bounds(args: &Args) -> anyhow::Result<()> {
+    for (flag, value, max) in [
+        ("--scenes", args.scenes, MAX_SCENES),
+        ("--fragments", args.fragments, MAX_FRAGMENTS),
+        ("--frames", args.frames, MAX_FRAMES),
+    ] {
+        if !(1..=max).contains(&value) {
+            bail!("{flag} must be 1..={max}, got {value}");
+        }
+    }
+    if !(4..=MAX_WIDTH).contains(&args.width) {
+        bail!("--width must be 4..={MAX_WIDTH}, got {}", args.width);
+    }
+    let rays = args.width * (args.width * 3 / 4) * args.frames;
+    if rays > MAX_RAYS_PER_FRAGMENT {
+        bail!(
+            "--width {} x --frames {} makes {rays} rays per fragment, over the limit of {MAX_RAYS_PER_FRAGMENT}",
+            args.width,
+            args.frames
+        );
+    }
+    if !(args.voxel.is_finite() && args.voxel >= 1e-4) {
+        bail!("--voxel must be at least 0.0001 m, got {}", args.voxel);
+    }
+    Ok(())
+}
+
 /// Runs `dpr-gpu synth`.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    if args.scenes == 0 {
-        bail!("--scenes must be at least 1");
-    }
-    if args.width < 4 {
-        bail!("--width must be at least 4");
-    }
+    check_bounds(&args)?;
     let settings = SynthSettings {
         fragments: args.fragments,
         frames_per_fragment: args.frames,

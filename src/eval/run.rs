@@ -242,6 +242,7 @@ pub fn run_scene(
                     let started = Instant::now();
                     let pose = registrar.estimate(&source.features, &target.features, c, estimator);
                     run.timings.push(StageTime { stage: "estimate".into(), seconds: started.elapsed().as_secs_f64() });
+                    run.trusted = pose.as_ref().ok().map(|p| registrar.judge(p, c).success);
                     pose
                 }
                 Err(err) => Err(Error::invalid(err.to_string())),
