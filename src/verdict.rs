@@ -7,8 +7,11 @@ use crate::settings::{Correspondence, PoseEstimate};
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 
-/// Thresholds of the verdict. The defaults were validated on synthetic `dpr-gpu synth` scans (see
-/// `tests/hardening.rs` and the README): they accept the correct registrations and reject most wrong ones.
+/// Thresholds of the verdict. The defaults were validated on synthetic scans (`dpr-gpu synth --scenes 2
+/// --fragments 6 --seed 4242`, every pair registered with the shipped weights and 2500 keypoints): every correct
+/// gt.log pair (inlier ratio 0.07 or more) is trusted, and wrong poses (inlier ratios up to 0.052, or more with
+/// collinear inliers) are not; a correct pair of low overlap at ratio 0.054 is the one it misses. The ratio is
+/// the deciding threshold: it does not depend on the number of keypoints, where the inlier count does.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct VerdictSettings {
     /// Fewest inlier correspondences for a trusted pose.
@@ -22,7 +25,7 @@ pub struct VerdictSettings {
 
 impl Default for VerdictSettings {
     fn default() -> Self {
-        VerdictSettings { min_inliers: 12, min_inlier_ratio: 0.04, min_spread_over_threshold: 2.0 }
+        VerdictSettings { min_inliers: 12, min_inlier_ratio: 0.055, min_spread_over_threshold: 2.0 }
     }
 }
 

