@@ -133,9 +133,10 @@ fn weights_whose_config_declares_huge_sizes_are_refused() {
 
 // ------------------------------------------------------------------------------ 2. bounded reading
 
-/// Runs the binary with its address space limited to 1 GiB, so unbounded reading aborts instead of passing.
+/// Runs the binary with its address space limited to 2 GiB (and two worker threads, whose stacks and malloc
+/// arenas take address space too), so unbounded reading aborts instead of passing.
 fn dpr_limited(args: &[&str]) -> Output {
-    let mut command = String::from("ulimit -v 1048576; exec \"$0\"");
+    let mut command = String::from("ulimit -v 2097152; RAYON_NUM_THREADS=2 exec \"$0\"");
     for i in 0..args.len() {
         command.push_str(&format!(" \"${}\"", i + 1));
     }
