@@ -65,6 +65,7 @@ pub mod settings;
 pub mod spatial;
 pub mod synth;
 pub mod train;
+pub mod verdict;
 
 pub use cloud::PointCloud;
 pub use error::{Error, Result};

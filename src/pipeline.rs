@@ -76,25 +76,18 @@ pub fn create_backend(kind: BackendKind, model: Model) -> Result<Box<dyn Backend
     }
 }
 
-/// Checks the settings every constructor relies on.
-fn validate_settings(settings: &RegistrationSettings) -> Result<()> {
-    if let Some(r) = settings.radius
-        && !(r.is_finite() && r > 0.0)
-    {
-        return Err(Error::invalid(format!("radius must be positive, got {r}")));
-    }
-    if settings.keypoints == 0 {
-        return Err(Error::invalid("keypoints must be at least 1"));
-    }
-    if let MatchMode::Mutual(k) = settings.matching
-        && !(1..=4).contains(&k)
-    {
-        return Err(Error::invalid(format!("mutual K must be 1..4, got {k}")));
-    }
-    if let Some(t) = settings.inlier_threshold
-        && !(t.is_finite() && t > 0.0)
-    {
-        return Err(Error::invalid(format!("inlier threshold must be positive, got {t}")));
+/// Most patch points per scan (keypoints x points per patch): bounds the memory of the patch stages.
+pub const MAX_PATCH_POINTS: usize = 1 << 25;
+
+/// Checks the settings every constructor relies on, and the memory the keypoint count implies for `config`.
+fn validate_settings(settings: &RegistrationSettings, config: &crate::model::ModelConfig) -> Result<()> {
+    settings.validate()?;
+    let patch_points = settings.keypoints.saturating_mul(config.points_per_patch);
+    if patch_points > MAX_PATCH_POINTS {
+        return Err(Error::invalid(format!(
+            "keypoints x points per patch = {} x {} exceeds the limit of {MAX_PATCH_POINTS} patch points",
+            settings.keypoints, config.points_per_patch
+        )));
     }
     Ok(())
 }
@@ -131,7 +124,7 @@ impl Registrar {
 
     /// Builds the pipeline from weights already in memory.
     pub fn with_weights(settings: &RegistrationSettings, weights: &Weights) -> Result<Registrar> {
-        validate_settings(settings)?;
+        validate_settings(settings, &weights.config)?;
         let model = Model::from_weights(weights)?;
         Registrar::with_backend(settings, create_backend(settings.backend, model)?)
     }
@@ -139,7 +132,7 @@ impl Registrar {
     /// Builds the pipeline around a backend made by the caller (e.g. one sharing a GPU device); the settings'
     /// `weights` and `backend` fields are ignored.
     pub fn with_backend(settings: &RegistrationSettings, backend: Box<dyn Backend>) -> Result<Registrar> {
-        validate_settings(settings)?;
+        validate_settings(settings, &backend.model().config)?;
         Ok(Registrar { settings: settings.clone(), backend })
     }
 
@@ -294,6 +287,11 @@ impl Registrar {
         Ok(estimate)
     }
 
+    /// Whether `estimate` (computed from `correspondences`) can be trusted, by the settings' verdict thresholds.
+    pub fn judge(&self, estimate: &PoseEstimate, correspondences: &[Correspondence]) -> crate::verdict::Verdict {
+        crate::verdict::judge(estimate, correspondences, self.inlier_threshold(), &self.settings.verdict)
+    }
+
     /// The whole pipeline on two clouds.
     pub fn register(&self, source: &PointCloud, target: &PointCloud) -> Result<RegistrationResult> {
         let described_source = self.describe(source, 0).map_err(|e| prefix("source", e))?;
@@ -311,7 +309,10 @@ impl Registrar {
             );
         }
         timings.extend(clock.timings);
+        let verdict = self.judge(&estimate, &correspondences);
         Ok(RegistrationResult {
+            success: verdict.success,
+            reason: verdict.reason,
             estimate,
             correspondences: correspondences.len(),
             empty_patches: described_source.empty_patches + described_target.empty_patches,

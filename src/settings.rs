@@ -101,6 +101,67 @@ pub struct RegistrationSettings {
     pub seed: u64,
     /// Compute backend.
     pub backend: BackendKind,
+    /// Thresholds of the success verdict on the result.
+    pub verdict: crate::verdict::VerdictSettings,
+}
+
+/// Most keypoints per scan.
+pub const MAX_KEYPOINTS: usize = 1_000_000;
+/// Most neighbours for PCA normals.
+pub const MAX_NORMAL_NEIGHBORS: usize = 1_000;
+/// Most RANSAC iterations.
+pub const MAX_RANSAC_ITERATIONS: usize = 100_000_000;
+/// Most ICP iterations.
+pub const MAX_ICP_ITERATIONS: usize = 10_000;
+
+impl RegistrationSettings {
+    /// Checks every setting against its documented bound; the error names the setting and the limit.
+    pub fn validate(&self) -> crate::Result<()> {
+        use crate::Error;
+        let positive = |name: &str, v: Option<f32>| match v {
+            Some(x) if !(x.is_finite() && x > 0.0) => Err(Error::invalid(format!("{name} must be positive, got {x}"))),
+            _ => Ok(()),
+        };
+        positive("radius", self.radius)?;
+        positive("voxel size", self.voxel)?;
+        positive("inlier threshold", self.inlier_threshold)?;
+        if !(1..=MAX_KEYPOINTS).contains(&self.keypoints) {
+            return Err(Error::invalid(format!("keypoints must be 1..={MAX_KEYPOINTS}, got {}", self.keypoints)));
+        }
+        if !(3..=MAX_NORMAL_NEIGHBORS).contains(&self.normal_neighbors) {
+            return Err(Error::invalid(format!(
+                "normal neighbours must be 3..={MAX_NORMAL_NEIGHBORS}, got {}",
+                self.normal_neighbors
+            )));
+        }
+        if let MatchMode::Mutual(k) = self.matching
+            && !(1..=4).contains(&k)
+        {
+            return Err(Error::invalid(format!("mutual K must be 1..4, got {k}")));
+        }
+        if !(1..=MAX_RANSAC_ITERATIONS).contains(&self.ransac.max_iterations) {
+            return Err(Error::invalid(format!(
+                "RANSAC iterations must be 1..={MAX_RANSAC_ITERATIONS}, got {}",
+                self.ransac.max_iterations
+            )));
+        }
+        if !(self.ransac.confidence > 0.0 && self.ransac.confidence < 1.0) {
+            return Err(Error::invalid(format!("RANSAC confidence must be in (0, 1), got {}", self.ransac.confidence)));
+        }
+        if let Some(icp) = &self.icp {
+            positive("ICP max correspondence distance", Some(icp.max_correspondence_distance))?;
+            if !(1..=MAX_ICP_ITERATIONS).contains(&icp.max_iterations) {
+                return Err(Error::invalid(format!(
+                    "ICP iterations must be 1..={MAX_ICP_ITERATIONS}, got {}",
+                    icp.max_iterations
+                )));
+            }
+        }
+        if !self.viewpoint.iter().all(|c| c.is_finite()) {
+            return Err(Error::invalid(format!("viewpoint must be finite, got {:?}", self.viewpoint)));
+        }
+        self.verdict.validate()
+    }
 }
 
 impl Default for RegistrationSettings {
@@ -121,6 +182,7 @@ impl Default for RegistrationSettings {
             drop_zero_points: false,
             seed: 0,
             backend: BackendKind::Cpu,
+            verdict: crate::verdict::VerdictSettings::default(),
         }
     }
 }
@@ -179,6 +241,10 @@ pub struct RegistrationResult {
     pub timings: Vec<StageTime>,
     /// The backend (and adapter) that ran the learned stages.
     pub backend: String,
+    /// Whether the pose can be trusted (see [`crate::verdict`]); the pose is returned either way.
+    pub success: bool,
+    /// Why it cannot be trusted (`None` on success).
+    pub reason: Option<String>,
 }
 
 /// Serialises a 4x4 matrix as four rows.

@@ -3,8 +3,10 @@
 //! Inputs are seeded (`DPR_SEED` overrides; the seed is in every failure message) and adversarial: sizes
 //! that miss the workgroup and tile sizes, dispatches past 65,535 workgroups in one dimension, degenerate
 //! geometry, heavy ties, and outputs pre-filled with a NaN / 0xDEADBEEF sentinel so an element a kernel
-//! never writes fails the comparison. Without a Vulkan adapter every test prints `SKIPPED (no GPU adapter)`
-//! and passes, unless `CI=true` or `DPR_GPU_REQUIRE_ADAPTER=1` (then it fails); see `dpr_gpu::gpu::testing`.
+//! never writes fails the comparison. This binary uses `dpr_gpu::gpu::testing::run_tests` as its harness
+//! (`harness = false`): without a Vulkan adapter every test is reported `SKIPPED` and counted as skipped, never
+//! as passed, unless `CI=true` or `DPR_GPU_REQUIRE_ADAPTER=1` (then each fails). Every test is listed in
+//! `main` at the end of the file.
 //!
 //! Tolerances are named constants below, each with the reason it is not zero. Kernels whose result does not
 //! depend on float rounding (max_pool, mutual_knn on a given matrix, inlier counts away from the threshold)
@@ -228,7 +230,6 @@ fn gpu_patch_features(g: &Gpu, p: &GatheredPatches, n: usize, radius: f32, frame
 
 // ----------------------------------------------------------------------------------------- patch_features
 
-#[test]
 fn patch_features_matches_cpu_ragged() {
     let Some(g) = gpu() else { return };
     let s = seed(11);
@@ -245,7 +246,6 @@ fn patch_features_matches_cpu_ragged() {
     }
 }
 
-#[test]
 fn patch_features_matches_cpu_degenerate() {
     let Some(g) = gpu() else { return };
     let s = seed(12);
@@ -295,7 +295,6 @@ fn patch_features_matches_cpu_degenerate() {
 
 // ------------------------------------------------------------------------------------------------- dense
 
-#[test]
 fn dense_matches_cpu_ragged() {
     let Some(g) = gpu() else { return };
     let s = seed(21);
@@ -332,7 +331,6 @@ fn dense_matches_cpu_ragged() {
 
 // ---------------------------------------------------------------------------------------------- max_pool
 
-#[test]
 fn max_pool_matches_cpu_ragged() {
     let Some(g) = gpu() else { return };
     let s = seed(31);
@@ -348,7 +346,6 @@ fn max_pool_matches_cpu_ragged() {
     }
 }
 
-#[test]
 fn max_pool_matches_cpu_past_65535_workgroups() {
     let Some(g) = gpu() else { return };
     let s = seed(32);
@@ -364,7 +361,6 @@ fn max_pool_matches_cpu_past_65535_workgroups() {
 
 // ------------------------------------------------------------------------------ codeword_distance + knn
 
-#[test]
 fn codeword_distance_matches_cpu_ragged() {
     let Some(g) = gpu() else { return };
     let s = seed(41);
@@ -392,7 +388,6 @@ fn check_knn(g: &Gpu, s: u64, d: &[f32], ns: usize, nt: usize, what: &str) {
     }
 }
 
-#[test]
 fn mutual_knn_matches_cpu_random() {
     let Some(g) = gpu() else { return };
     let s = seed(42);
@@ -403,7 +398,6 @@ fn mutual_knn_matches_cpu_random() {
     }
 }
 
-#[test]
 fn mutual_knn_matches_cpu_with_ties() {
     let Some(g) = gpu() else { return };
     let s = seed(43);
@@ -417,7 +411,6 @@ fn mutual_knn_matches_cpu_with_ties() {
 
 // ----------------------------------------------------------------------- quaternions, hypotheses, scores
 
-#[test]
 fn rotation_head_matches_cpu() {
     let Some(g) = gpu() else { return };
     let s = seed(51);
@@ -476,7 +469,6 @@ fn random_hypotheses(rng: &mut Rng, n: usize, extent: f64) -> RotationProblem {
     (r, points(rng, n, extent), points(rng, n, extent))
 }
 
-#[test]
 fn hypotheses_matches_cpu() {
     let Some(g) = gpu() else { return };
     let s = seed(52);
@@ -551,7 +543,6 @@ fn check_scores(s: u64, h: &[Hypothesis], src: &[[f32; 3]], tgt: &[[f32; 3]], th
     }
 }
 
-#[test]
 fn score_hypotheses_matches_cpu() {
     let Some(g) = gpu() else { return };
     let s = seed(53);
@@ -564,7 +555,6 @@ fn score_hypotheses_matches_cpu() {
     }
 }
 
-#[test]
 fn score_hypotheses_matches_cpu_past_65535_workgroups() {
     let Some(g) = gpu() else { return };
     let s = seed(54);
@@ -576,7 +566,6 @@ fn score_hypotheses_matches_cpu_past_65535_workgroups() {
     check_scores(s, &h, &src, &tgt, 0.5, &got);
 }
 
-#[test]
 fn inlier_mask_matches_cpu() {
     let Some(g) = gpu() else { return };
     let s = seed(55);
@@ -597,7 +586,6 @@ fn inlier_mask_matches_cpu() {
 
 // ---------------------------------------------------------------------------------- the backend, e2e
 
-#[test]
 fn backend_patch_features_and_encode_match_cpu() {
     let Some(g) = gpu() else { return };
     let s = seed(61);
@@ -617,7 +605,6 @@ fn backend_patch_features_and_encode_match_cpu() {
     }
 }
 
-#[test]
 fn networks_match_cpu_at_default_widths() {
     let Some(g) = gpu() else { return };
     let s = seed(66);
@@ -655,7 +642,6 @@ fn networks_match_cpu_at_default_widths() {
     assert_close("predict_rotations (default widths)", s, got.as_flattened(), want.as_flattened(), |_| tol);
 }
 
-#[test]
 fn encode_and_matching_match_cpu_when_chunked() {
     // A device of its own: the buffer cap is shrunk so encode and matching run in many chunks.
     let Some(g) = new_gpu_or_skip().map(Arc::new) else { return };
@@ -685,7 +671,6 @@ fn encode_and_matching_match_cpu_when_chunked() {
     assert!(gpu_b.workspace_bytes().unwrap() <= 40 * (8 << 10), "workspace stays within the chunk sizes");
 }
 
-#[test]
 fn decode_matches_cpu() {
     let Some(g) = gpu() else { return };
     let s = seed(63);
@@ -702,7 +687,6 @@ fn decode_matches_cpu() {
     }
 }
 
-#[test]
 fn relativenet_hypotheses_and_scores_match_cpu() {
     let Some(g) = gpu() else { return };
     let s = seed(64);
@@ -748,7 +732,6 @@ fn relativenet_matches_cpu(s: u64, gpu_b: &GpuBackend, cpu_b: &CpuBackend) {
     check_scores(s, &want_h, &ps, &pt, 0.5, &got_s);
 }
 
-#[test]
 fn invalid_calls_are_errors_not_panics() {
     let Some(g) = gpu() else { return };
     let (gpu_b, _) = backends(Arc::clone(&g), seed(65));
@@ -765,16 +748,11 @@ fn invalid_calls_are_errors_not_panics() {
 /// End to end: `register` on a generated pair with the GPU backend and with the CPU reference. The codewords
 /// agree to `NETWORK_RTOL`, far below the distance gaps mutual matching decides on, so the correspondences must
 /// be identical; RANSAC then sees identical inputs, so the poses must agree to `POSE_ATOL`; RelativeNet's
-/// rotations for those correspondences agree to the network tolerance, and its estimate picks the same best
-/// hypothesis (same inliers, pose within `RELATIVENET_POSE_ATOL`).
-#[test]
+/// estimate is compared end to end in `register_with_relativenet_matches_cpu_on_a_generated_pair`.
 fn register_matches_cpu_on_a_generated_pair() {
     /// Identical correspondences and seed give the identical RANSAC sample sequence; only the printing of
     /// f64 sums could differ, so allow a hair above f64 noise.
     const POSE_ATOL: f64 = 1e-9;
-    /// RelativeNet's best hypothesis comes from GPU rotations within `NETWORK_RTOL` of the CPU's, then the same
-    /// refinement on the same inliers: the refined poses agree far inside a millimetre / a milliradian.
-    const RELATIVENET_POSE_ATOL: f64 = 1e-3;
     let Some(g) = gpu() else { return };
     let s = seed(70);
     let (gpu_b, cpu_b) = backends_for(g, small_model(s));
@@ -801,11 +779,120 @@ fn register_matches_cpu_on_a_generated_pair() {
     let c_pose = on_cpu.estimate(&cs, &ct, &c_corr, dpr_gpu::Estimator::Ransac).unwrap();
     assert!((g_pose.target_from_source - c_pose.target_from_source).abs().max() < POSE_ATOL, "seed {s}");
     assert_eq!(g_pose.inliers, c_pose.inliers);
-    // RelativeNet on the same correspondences.
-    let g_rel = on_gpu.estimate(&gs, &gt, &g_corr, dpr_gpu::Estimator::RelativeNet).unwrap();
-    let c_rel = on_cpu.estimate(&cs, &ct, &c_corr, dpr_gpu::Estimator::RelativeNet).unwrap();
-    assert_eq!(g_rel.inliers, c_rel.inliers, "RelativeNet inliers, seed {s}");
-    assert_eq!(g_rel.hypotheses_scored, c_rel.hypotheses_scored);
-    let diff = (g_rel.target_from_source - c_rel.target_from_source).abs().max();
-    assert!(diff < RELATIVENET_POSE_ATOL, "RelativeNet pose differs by {diff}, seed {s}");
+}
+
+/// Poison inputs: a NaN point in one patch and an infinite normal in another. Each backend must either refuse
+/// the input with an error or confine the poison to those patches: every other patch's codewords are exactly
+/// what a clean run gives (CPU) and match the CPU's to the network tolerance (GPU). No panic, no hang.
+fn poison_inputs_stay_in_their_patches() {
+    let Some(g) = gpu() else { return };
+    let s = seed(80);
+    let (gpu_b, cpu_b) = backends(g, s);
+    let n = cpu_b.model().config.points_per_patch;
+    let clean = gathered(&mut Rng::new(s), 6, n, 0.3);
+    let mut poisoned = gathered(&mut Rng::new(s), 6, n, 0.3);
+    poisoned.points[n + 3] = [f32::NAN, 0.0, 0.0];
+    poisoned.normals[3 * n + 1] = [f32::INFINITY, 0.0, 0.0];
+    poisoned.points[4 * n] = [f32::NEG_INFINITY, 1.0, 1.0];
+    let (cpu_ppf, _) = cpu_b.patch_features(&clean, 0.3).unwrap();
+    let want = cpu_b.encode(Net::Ppf, &cpu_ppf, 6).unwrap();
+    let dim = want.len() / 6;
+    let tol = NETWORK_RTOL * max_abs(&want);
+    for (name, backend) in [("cpu", &cpu_b as &dyn Backend), ("gpu", &gpu_b as &dyn Backend)] {
+        let Ok((ppf, _)) = backend.patch_features(&poisoned, 0.3) else { continue };
+        let Ok(got) = backend.encode(Net::Ppf, &ppf, 6) else { continue };
+        assert_eq!(got.len(), want.len(), "{name}, seed {s}");
+        for patch in [0, 2, 5] {
+            let range = patch * dim..(patch + 1) * dim;
+            assert_close(
+                &format!("{name} clean patch {patch} beside poison"),
+                s,
+                &got[range.clone()],
+                &want[range],
+                |_| tol,
+            );
+        }
+    }
+    // Poisoned correspondences: a NaN keypoint must not be counted as an inlier by either scorer.
+    let src = vec![[0.0, 0.0, 0.0], [f32::NAN, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, f32::INFINITY, 0.0]];
+    let tgt = vec![[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    let hyps = [Hypothesis { rotation: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], translation: [0.0; 3] }];
+    let want = cpu_b.score_hypotheses(&hyps, &src, &tgt, 0.1).unwrap();
+    assert_eq!(want[0].inliers, 2, "cpu counts only the finite pairs");
+    if let Ok(got) = gpu_b.score_hypotheses(&hyps, &src, &tgt, 0.1) {
+        assert_eq!(got[0].inliers, want[0].inliers, "gpu inliers with poisoned correspondences, seed {s}");
+    }
+}
+
+/// End to end with the RelativeNet estimator (the learned path that the RANSAC parity case does not cover):
+/// identical correspondences (as in the RANSAC case), then each backend's RelativeNet rotations, hypotheses
+/// and scoring. Rotations agree only to the network tolerance, so two hypotheses whose scores tie up to rounding
+/// may be ranked differently and the winner refined on a slightly different inlier set: the poses must agree to
+/// `ROTATION_DEG_TOL` / `TRANSLATION_TOL` and the inlier counts to `INLIER_SLACK`.
+fn register_with_relativenet_matches_cpu_on_a_generated_pair() {
+    /// A refinement on an inlier set that differs by a pair or two moves the pose by hundredths of a degree.
+    const ROTATION_DEG_TOL: f64 = 0.25;
+    /// Same reasoning, in cloud units (metres), for a 2 m scene.
+    const TRANSLATION_TOL: f64 = 0.01;
+    /// Correspondences whose residual is within rounding of the threshold may count on one side only.
+    const INLIER_SLACK: usize = 2;
+    let Some(g) = gpu() else { return };
+    let s = seed(71);
+    // The shipped (trained) weights: with random ones RelativeNet's rotations are noise, every hypothesis has
+    // one inlier and the comparison would only exercise tie-breaking.
+    let weights = Weights::load(&dpr_gpu::pipeline::default_weights_path()).unwrap();
+    let (gpu_b, cpu_b) = backends_for(g, Model::from_weights(&weights).unwrap());
+    let settings = dpr_gpu::RegistrationSettings {
+        keypoints: 120,
+        estimator: dpr_gpu::Estimator::RelativeNet,
+        seed: s,
+        ..Default::default()
+    };
+    // The shipped example pair (synthetic scans the weights register), with 500 keypoints to keep lavapipe quick.
+    let pair = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/pair");
+    let load = |name: &str| dpr_gpu::io::read_cloud(&pair.join(name), &Default::default()).unwrap().0;
+    let (source, target) = (load("cloud_bin_1.ply"), load("cloud_bin_0.ply"));
+    let settings = dpr_gpu::RegistrationSettings { keypoints: 500, ..settings };
+    let on_gpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(gpu_b)).unwrap();
+    let on_cpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(cpu_b)).unwrap();
+    let g_res = on_gpu.register(&source, &target).unwrap();
+    let c_res = on_cpu.register(&source, &target).unwrap();
+    assert_eq!(g_res.correspondences, c_res.correspondences, "seed {s}");
+    let (gp, cp) = (&g_res.estimate, &c_res.estimate);
+    let angle = dpr_gpu::pose::rotation_error_deg(&gp.target_from_source, &cp.target_from_source);
+    assert!(angle < ROTATION_DEG_TOL, "RelativeNet poses differ by {angle} degrees, seed {s}");
+    let shift = dpr_gpu::pose::translation_error(&gp.target_from_source, &cp.target_from_source);
+    assert!(shift < TRANSLATION_TOL, "RelativeNet translations differ by {shift}, seed {s}");
+    assert!(gp.inliers.abs_diff(cp.inliers) <= INLIER_SLACK, "inliers {} vs {}, seed {s}", gp.inliers, cp.inliers);
+    assert!(cp.inliers >= 10, "the CPU reference registers the pair ({} inliers), seed {s}", cp.inliers);
+}
+
+fn main() -> std::process::ExitCode {
+    dpr_gpu::gpu::testing::run_tests(&[
+        ("patch_features_matches_cpu_ragged", patch_features_matches_cpu_ragged),
+        ("patch_features_matches_cpu_degenerate", patch_features_matches_cpu_degenerate),
+        ("dense_matches_cpu_ragged", dense_matches_cpu_ragged),
+        ("max_pool_matches_cpu_ragged", max_pool_matches_cpu_ragged),
+        ("max_pool_matches_cpu_past_65535_workgroups", max_pool_matches_cpu_past_65535_workgroups),
+        ("codeword_distance_matches_cpu_ragged", codeword_distance_matches_cpu_ragged),
+        ("mutual_knn_matches_cpu_random", mutual_knn_matches_cpu_random),
+        ("mutual_knn_matches_cpu_with_ties", mutual_knn_matches_cpu_with_ties),
+        ("rotation_head_matches_cpu", rotation_head_matches_cpu),
+        ("hypotheses_matches_cpu", hypotheses_matches_cpu),
+        ("score_hypotheses_matches_cpu", score_hypotheses_matches_cpu),
+        ("score_hypotheses_matches_cpu_past_65535_workgroups", score_hypotheses_matches_cpu_past_65535_workgroups),
+        ("inlier_mask_matches_cpu", inlier_mask_matches_cpu),
+        ("backend_patch_features_and_encode_match_cpu", backend_patch_features_and_encode_match_cpu),
+        ("networks_match_cpu_at_default_widths", networks_match_cpu_at_default_widths),
+        ("encode_and_matching_match_cpu_when_chunked", encode_and_matching_match_cpu_when_chunked),
+        ("decode_matches_cpu", decode_matches_cpu),
+        ("relativenet_hypotheses_and_scores_match_cpu", relativenet_hypotheses_and_scores_match_cpu),
+        ("invalid_calls_are_errors_not_panics", invalid_calls_are_errors_not_panics),
+        ("register_matches_cpu_on_a_generated_pair", register_matches_cpu_on_a_generated_pair),
+        ("poison_inputs_stay_in_their_patches", poison_inputs_stay_in_their_patches),
+        (
+            "register_with_relativenet_matches_cpu_on_a_generated_pair",
+            register_with_relativenet_matches_cpu_on_a_generated_pair,
+        ),
+    ])
 }

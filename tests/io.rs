@@ -280,7 +280,7 @@ fn pcd_ascii_with_normals_rgb_and_multi_count_fields() {
                 0 0 1 4.2108e+06 0 0 0 0 1 2 3\n";
     let (cloud, report) = load("scan.pcd", text.as_bytes()).unwrap();
     assert_eq!(cloud, sample_with_normals());
-    assert_eq!(report, LoadReport { dropped_non_finite: 1, dropped_zero: 0 });
+    assert_eq!(report, LoadReport { dropped_non_finite: 1, dropped_zero: 0, origin: [0; 3] });
 }
 
 #[test]
@@ -346,7 +346,7 @@ fn non_finite_points_are_dropped_and_counted() {
     let (cloud, report) = load("nan.ply", &concat(header, body.as_bytes())).unwrap();
     assert_eq!(cloud.points, vec![[1.0, 2.0, 3.0], [7.0, 8.0, 9.0]]);
     assert_eq!(cloud.normals, Some(vec![[0.0, 0.0, 1.0], [0.0, 0.0, 0.0]]));
-    assert_eq!(report, LoadReport { dropped_non_finite: 4, dropped_zero: 0 });
+    assert_eq!(report, LoadReport { dropped_non_finite: 4, dropped_zero: 0, origin: [0; 3] });
     cloud.validate("nan.ply").unwrap();
 
     // Binary: NaN, infinity, and a double too large for f32.
@@ -361,7 +361,7 @@ fn non_finite_points_are_dropped_and_counted() {
 
     let (cloud, report) = load("nan.xyz", b"1 2 3\nNaN 1 1\n4 5 6\n1 1 infinity\n").unwrap();
     assert_eq!(cloud.points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
-    assert_eq!(report, LoadReport { dropped_non_finite: 2, dropped_zero: 0 });
+    assert_eq!(report, LoadReport { dropped_non_finite: 2, dropped_zero: 0, origin: [0; 3] });
 }
 
 #[test]
@@ -374,18 +374,19 @@ fn zero_points_are_dropped_only_with_the_option() {
 
     let (kept, report) = read(&path).unwrap();
     assert_eq!(kept.len(), 3);
-    assert_eq!(report, LoadReport { dropped_non_finite: 1, dropped_zero: 0 });
+    assert_eq!(report, LoadReport { dropped_non_finite: 1, dropped_zero: 0, origin: [0; 3] });
 
-    let (filtered, report) = read_cloud(&path, &LoadOptions { drop_zero_points: true }).unwrap();
+    let (filtered, report) =
+        read_cloud(&path, &LoadOptions { drop_zero_points: true, ..LoadOptions::default() }).unwrap();
     assert_eq!(filtered.points, vec![[1.0, 0.0, 0.0]]);
-    assert_eq!(report, LoadReport { dropped_non_finite: 1, dropped_zero: 2 });
+    assert_eq!(report, LoadReport { dropped_non_finite: 1, dropped_zero: 2, origin: [0; 3] });
 }
 
 #[test]
 fn zero_points_with_normals_drop_their_normals() {
     let dir = TempDir::new("zero-normals");
     let path = dir.file("z.xyz", b"0 0 0 1 0 0\n1 1 1 0 1 0\n");
-    let (cloud, report) = read_cloud(&path, &LoadOptions { drop_zero_points: true }).unwrap();
+    let (cloud, report) = read_cloud(&path, &LoadOptions { drop_zero_points: true, ..LoadOptions::default() }).unwrap();
     assert_eq!(cloud.points, vec![[1.0, 1.0, 1.0]]);
     assert_eq!(cloud.normals, Some(vec![[0.0, 1.0, 0.0]]));
     assert_eq!(report.dropped_zero, 1);

@@ -117,6 +117,33 @@ struct Row {
     flops: Option<f64>,
 }
 
+/// Most timed repetitions.
+pub const MAX_REPEAT: usize = 1_000;
+
+/// Checks the sizes against their bounds before anything is allocated: keypoints and points per patch as for
+/// `register` (at most [`crate::settings::MAX_KEYPOINTS`], [`crate::model::config::MAX_POINTS_PER_PATCH`],
+/// and [`crate::pipeline::MAX_PATCH_POINTS`] in all).
+fn check_bounds(args: &Args) -> anyhow::Result<()> {
+    use crate::model::config::MAX_POINTS_PER_PATCH;
+    use crate::settings::MAX_KEYPOINTS;
+    if !(1..=MAX_KEYPOINTS).contains(&args.keypoints) {
+        bail!("--keypoints must be 1..={MAX_KEYPOINTS}, got {}", args.keypoints);
+    }
+    if let Some(p) = args.points
+        && !(1..=MAX_POINTS_PER_PATCH).contains(&p)
+    {
+        bail!("--points must be 1..={MAX_POINTS_PER_PATCH}, got {p}");
+    }
+    let total = args.keypoints.saturating_mul(args.points.unwrap_or(2048));
+    if total > crate::pipeline::MAX_PATCH_POINTS {
+        bail!("--keypoints x --points = {total} patch points, over the limit of {}", crate::pipeline::MAX_PATCH_POINTS);
+    }
+    if args.repeat > MAX_REPEAT {
+        bail!("--repeat must be at most {MAX_REPEAT}, got {}", args.repeat);
+    }
+    Ok(())
+}
+
 /// Runs `dpr-gpu bench`.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (use_cpu, use_gpu) = match args.backend.as_str() {
@@ -125,6 +152,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "both" => (true, true),
         other => bail!("--backend must be cpu, gpu or both, got '{other}'"),
     };
+    check_bounds(&args)?;
     if args.keypoints == 0 {
         bail!("--keypoints must be at least 1");
     }

@@ -10,7 +10,7 @@ use crate::eval::run::{
     EvalOptions, estimator_name, pairs_to_run, run_scene, run_scene_sweep, score_log, score_log_sweep,
 };
 use crate::eval::score::{REFERENCE_RADIUS, Thresholds};
-use crate::io::{LoadOptions, write_atomic};
+use crate::io::write_atomic;
 use crate::pipeline::Registrar;
 use crate::settings::Estimator;
 use anyhow::{Context, bail};
@@ -98,6 +98,11 @@ fn write_report(out: &Path, report: &Report) -> anyhow::Result<()> {
     let json = serde_json::to_string_pretty(report).context("serialising the report")?;
     write_atomic(&out.join("report.json"), json.as_bytes())?;
     print!("{}", format_table(report));
+    for e in &report.estimators {
+        if let Some(line) = verdict_summary(e) {
+            println!("{}: {line}", e.estimator);
+        }
+    }
     println!("report: {}", out.join("report.json").display());
     Ok(())
 }
@@ -164,6 +169,35 @@ fn score_logs_sweep(
             .map(|(&d, scores)| EstimatorReport::new("log", scores).at_rotation(d))
             .collect(),
         fragments: Vec::new(),
+    })
+}
+
+/// How often the success verdict was right over the gt pairs an estimator registered: trusted and correct
+/// (true successes), trusted but wrong (false alarms), untrusted but correct (missed), untrusted and wrong.
+fn verdict_summary(e: &EstimatorReport) -> Option<String> {
+    let mut counts = [[0usize; 2]; 2];
+    let (mut outside, mut outside_trusted) = (0, 0);
+    for p in e.scenes.iter().flat_map(|s| &s.pairs) {
+        match (p.success, p.run.as_ref().and_then(|r| r.trusted)) {
+            (Some(correct), Some(trusted)) => counts[usize::from(trusted)][usize::from(correct)] += 1,
+            (None, Some(trusted)) if !p.in_gt => {
+                outside += 1;
+                outside_trusted += usize::from(trusted);
+            }
+            _ => {}
+        }
+    }
+    let total: usize = counts.iter().flatten().sum();
+    (total + outside > 0).then(|| {
+        let mut line = format!(
+            "verdict over {total} gt pairs: {} true successes, {} false alarms (trusted but wrong), {} missed \
+             (untrusted but right), {} correctly rejected",
+            counts[1][1], counts[1][0], counts[0][1], counts[0][0]
+        );
+        if outside > 0 {
+            line.push_str(&format!("; {outside_trusted} of {outside} registered pairs outside gt.log trusted"));
+        }
+        line
     })
 }
 
@@ -280,7 +314,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let opts = EvalOptions {
         thresholds: Thresholds::for_radius(radius),
         seed: args.register.seed,
-        load: LoadOptions { drop_zero_points: args.register.drop_zero },
+        load: args.register.load_options()?,
         all_pairs: args.all_pairs,
         min_overlap: args.min_overlap,
     };

@@ -40,8 +40,10 @@ pub enum Command {
 /// Runs the CLI; returns the process exit code. Errors are printed as one line.
 pub fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
+    cap_thread_pool();
+    let mut untrusted = false;
     let outcome = match cli.command {
-        Command::Register(args) => register::run(args),
+        Command::Register(args) => register::run(args).map(|trusted| untrusted = !trusted),
         Command::Bench(args) => bench::run(args),
         Command::InitWeights(args) => weights::run_init(args),
         Command::Info(args) => weights::run_info(args),
@@ -50,6 +52,7 @@ pub fn main() -> std::process::ExitCode {
         Command::Train(args) => train::run(args),
     };
     match outcome {
+        Ok(()) if untrusted => std::process::ExitCode::from(register::EXIT_UNTRUSTED),
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {}", one_line(&e));
@@ -59,6 +62,30 @@ pub fn main() -> std::process::ExitCode {
 }
 
 /// The error and its causes on one line.
+/// A cause whose text already ends the line (an I/O error that its wrapper prints) is not repeated.
 pub fn one_line(e: &anyhow::Error) -> String {
-    e.chain().map(|c| c.to_string()).collect::<Vec<_>>().join(": ")
+    let mut line = String::new();
+    for cause in e.chain().map(|c| c.to_string()) {
+        if line.ends_with(&cause) {
+            continue;
+        }
+        if !line.is_empty() {
+            line.push_str(": ");
+        }
+        line.push_str(&cause);
+    }
+    line
+}
+
+/// Most threads of the global pool, whatever `RAYON_NUM_THREADS` asks for.
+pub const MAX_THREADS: usize = 256;
+
+/// Sizes rayon's global pool: `RAYON_NUM_THREADS` when set, capped at the cores this process may use (and at
+/// [`MAX_THREADS`]), so a value such as 5000 cannot make every parallel stage spawn and schedule thousands of
+/// threads. Call once, before any parallel work; later calls do nothing.
+pub fn cap_thread_pool() {
+    let cores = std::thread::available_parallelism().map_or(1, usize::from);
+    let wanted = std::env::var("RAYON_NUM_THREADS").ok().and_then(|v| v.trim().parse::<usize>().ok()).unwrap_or(0);
+    let threads = if wanted == 0 { cores } else { wanted.min(cores) }.clamp(1, MAX_THREADS);
+    let _ = rayon::ThreadPoolBuilder::new().num_threads(threads).build_global();
 }

@@ -1,9 +1,13 @@
 //! `dpr-gpu register` and the registration options shared with `eval`.
 
-use crate::io::{LoadOptions, read_cloud, write_atomic, write_ply};
-use crate::pipeline::Registrar;
+use crate::io::{
+    LoadOptions, OriginShift, XyzColumns, check_outputs, check_writable_cloud_path, read_cloud, write_atomic,
+    write_cloud,
+};
+use crate::pipeline::{Registrar, default_weights_path};
 use crate::settings::*;
-use anyhow::{Context, bail};
+use anyhow::bail;
+use nalgebra::{Matrix4, Vector3};
 use std::path::{Path, PathBuf};
 
 /// Registration options (shared by `register` and `eval`).
@@ -51,6 +55,19 @@ pub struct RegisterOptions {
     /// Compute backend: cpu, gpu or auto.
     #[arg(long, default_value = "cpu")]
     pub backend: String,
+    /// What the columns of XYZ/TXT/PTS inputs hold, e.g. x,y,z,nx,ny,nz or x,y,z,r,g,b (other names are
+    /// ignored); default: columns 4-6 are normals when every row has unit length there, else the file is refused.
+    #[arg(long)]
+    pub xyz_columns: Option<String>,
+    /// Verdict: fewest inliers for a trusted result.
+    #[arg(long, default_value_t = crate::verdict::VerdictSettings::default().min_inliers)]
+    pub min_inliers: usize,
+    /// Verdict: smallest inliers / correspondences ratio for a trusted result.
+    #[arg(long, default_value_t = crate::verdict::VerdictSettings::default().min_inlier_ratio)]
+    pub min_inlier_ratio: f64,
+    /// Verdict: smallest spread of the inliers across their main axis, in multiples of the inlier threshold.
+    #[arg(long, default_value_t = crate::verdict::VerdictSettings::default().min_spread_over_threshold)]
+    pub min_inlier_spread: f64,
 }
 
 /// Parses `relativenet` / `ransac`.
@@ -97,11 +114,28 @@ impl RegisterOptions {
             other => bail!("unknown backend '{other}' (expected cpu, gpu or auto)"),
         };
         s.ransac.max_iterations = self.ransac_iterations.max(1);
+        s.verdict = crate::verdict::VerdictSettings {
+            min_inliers: self.min_inliers,
+            min_inlier_ratio: self.min_inlier_ratio,
+            min_spread_over_threshold: self.min_inlier_spread,
+        };
         if self.icp {
             let radius = self.radius.unwrap_or(0.30);
             s.icp = Some(IcpSettings { max_correspondence_distance: radius / 6.0, max_iterations: 30 });
         }
+        s.validate()?;
         Ok(s)
+    }
+
+    /// The load options these options describe (no origin shift).
+    pub fn load_options(&self) -> anyhow::Result<LoadOptions> {
+        let xyz_columns = self.xyz_columns.as_deref().map(XyzColumns::parse).transpose()?;
+        Ok(LoadOptions { drop_zero_points: self.drop_zero, xyz_columns, ..LoadOptions::default() })
+    }
+
+    /// The weights file these options load (for comparing outputs with it).
+    pub fn weights_path(&self) -> PathBuf {
+        self.weights.clone().unwrap_or_else(default_weights_path)
     }
 }
 
@@ -131,43 +165,69 @@ pub fn matrix_text(m: &nalgebra::Matrix4<f64>) -> String {
     (0..4).map(|r| (0..4).map(|c| format!("{:.9}", m[(r, c)])).collect::<Vec<_>>().join(" ") + "\n").collect()
 }
 
-fn same_file(a: &Path, b: &Path) -> bool {
-    match (a.canonicalize(), b.canonicalize()) {
-        (Ok(x), Ok(y)) => x == y,
-        _ => a == b,
-    }
+/// `shifted` (a pose between clouds shifted by `-origin`) in the unshifted frames:
+/// T = translate(o) * T' * translate(-o).
+pub fn unshift_pose(shifted: &Matrix4<f64>, origin: [i64; 3]) -> Matrix4<f64> {
+    let o = Vector3::new(origin[0] as f64, origin[1] as f64, origin[2] as f64);
+    let (shift, unshift) = (Matrix4::new_translation(&-o), Matrix4::new_translation(&o));
+    unshift * shifted * shift
 }
 
-/// Refuses output paths that would overwrite an input.
-pub fn check_outputs(inputs: &[&Path], outputs: &[&Path]) -> anyhow::Result<()> {
-    for o in outputs {
-        if inputs.iter().any(|i| same_file(i, o)) {
-            bail!("refusing to overwrite input file {}", o.display());
-        }
+/// A pipeline error with the file names added, so every error about a cloud names its file: after "source" or
+/// "target" when the error names one, else as "registering SOURCE onto TARGET".
+fn name_files(e: crate::Error, source: &Path, target: &Path) -> anyhow::Error {
+    let text = e.to_string();
+    let named = text.replacen("source: ", &format!("source {}: ", source.display()), 1).replacen(
+        "target: ",
+        &format!("target {}: ", target.display()),
+        1,
+    );
+    if named != text {
+        return anyhow::anyhow!(named);
     }
-    Ok(())
+    anyhow::anyhow!("registering {} onto {}: {text}", source.display(), target.display())
 }
 
-/// Runs `dpr-gpu register`.
-pub fn run(args: Args) -> anyhow::Result<()> {
+/// Exit status of `register` when the result is not trusted (the pose is still printed).
+pub const EXIT_UNTRUSTED: u8 = 3;
+
+/// Runs `dpr-gpu register`; returns whether the result is trusted (see [`RegistrationResult::success`]).
+pub fn run(args: Args) -> anyhow::Result<bool> {
     let settings = args.options.to_settings()?;
     parse_estimator(&args.options.estimator)?;
-    let outputs: Vec<&Path> = args.out.iter().chain(&args.aligned).map(PathBuf::as_path).collect();
-    check_outputs(&[&args.source, &args.target], &outputs)?;
-    let load = LoadOptions { drop_zero_points: settings.drop_zero_points };
+    let weights = args.options.weights_path();
+    let mut outputs: Vec<(&str, &Path)> = Vec::new();
+    if let Some(p) = &args.out {
+        outputs.push(("--out", p));
+    }
+    if let Some(p) = &args.aligned {
+        check_writable_cloud_path(p)?;
+        outputs.push(("--aligned", p));
+    }
+    check_outputs(&[&args.source, &args.target, &weights], &outputs)?;
+    let load = args.options.load_options()?;
     let started = std::time::Instant::now();
-    let (source, source_report) = read_cloud(&args.source, &load)?;
-    let (target, target_report) = read_cloud(&args.target, &load)?;
+    // Georeferenced clouds: both are shifted by one origin (from the source) in f64 before the f32 conversion.
+    let (source, source_report) = read_cloud(&args.source, &LoadOptions { origin: OriginShift::Auto, ..load })?;
+    let origin = source_report.origin;
+    let (target, target_report) = read_cloud(&args.target, &LoadOptions { origin: OriginShift::At(origin), ..load })?;
     let load_seconds = started.elapsed().as_secs_f64();
-    let registrar = Registrar::new(&settings).context("loading the model")?;
-    let mut result = registrar.register(&source, &target)?;
+    let registrar = Registrar::new(&settings)?;
+    let mut result = registrar.register(&source, &target).map_err(|e| name_files(e, &args.source, &args.target))?;
     result.timings.insert(0, StageTime { stage: "load".into(), seconds: load_seconds });
-    let t = result.estimate.target_from_source;
+    let shifted = result.estimate.target_from_source;
+    let t = unshift_pose(&shifted, origin);
+    result.estimate.target_from_source = t;
     if let Some(path) = &args.out {
         write_atomic(path, matrix_text(&t).as_bytes())?;
     }
     if let Some(path) = &args.aligned {
-        write_ply(path, &source.transformed(&t))?;
+        let mut aligned = source.transformed(&shifted);
+        let o = origin.map(|c| c as f64);
+        for p in &mut aligned.points {
+            *p = [0, 1, 2].map(|i| (f64::from(p[i]) + o[i]) as f32);
+        }
+        write_cloud(path, &aligned)?;
     }
     if args.json {
         let mut value = serde_json::to_value(&result)?;
@@ -178,6 +238,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             + target_report.dropped_non_finite
             + target_report.dropped_zero)
             .into();
+        value["origin"] = serde_json::to_value(origin)?;
         println!("{}", serde_json::to_string(&value)?);
     } else {
         for (name, r, cloud) in [("source", &source_report, &source), ("target", &target_report, &target)] {
@@ -186,6 +247,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 print!(" ({} non-finite and {} zero points dropped)", r.dropped_non_finite, r.dropped_zero);
             }
             println!();
+        }
+        if origin != [0; 3] {
+            println!("large coordinates: both clouds shifted by -{origin:?} for the computation");
         }
         println!("backend: {}", result.backend);
         println!("target_from_source (p_target = T p_source):");
@@ -201,6 +265,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         for st in &result.timings {
             println!("  {:<24} {:>9.3}", st.stage, st.seconds);
         }
+        match &result.reason {
+            None => println!("verdict: success"),
+            Some(reason) => println!("verdict: NOT TRUSTED: {reason}"),
+        }
     }
-    Ok(())
+    if !result.success {
+        eprintln!(
+            "warning: result not trusted ({}); exit status {EXIT_UNTRUSTED}",
+            result.reason.as_deref().unwrap_or("no reason given")
+        );
+    }
+    Ok(result.success)
 }

@@ -61,14 +61,56 @@ pub struct Args {
     pub force: bool,
 }
 
+/// Most scenes per run.
+pub const MAX_SCENES: usize = 10_000;
+/// Most fragments per scene.
+pub const MAX_FRAGMENTS: usize = 10_000;
+/// Most depth frames per fragment.
+pub const MAX_FRAMES: usize = 1_000;
+/// Widest camera (rays per row; 4096 x 3072 rays per frame).
+pub const MAX_WIDTH: usize = 4_096;
+/// Most camera rays per fragment (width x height x frames): bounds the memory of one fused fragment.
+pub const MAX_RAYS_PER_FRAGMENT: usize = 1 << 30;
+
+/// Checks every size against its bound before anything is allocated; the error names the option and limit.
+fn check_bounds(args: &Args) -> anyhow::Result<()> {
+    for (flag, value, max) in [("--scenes", args.scenes, MAX_SCENES), ("--fragments", args.fragments, MAX_FRAGMENTS)] {
+        if !(1..=max).contains(&value) {
+            bail!("{flag} must be 1..={max}, got {value}");
+        }
+    }
+    if let Some(frames) = args.frames
+        && !(1..=MAX_FRAMES).contains(&frames)
+    {
+        bail!("--frames must be 1..={MAX_FRAMES}, got {frames}");
+    }
+    if let Some(width) = args.width
+        && !(4..=MAX_WIDTH).contains(&width)
+    {
+        bail!("--width must be 4..={MAX_WIDTH}, got {width}");
+    }
+    // The styles draw their own sizes well inside the limit; overrides are checked with the defaults they
+    // combine with.
+    let defaults = SynthSettings::default();
+    let (width, frames) =
+        (args.width.unwrap_or(defaults.camera.width), args.frames.unwrap_or(defaults.frames_per_fragment));
+    let rays = width * (width * 3 / 4) * frames;
+    if rays > MAX_RAYS_PER_FRAGMENT {
+        bail!(
+            "--width {width} x --frames {frames} makes {rays} rays per fragment, over the limit of {MAX_RAYS_PER_FRAGMENT}"
+        );
+    }
+    if let Some(voxel) = args.voxel
+        && !(voxel.is_finite() && voxel >= 1e-4)
+    {
+        bail!("--voxel must be at least 0.0001 m, got {voxel}");
+    }
+    Ok(())
+}
+
 /// Runs `dpr-gpu synth`.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    if args.scenes == 0 {
-        bail!("--scenes must be at least 1");
-    }
-    if args.width.is_some_and(|w| w < 4) {
-        bail!("--width must be at least 4");
-    }
+    check_bounds(&args)?;
     if args.scene_kind != SceneKind::Mixed && args.style != Style::Randomized {
         bail!("--scene-kind applies to --style randomized only");
     }

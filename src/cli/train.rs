@@ -111,7 +111,8 @@ pub struct Args {
     /// Continue the run saved in this checkpoint, exactly where it stopped.
     #[arg(long)]
     pub resume: Option<PathBuf>,
-    /// Append per-step losses to this CSV file.
+    /// Append per-step losses to this CSV file (the header is written only when the file is new or empty; a
+    /// resumed run first drops the rows after the checkpoint's step, which will be redone).
     #[arg(long)]
     pub log: Option<PathBuf>,
 }
@@ -201,6 +202,17 @@ fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> an
 /// step (later rows belong to steps that will be redone) and append.
 fn open_log(path: &Path, resumed_at: Option<u64>) -> anyhow::Result<std::fs::File> {
     const HEADER: &str = "step,total,rec,pose,feat,lr,seconds";
+    if resumed_at.is_none() {
+        let mut file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(path)
+            .with_context(|| format!("opening {}", path.display()))?;
+        if file.metadata().map(|m| m.len() == 0).unwrap_or(true) {
+            writeln!(file, "{HEADER}").with_context(|| format!("writing {}", path.display()))?;
+        }
+        return Ok(file);
+    }
     let mut kept = vec![HEADER.to_string()];
     if let Some(step) = resumed_at
         && path.is_file()
@@ -228,15 +240,31 @@ fn mean(losses: &[Losses]) -> Losses {
     })
 }
 
-/// Fails early (not after hours of training) when an output cannot be written: a directory in its place, or a
-/// missing parent folder.
-fn check_output(flag: &str, path: &Path) -> anyhow::Result<()> {
-    if path.is_dir() {
-        bail!("{flag} {} is a directory", path.display());
+/// Most pairs per step.
+pub const MAX_BATCH: usize = 4_096;
+
+/// Fails early (not after hours of training) when an output cannot be written (a directory in its place, a
+/// missing folder) or would destroy an input: a dataset file (fragments, gt.log), the `--init` weights, or (for
+/// `--out` and `--log`) the `--resume` checkpoint, compared by file identity. Two outputs may not share a path.
+fn check_train_outputs(args: &Args, ckpt: &Path) -> anyhow::Result<()> {
+    let mut outputs: Vec<(&str, &Path)> = vec![("--out", &args.out), ("--checkpoint", ckpt)];
+    if let Some(log) = &args.log {
+        outputs.push(("--log", log));
     }
-    let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    if !parent.is_dir() {
-        bail!("{flag} {}: folder {} does not exist", path.display(), parent.display());
+    let mut inputs: Vec<PathBuf> = args.data.iter().filter(|p| p.is_file()).cloned().collect();
+    for path in &args.data {
+        for scene in crate::eval::dataset::load_dataset(path)? {
+            inputs.extend(["gt.log", "gt.info", "pairs.txt"].map(|name| scene.dir.join(name)));
+            inputs.extend(scene.files);
+        }
+    }
+    inputs.extend(args.init.iter().cloned());
+    let refs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+    crate::io::check_outputs(&refs, &outputs)?;
+    if let Some(resume) = &args.resume {
+        // The checkpoint may be the resumed one (it is updated in place); the other outputs may not.
+        outputs.retain(|(flag, _)| *flag != "--checkpoint");
+        crate::io::check_outputs(&[resume], &outputs)?;
     }
     Ok(())
 }
@@ -244,10 +272,14 @@ fn check_output(flag: &str, path: &Path) -> anyhow::Result<()> {
 /// Runs `dpr-gpu train`.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let ckpt = checkpoint_path(&args);
-    check_output("--out", &args.out)?;
-    check_output("--checkpoint", &ckpt)?;
-    if let Some(log) = &args.log {
-        check_output("--log", log)?;
+    if args.resume.is_none() && args.init.is_none() {
+        model_config(&args)?;
+    }
+    check_train_outputs(&args, &ckpt)?;
+    if let Some(b) = args.batch
+        && !(1..=MAX_BATCH).contains(&b)
+    {
+        bail!("--batch must be 1..={MAX_BATCH}, got {b}");
     }
     let mut trainer = if let Some(resume) = &args.resume {
         let (meta, weights, adam) = read_checkpoint(resume)?;

@@ -293,6 +293,51 @@ mod tests {
         }
     }
 
+    /// Each SIMD kernel on its own, whatever `run` would pick: on a machine with AVX-512 `run` never reaches
+    /// the AVX2 kernel, so it is called directly here (when the CPU has AVX2) and compared bit for bit with the
+    /// portable loop, for both epilogues and for shapes that leave partial tiles.
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn each_simd_kernel_matches_the_portable_loop_directly() {
+        let mut rng = Rng::new(3);
+        type Kernel = fn(&Operands<'_>, &mut [f32], usize, Epilogue<'_>);
+        let kernels: [(&str, bool, Kernel); 2] = [
+            ("avx2", std::arch::is_x86_feature_detected!("avx2"), |op, c, ldc, epi| {
+                // SAFETY: only called when the CPU has AVX2 (checked by the caller).
+                unsafe { x86::body_avx2(op, c, ldc, epi) }
+            }),
+            ("avx512", std::arch::is_x86_feature_detected!("avx512f"), |op, c, ldc, epi| {
+                // SAFETY: only called when the CPU has AVX-512F (checked by the caller).
+                unsafe { x86::body_avx512(op, c, ldc, epi) }
+            }),
+        ];
+        let mut ran = 0;
+        for (name, available, kernel) in kernels {
+            if !available {
+                eprintln!("SKIPPED: the CPU has no {name}");
+                continue;
+            }
+            ran += 1;
+            for &(m, n, k) in &[(1, 1, 1), (6, 16, 7), (7, 17, 33), (19, 70, 64), (40, 100, 9), (5, 3, 0)] {
+                let mut v = |len: usize| (0..len).map(|_| rng.normal() as f32).collect::<Vec<f32>>();
+                let (lda, ldb, ldc) = (k + 1, n + 3, n + 2);
+                let (a, b, c0, g) = (v(m * lda), v(k.max(1) * ldb), v(m * ldc), v(m * n));
+                let op = Operands { m, n, k, a: &a, sa: lda, sp: 1, b: &b, ldb };
+                let dense_epi = Epilogue::Dense { group: &g, rows_per_group: 1, accumulate: true, relu: true };
+                for epi in [Epilogue::Accumulate, dense_epi] {
+                    let mut want = c0.clone();
+                    body::<4, 64>(&op, &mut want, ldc, epi, None);
+                    let mut got = c0.clone();
+                    kernel(&op, &mut got, ldc, epi);
+                    assert_eq!(got, want, "{name} {m}x{n}x{k}");
+                }
+            }
+        }
+        if std::arch::is_x86_feature_detected!("avx2") {
+            assert!(ran >= 1);
+        }
+    }
+
     #[test]
     fn dense_equals_the_cpu_twin_bit_for_bit() {
         let mut rng = Rng::new(2);

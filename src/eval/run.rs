@@ -355,6 +355,7 @@ fn run_views(
                         let pose = registrar.estimate(&source.features, &target.features, c, estimator);
                         run.timings
                             .push(StageTime { stage: "estimate".into(), seconds: started.elapsed().as_secs_f64() });
+                        run.trusted = pose.as_ref().ok().map(|p| registrar.judge(p, c).success);
                         pose
                     }
                     Err(err) => Err(Error::invalid(err.to_string())),

@@ -85,6 +85,8 @@ pub struct PairRun {
     pub timings: Vec<StageTime>,
     /// Why the estimator produced no pose, if it failed.
     pub error: Option<String>,
+    /// The success verdict on the estimate (see [`crate::verdict`]), when a pose was produced.
+    pub trusted: Option<bool>,
 }
 
 /// One pair's outcome.

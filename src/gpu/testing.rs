@@ -1,4 +1,6 @@
-//! Device acquisition for GPU tests and benchmarks, with the missing-adapter policy in one place.
+//! Device acquisition for GPU tests and benchmarks, with the missing-adapter policy in one place, and
+//! [`run_tests`], a small test harness for GPU test binaries (`harness = false`) that reports tests run
+//! without an adapter as SKIPPED, with a count, instead of as passed.
 //!
 //! Without a usable adapter: when `CI=true` or `DPR_GPU_REQUIRE_ADAPTER=1`, [`gpu_or_skip`] panics with
 //! the reason (CI never skips silently); otherwise it prints a loud `SKIPPED (no GPU adapter)` line to the
@@ -63,4 +65,98 @@ pub fn new_gpu_or_skip() -> Option<Gpu> {
         Ok(g) => Some(g),
         Err(e) => skip_or_panic(&e.to_string()),
     }
+}
+
+/// Whether a GPU test can run: `Ok` with a usable adapter, else `Err(reason)`.
+pub fn adapter_status() -> Result<(), String> {
+    static STATUS: OnceLock<Result<(), String>> = OnceLock::new();
+    STATUS.get_or_init(|| new_test_gpu().map(drop).map_err(|e| e.to_string())).clone()
+}
+
+/// One test of a GPU test binary: its name and body (a panic is a failure).
+pub type GpuTest = (&'static str, fn());
+
+/// Runs `tests` as a `harness = false` test binary would: `cargo test --test NAME [FILTER] [--exact]
+/// [--list] [--ignored]` are understood. Without a usable adapter every selected test is reported as
+/// `SKIPPED` and counted (never as passed); when an adapter is required (`CI=true` or
+/// `DPR_GPU_REQUIRE_ADAPTER=1`) they fail instead. Returns the process exit code: failure when a test failed.
+pub fn run_tests(tests: &[GpuTest]) -> std::process::ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let exact = args.iter().any(|a| a == "--exact");
+    let flag_with_value = ["--test-threads", "--format", "--color", "--skip", "-Z"];
+    let mut filters = Vec::new();
+    let mut skip_next = false;
+    for a in &args {
+        if std::mem::take(&mut skip_next) {
+            continue;
+        }
+        if flag_with_value.contains(&a.as_str()) {
+            skip_next = true;
+        } else if !a.starts_with('-') {
+            filters.push(a.clone());
+        }
+    }
+    let selected: Vec<&GpuTest> = tests
+        .iter()
+        .filter(|(name, _)| {
+            filters.is_empty() || filters.iter().any(|f| if exact { name == f } else { name.contains(f.as_str()) })
+        })
+        .collect();
+    if args.iter().any(|a| a == "--list") {
+        for (name, _) in &selected {
+            println!("{name}: test");
+        }
+        return std::process::ExitCode::SUCCESS;
+    }
+    if args.iter().any(|a| a == "--ignored") {
+        println!("\nrunning 0 tests\n\ntest result: ok. 0 passed; 0 failed; 0 skipped\n");
+        return std::process::ExitCode::SUCCESS;
+    }
+    println!("\nrunning {} tests", selected.len());
+    let status = adapter_status();
+    let (mut passed, mut failed, mut skipped) = (Vec::new(), Vec::new(), 0usize);
+    for (name, body) in selected {
+        let outcome = match &status {
+            Err(reason) if !adapter_required() => {
+                println!("test {name} ... SKIPPED (no GPU adapter: {reason})");
+                skipped += 1;
+                continue;
+            }
+            Err(reason) => Err(format!("no usable GPU adapter, and CI=true or {REQUIRE_ENV}=1 requires one: {reason}")),
+            Ok(()) => std::panic::catch_unwind(body).map_err(|e| {
+                e.downcast_ref::<String>()
+                    .cloned()
+                    .or_else(|| e.downcast_ref::<&str>().map(|s| s.to_string()))
+                    .unwrap_or_else(|| "panicked".into())
+            }),
+        };
+        match outcome {
+            Ok(()) => {
+                println!("test {name} ... ok");
+                passed.push(name);
+            }
+            Err(message) => {
+                println!("test {name} ... FAILED");
+                failed.push((name, message));
+            }
+        }
+    }
+    if !failed.is_empty() {
+        println!("\nfailures:");
+        for (name, message) in &failed {
+            println!("---- {name} ----\n{message}\n");
+        }
+    }
+    let verdict = if failed.is_empty() { "ok" } else { "FAILED" };
+    println!(
+        "\ntest result: {verdict}. {} passed; {} failed; {skipped} skipped (no GPU adapter)\n",
+        passed.len(),
+        failed.len()
+    );
+    if skipped > 0 {
+        let mut err = std::io::stderr().lock();
+        let _ =
+            writeln!(err, "=== {skipped} GPU tests SKIPPED: no GPU adapter (set {REQUIRE_ENV}=1 to fail instead) ===");
+    }
+    if failed.is_empty() { std::process::ExitCode::SUCCESS } else { std::process::ExitCode::FAILURE }
 }

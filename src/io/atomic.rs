@@ -13,6 +13,22 @@ static NEXT_TEMP: AtomicU64 = AtomicU64::new(0);
 /// Writes `bytes` to `path` through a temp file `.<name>.tmp-<pid>-<n>` in the same directory; see
 /// [`super::write_atomic`].
 pub(super) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    // Never replace a symlink, a FIFO or a device with a regular file: write through a symlink to the file it
+    // names, and write to special files directly (a rename cannot apply to them).
+    if let Ok(link) = fs::symlink_metadata(path) {
+        if link.file_type().is_symlink() {
+            return match fs::canonicalize(path) {
+                Ok(resolved) => write_atomic(&resolved, bytes).map_err(|e| relabel(e, path)),
+                Err(_) => {
+                    let source = io::Error::new(io::ErrorKind::NotFound, "dangling symbolic link; not replacing it");
+                    Err(Error::io(path, source))
+                }
+            };
+        }
+        if !link.is_file() && !link.is_dir() {
+            return write_special(path, bytes);
+        }
+    }
     let Some(name) = path.file_name() else {
         let source = io::Error::new(io::ErrorKind::InvalidInput, "the path has no file name");
         return Err(Error::io(path, source));
@@ -31,6 +47,20 @@ pub(super) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
             let _ = fs::remove_file(&temp);
             Err(Error::io(path, source))
         }
+    }
+}
+
+/// Writes `bytes` straight into an existing special file (FIFO, device), without creating or truncating.
+fn write_special(path: &Path, bytes: &[u8]) -> Result<()> {
+    let mut file = OpenOptions::new().write(true).open(path).map_err(|e| Error::io(path, e))?;
+    file.write_all(bytes).map_err(|e| Error::io(path, e))
+}
+
+/// An I/O error about a symlink's target, renamed to the path the user gave.
+fn relabel(e: Error, path: &Path) -> Error {
+    match e {
+        Error::Io { source, .. } => Error::io(path, source),
+        other => other,
     }
 }
 

@@ -7,6 +7,8 @@
 //! binary bodies (the offset of the value that is missing or bad).
 
 mod atomic;
+mod bounded;
+mod outputs;
 mod pcd;
 mod ply;
 mod xyz;
@@ -14,6 +16,10 @@ mod xyz;
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use std::path::Path;
+
+pub use bounded::{MAX_HEADER_BYTES, MAX_INPUT_BYTES, MAX_LINE_BYTES, read_file_bounded};
+pub use outputs::{FileId, check_output_path, check_outputs, file_id};
+pub use xyz::{UNIT_NORMAL_TOLERANCE, XyzColumns};
 
 /// File extensions [`read_cloud`] understands (lower case, without the dot).
 pub const SUPPORTED_EXTENSIONS: &[&str] = &["ply", "pcd", "xyz", "txt", "pts"];
@@ -23,6 +29,27 @@ pub const SUPPORTED_EXTENSIONS: &[&str] = &["ply", "pcd", "xyz", "txt", "pts"];
 pub struct LoadOptions {
     /// Drop points that are exactly (0, 0, 0) (invalid returns in many LiDAR files).
     pub drop_zero_points: bool,
+    /// What the columns of XYZ/TXT/PTS files hold; `None` decides by content (see [`XyzColumns`]).
+    pub xyz_columns: Option<XyzColumns>,
+    /// A shift subtracted from every point in `f64` before the conversion to `f32`, for georeferenced clouds
+    /// whose coordinates are too large for `f32`; the shift used is reported in [`LoadReport::origin`].
+    pub origin: OriginShift,
+}
+
+/// Coordinates from this magnitude on (1e4 units: 1 mm spacing in `f32`) make [`OriginShift::Auto`] shift.
+pub const LARGE_COORDINATE: f64 = 1e4;
+
+/// How [`read_cloud`] shifts coordinates before converting them to `f32`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum OriginShift {
+    /// No shift.
+    #[default]
+    None,
+    /// When the first point has a coordinate of magnitude [`LARGE_COORDINATE`] or more, subtract that point
+    /// rounded to whole units; otherwise no shift.
+    Auto,
+    /// Subtract this point (whole units), e.g. the origin chosen for the other cloud of a pair.
+    At([i64; 3]),
 }
 
 /// What loading did besides returning the cloud.
@@ -33,6 +60,8 @@ pub struct LoadReport {
     pub dropped_non_finite: usize,
     /// Points dropped because they were exactly (0, 0, 0) and `drop_zero_points` was set.
     pub dropped_zero: usize,
+    /// The origin subtracted from every point (see [`LoadOptions::origin`]); zero without a shift.
+    pub origin: [i64; 3],
 }
 
 /// Reads a cloud, choosing the format from the extension (.ply, .pcd, .xyz/.txt/.pts).
@@ -49,11 +78,14 @@ pub struct LoadReport {
 /// `normal_x normal_y normal_z`, XYZ columns 4 to 6) and are returned as stored: not normalised, and zero-length
 /// normals are kept. A file with no points gives an empty cloud (callers decide whether that is an error).
 ///
-/// Errors: [`Error::InvalidInput`] for an unknown extension, [`Error::Io`] when the file cannot be read,
-/// [`Error::Parse`] for malformed contents.
+/// Reading is bounded (see [`MAX_INPUT_BYTES`], [`MAX_HEADER_BYTES`], [`MAX_LINE_BYTES`]): an endless or
+/// oversized input, an overlong header or line, or a NUL byte in text fails without reading on.
+///
+/// Errors: [`Error::InvalidInput`] for an unknown extension, a directory or an input over the size limit,
+/// [`Error::Io`] when the file cannot be read, [`Error::Parse`] for malformed contents.
 pub fn read_cloud(path: &Path, options: &LoadOptions) -> Result<(PointCloud, LoadReport)> {
     let format = Format::from_path(path)?;
-    let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let data = bounded::read_input(path, format)?;
     match format {
         Format::Ply => ply::parse(path, &data, options),
         Format::Pcd => pcd::parse(path, &data, options),
@@ -76,13 +108,61 @@ pub fn write_ply(path: &Path, cloud: &PointCloud) -> Result<()> {
     write_atomic(path, &bytes)
 }
 
+/// Writes `cloud` in the format its extension names: `.ply` (binary PLY), `.pcd` (binary PCD) or
+/// `.xyz`/`.txt` (text, `x y z [nx ny nz]` per line), atomically. Other extensions are refused (see
+/// [`check_writable_cloud_path`]), never written as PLY under another name.
+pub fn write_cloud(path: &Path, cloud: &PointCloud) -> Result<()> {
+    check_writable_cloud_path(path)?;
+    if path.extension().is_none() {
+        return write_ply(path, cloud);
+    }
+    let bytes = match Format::from_path(path)? {
+        Format::Ply => return write_ply(path, cloud),
+        Format::Pcd => pcd::encode_binary(cloud),
+        Format::Xyz => xyz::encode_text(cloud),
+    }
+    .map_err(|message| Error::invalid(format!("{}: {message}", path.display())))?;
+    write_atomic(path, &bytes)
+}
+
+/// Checks that [`write_cloud`] can write `path`'s extension (.ply, .pcd, .xyz, .txt). An existing device or
+/// FIFO without an extension (`/dev/null`, `/dev/stdout`) takes binary PLY.
+pub fn check_writable_cloud_path(path: &Path) -> Result<()> {
+    let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
+    match ext.as_deref() {
+        Some("ply" | "pcd" | "xyz" | "txt") => Ok(()),
+        None if is_special_file(path) => Ok(()),
+        _ => Err(Error::invalid(format!(
+            "{}: cannot write this extension; use .ply, .pcd, .xyz or .txt",
+            path.display()
+        ))),
+    }
+}
+
+/// True for an existing file that is neither a regular file nor a folder (a device, a FIFO).
+fn is_special_file(path: &Path) -> bool {
+    std::fs::metadata(path).is_ok_and(|m| !m.is_file() && !m.is_dir())
+}
+
 /// Writes `bytes` to `path` atomically: a temp file beside it (`.<name>.tmp-<pid>-<n>`), flushed to disk, then
 /// renamed over `path`, so readers see either the old contents or the new ones, never a partial file. The temp
-/// file is removed when anything fails. Refusing to overwrite inputs is the caller's job.
+/// file is removed when anything fails. A symlink is written through (the file it names is replaced, the link
+/// kept); an existing FIFO or device is written directly, never replaced. Refusing to overwrite inputs is the
+/// caller's job (see [`check_outputs`]).
 ///
 /// Errors: [`Error::Io`] naming `path`.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     atomic::write_atomic(path, bytes)
+}
+
+/// The cloud's normals, checked to match its points one to one.
+fn checked_normals(cloud: &PointCloud) -> std::result::Result<Option<&Vec<[f32; 3]>>, String> {
+    match &cloud.normals {
+        Some(n) if n.len() != cloud.points.len() => {
+            Err(format!("{} normals for {} points", n.len(), cloud.points.len()))
+        }
+        other => Ok(other.as_ref()),
+    }
 }
 
 /// The file formats [`read_cloud`] knows.
@@ -263,7 +343,17 @@ impl<'a> TextLines<'a> {
 }
 
 /// A line as text, without a trailing `\r`; a parse error when it is not UTF-8.
+///
+/// A UTF-8 byte-order mark on line 1 and a carriage return inside a line (CR-only line endings) are named as
+/// such, since both are invisible in most editors.
 fn line_str<'a>(path: &Path, line: usize, raw: &'a [u8]) -> Result<&'a str> {
+    if line == 1 && raw.starts_with(b"\xEF\xBB\xBF") {
+        return Err(at_line(path, line, "the file starts with a UTF-8 byte-order mark (BOM); save it without one"));
+    }
+    let body = raw.strip_suffix(b"\r").unwrap_or(raw);
+    if body.contains(&b'\r') {
+        return Err(at_line(path, line, "carriage return inside the line: CR-only line endings; convert them to LF"));
+    }
     let text = std::str::from_utf8(raw).map_err(|_| at_line(path, line, "line is not valid UTF-8 text"))?;
     Ok(text.strip_suffix('\r').unwrap_or(text))
 }
@@ -278,6 +368,8 @@ struct CloudBuilder {
     report: LoadReport,
     /// [`LoadOptions::drop_zero_points`].
     drop_zero: bool,
+    /// [`LoadOptions::origin`]; `Auto` turns into `At` at the first finite point.
+    origin: OriginShift,
 }
 
 impl CloudBuilder {
@@ -288,20 +380,29 @@ impl CloudBuilder {
             normals: with_normals.then(|| Vec::with_capacity(capacity)),
             report: LoadReport::default(),
             drop_zero: options.drop_zero_points,
+            origin: options.origin,
         }
     }
 
     /// Adds one point from `values` = x, y, z, nx, ny, nz (the normal part is ignored without normals), or
     /// drops and counts it (see [`read_cloud`] for the rules).
     fn push(&mut self, values: &[f64; 6]) {
-        let p = [values[0] as f32, values[1] as f32, values[2] as f32];
+        if self.origin == OriginShift::Auto && values[..3].iter().all(|c| c.is_finite()) {
+            let large = values[..3].iter().any(|c| c.abs() >= LARGE_COORDINATE);
+            self.origin = OriginShift::At(if large { [0, 1, 2].map(|i| values[i].round() as i64) } else { [0; 3] });
+        }
+        let o = match self.origin {
+            OriginShift::At(o) => o.map(|c| c as f64),
+            _ => [0.0; 3],
+        };
+        let p = [(values[0] - o[0]) as f32, (values[1] - o[1]) as f32, (values[2] - o[2]) as f32];
         let n = [values[3] as f32, values[4] as f32, values[5] as f32];
         let finite = |v: &[f32; 3]| v.iter().all(|c| c.is_finite());
         if !finite(&p) || (self.normals.is_some() && !finite(&n)) {
             self.report.dropped_non_finite += 1;
             return;
         }
-        if self.drop_zero && p == [0.0; 3] {
+        if self.drop_zero && values[..3].iter().all(|&c| c == 0.0) {
             self.report.dropped_zero += 1;
             return;
         }
@@ -312,7 +413,10 @@ impl CloudBuilder {
     }
 
     /// The cloud and the drop counts.
-    fn finish(self) -> (PointCloud, LoadReport) {
+    fn finish(mut self) -> (PointCloud, LoadReport) {
+        if let OriginShift::At(o) = self.origin {
+            self.report.origin = o;
+        }
         (PointCloud { points: self.points, normals: self.normals }, self.report)
     }
 }
@@ -352,7 +456,7 @@ mod tests {
 
     #[test]
     fn builder_drops_and_counts() {
-        let options = LoadOptions { drop_zero_points: true };
+        let options = LoadOptions { drop_zero_points: true, ..LoadOptions::default() };
         let mut b = CloudBuilder::new(&options, true, 4);
         b.push(&[1.0, 2.0, 3.0, 0.0, 0.0, 1.0]);
         b.push(&[f64::NAN, 2.0, 3.0, 0.0, 0.0, 1.0]);
@@ -363,7 +467,7 @@ mod tests {
         let (cloud, report) = b.finish();
         assert_eq!(cloud.points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
         assert_eq!(cloud.normals, Some(vec![[0.0, 0.0, 1.0], [0.0, 0.0, 0.0]]));
-        assert_eq!(report, LoadReport { dropped_non_finite: 3, dropped_zero: 1 });
+        assert_eq!(report, LoadReport { dropped_non_finite: 3, dropped_zero: 1, origin: [0; 3] });
     }
 
     #[test]

@@ -107,6 +107,9 @@ fn parse_header(path: &Path, data: &[u8]) -> Result<Header> {
         let Some((n, bytes)) = lines.next_raw() else {
             return Err(at_line(path, lines.eof_line(), "header ends without a DATA line"));
         };
+        if n > 1 && std::str::from_utf8(bytes).is_err() {
+            return Err(at_line(path, n, "binary data in the header: no DATA line before it"));
+        }
         let line = line_str(path, n, bytes)?.trim();
         if line.is_empty() || line.starts_with('#') {
             continue;
@@ -299,6 +302,28 @@ fn read_binary(path: &Path, data: &[u8], header: &Header, layout: &Layout, build
         builder.push(&values);
     }
     Ok(())
+}
+
+/// Encodes `cloud` as a binary PCD (v0.7) file: `x y z`, plus `normal_x normal_y normal_z` with normals.
+pub(super) fn encode_binary(cloud: &PointCloud) -> Result<Vec<u8>, String> {
+    let normals = super::checked_normals(cloud)?;
+    let (fields, size, ty, count) = if normals.is_some() {
+        ("x y z normal_x normal_y normal_z", "4 4 4 4 4 4", "F F F F F F", "1 1 1 1 1 1")
+    } else {
+        ("x y z", "4 4 4", "F F F", "1 1 1")
+    };
+    let n = cloud.points.len();
+    let header = format!(
+        "# .PCD v0.7 - written by dpr-gpu\nVERSION 0.7\nFIELDS {fields}\nSIZE {size}\nTYPE {ty}\nCOUNT {count}\n\
+         WIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n"
+    );
+    let mut bytes = header.into_bytes();
+    for (i, point) in cloud.points.iter().enumerate() {
+        for value in point.iter().chain(normals.map(|ns| &ns[i]).into_iter().flatten()) {
+            bytes.extend_from_slice(&value.to_le_bytes());
+        }
+    }
+    Ok(bytes)
 }
 
 #[cfg(test)]

@@ -141,6 +141,9 @@ fn parse_header(path: &Path, data: &[u8]) -> Result<Header> {
         let Some((n, raw)) = lines.next_raw() else {
             return Err(at_line(path, lines.eof_line(), "header ends without an 'end_header' line"));
         };
+        if n > 1 && std::str::from_utf8(raw).is_err() {
+            return Err(at_line(path, n, "binary data in the header: no 'end_header' line before it"));
+        }
         let line = line_str(path, n, raw)?;
         if n == 1 {
             if line.trim() != "ply" {

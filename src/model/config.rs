@@ -106,6 +106,17 @@ impl RotationOutput {
     }
 }
 
+/// Most points per patch a weights file may declare.
+pub const MAX_POINTS_PER_PATCH: usize = 1 << 16;
+/// Largest folding grid side.
+pub const MAX_GRID_SIDE: usize = 1 << 10;
+/// Most folding grid points (columns x rows).
+pub const MAX_GRID_POINTS: usize = 1 << 16;
+/// Widest layer.
+pub const MAX_WIDTH: usize = 1 << 13;
+/// Most layers per width list.
+pub const MAX_LAYERS: usize = 32;
+
 /// Sizes of PPF-FoldNet, PC-FoldNet (same architecture, input/output width 4 vs 3) and RelativeNet.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ModelConfig {
@@ -200,8 +211,9 @@ impl ModelConfig {
         if !(self.radius.is_finite() && self.radius > 0.0) {
             problems.push(format!("radius must be positive, got {}", self.radius));
         }
-        if self.points_per_patch == 0 {
-            problems.push("points_per_patch must be at least 1".into());
+        if !(1..=MAX_POINTS_PER_PATCH).contains(&self.points_per_patch) {
+            problems
+                .push(format!("points_per_patch must be 1..={MAX_POINTS_PER_PATCH}, got {}", self.points_per_patch));
         }
         for (name, widths) in [
             ("encoder_widths", &self.encoder_widths),
@@ -211,10 +223,19 @@ impl ModelConfig {
         ] {
             if widths.is_empty() || widths.contains(&0) {
                 problems.push(format!("{name} must be non-empty and positive, got {widths:?}"));
+            } else if widths.len() > MAX_LAYERS || widths.iter().any(|&w| w > MAX_WIDTH) {
+                problems.push(format!("{name} must have at most {MAX_LAYERS} layers of width <= {MAX_WIDTH}"));
             }
         }
         if self.grid.contains(&0) {
             problems.push(format!("grid must be positive, got {:?}", self.grid));
+        } else if self.grid.iter().any(|&g| g > MAX_GRID_SIDE)
+            || self.grid[0].saturating_mul(self.grid[1]) > MAX_GRID_POINTS
+        {
+            problems.push(format!(
+                "grid must be at most {MAX_GRID_SIDE} per side and {MAX_GRID_POINTS} points, got {:?}",
+                self.grid
+            ));
         }
         if let RotationOutput::AngleBins { bins, candidates } = self.rotation_output {
             if !(4..=360).contains(&bins) || !(1..=MAX_ANGLE_CANDIDATES).contains(&candidates) {

@@ -107,17 +107,27 @@ impl Weights {
         crate::io::write_atomic(path, &self.to_bytes()?)
     }
 
-    /// Reads and checks a weights file.
+    /// Reads and checks a weights file (at most 1 GiB).
     pub fn load(path: &Path) -> Result<Weights> {
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let bytes = crate::io::read_file_bounded(path, 1 << 30)?;
         Weights::from_bytes(&bytes, &path.display().to_string())
     }
 
     /// Parses and checks safetensors bytes; `origin` names them in errors.
     pub fn from_bytes(bytes: &[u8], origin: &str) -> Result<Weights> {
         let fail = |problems: Vec<String>| Error::Weights { path: origin.to_string(), problems };
-        let (_, meta) =
-            SafeTensors::read_metadata(bytes).map_err(|e| fail(vec![format!("not a safetensors file: {e}")]))?;
+        let declared = bytes.first_chunk::<8>().map(|n| u64::from_le_bytes(*n).saturating_add(8));
+        if declared.is_some_and(|d| d > bytes.len() as u64 && d <= (100 << 20)) {
+            return Err(fail(vec![format!("truncated: {} bytes end inside the safetensors header", bytes.len())]));
+        }
+        let (_, meta) = SafeTensors::read_metadata(bytes).map_err(|e| match e {
+            safetensors::SafeTensorError::MetadataIncompleteBuffer => fail(vec![match described_len(bytes) {
+                Some(n) if n > bytes.len() => format!("truncated: {} bytes, its header describes {n}", bytes.len()),
+                Some(n) => format!("{} bytes after the {n} its header describes", bytes.len() - n),
+                None => format!("not a safetensors file: {e}"),
+            }]),
+            e => fail(vec![format!("not a safetensors file: {e}")]),
+        })?;
         let mut notes: BTreeMap<String, String> = meta.metadata().clone().unwrap_or_default().into_iter().collect();
         let config_json = notes
             .remove(CONFIG_KEY)
@@ -165,4 +175,12 @@ impl Weights {
         }
         Ok(Weights { config, tensors, notes })
     }
+}
+
+/// The file length a safetensors header describes (8 + header + the largest tensor end offset).
+fn described_len(bytes: &[u8]) -> Option<usize> {
+    let n = usize::try_from(u64::from_le_bytes(*bytes.first_chunk::<8>()?)).ok()?;
+    let header: serde_json::Value = serde_json::from_slice(bytes.get(8..8usize.checked_add(n)?)?).ok()?;
+    let end = header.as_object()?.values().filter_map(|t| t.get("data_offsets")?.get(1)?.as_u64()).max().unwrap_or(0);
+    (8 + n).checked_add(usize::try_from(end).ok()?)
 }

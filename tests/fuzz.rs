@@ -1,0 +1,301 @@
+//! Mutation fuzzing on stable Rust (proptest): valid PLY (ascii and binary), PCD (ascii and binary), XYZ and
+//! weights files are mutated (bytes flipped, set, inserted, removed, truncated, ranges duplicated) and fed to
+//! the readers, and random registration settings to the pipeline. Nothing may panic; what reads must be a
+//! valid cloud. Each target runs a fixed number of cases (`FUZZ_CASES`, default 1000), about 2 s in all in
+//! release builds, well under the 2 minutes CI allows in total. Failing inputs are kept by proptest in
+//! `tests/fuzz.proptest-regressions` and replayed first; inputs that once failed are also pinned below as
+//! plain tests.
+
+mod common;
+
+use dpr_gpu::io::{LoadOptions, read_cloud};
+use dpr_gpu::model::{ModelConfig, Weights};
+use dpr_gpu::{PointCloud, Registrar, RegistrationSettings};
+use proptest::prelude::*;
+use std::path::PathBuf;
+use std::sync::OnceLock;
+
+/// Cases per target: `FUZZ_CASES` or 1000.
+fn cases() -> u32 {
+    std::env::var("FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(1000)
+}
+
+fn config() -> ProptestConfig {
+    ProptestConfig { cases: cases(), ..ProptestConfig::default() }
+}
+
+/// One mutation of a byte string.
+#[derive(Clone, Debug)]
+enum Mutation {
+    /// XOR a byte (position as a fraction of the length).
+    Flip(f64, u8),
+    /// Set a byte to an interesting value.
+    Set(f64, u8),
+    /// Insert bytes.
+    Insert(f64, Vec<u8>),
+    /// Remove up to n bytes.
+    Remove(f64, usize),
+    /// Cut the file here.
+    Truncate(f64),
+    /// Copy a range to another place.
+    Duplicate(f64, usize, f64),
+    /// Replace an ascii digit run by a huge or odd number.
+    Number(f64, &'static str),
+}
+
+fn mutation() -> impl Strategy<Value = Mutation> {
+    let at = 0.0..1.0f64;
+    let interesting = prop_oneof![Just(0u8), Just(0xff), Just(b'\n'), Just(b'\r'), Just(b' '), Just(b'-'), any::<u8>()];
+    let numbers = prop_oneof![
+        Just("99999999999999999999"),
+        Just("-1"),
+        Just("4294967296"),
+        Just("nan"),
+        Just("1e39"),
+        Just("0"),
+        Just("18446744073709551615")
+    ];
+    prop_oneof![
+        (at.clone(), 1..=255u8).prop_map(|(p, x)| Mutation::Flip(p, x)),
+        (at.clone(), interesting).prop_map(|(p, x)| Mutation::Set(p, x)),
+        (at.clone(), proptest::collection::vec(any::<u8>(), 1..16)).prop_map(|(p, b)| Mutation::Insert(p, b)),
+        (at.clone(), 1..64usize).prop_map(|(p, n)| Mutation::Remove(p, n)),
+        at.clone().prop_map(Mutation::Truncate),
+        (at.clone(), 1..256usize, at.clone()).prop_map(|(p, n, q)| Mutation::Duplicate(p, n, q)),
+        (at, numbers).prop_map(|(p, s)| Mutation::Number(p, s)),
+    ]
+}
+
+/// Applies `mutations` to `bytes`.
+fn mutate(mut bytes: Vec<u8>, mutations: &[Mutation]) -> Vec<u8> {
+    let pos = |f: f64, len: usize| ((f * len as f64) as usize).min(len);
+    for m in mutations {
+        let len = bytes.len();
+        match m {
+            Mutation::Flip(p, x) if len > 0 => bytes[pos(*p, len - 1)] ^= x,
+            Mutation::Set(p, x) if len > 0 => bytes[pos(*p, len - 1)] = *x,
+            Mutation::Insert(p, b) => {
+                let i = pos(*p, len);
+                bytes.splice(i..i, b.iter().copied());
+            }
+            Mutation::Remove(p, n) => {
+                let i = pos(*p, len);
+                bytes.drain(i..(i + n).min(len));
+            }
+            Mutation::Truncate(p) => bytes.truncate(pos(*p, len)),
+            Mutation::Duplicate(p, n, q) => {
+                let i = pos(*p, len);
+                let chunk = bytes[i..(i + n).min(len)].to_vec();
+                let j = pos(*q, len);
+                bytes.splice(j..j, chunk);
+            }
+            Mutation::Number(p, s) => {
+                let i = pos(*p, len);
+                if let Some(start) = bytes[i..].iter().position(u8::is_ascii_digit).map(|k| i + k) {
+                    let end = bytes[start..].iter().position(|b| !b.is_ascii_digit()).map_or(len, |k| start + k);
+                    bytes.splice(start..end, s.bytes());
+                }
+            }
+            _ => {}
+        }
+    }
+    bytes
+}
+
+/// A small cloud with normals.
+fn seed_cloud() -> PointCloud {
+    let mut c = common::room_corner(1, 40);
+    c.normals = Some(c.points.iter().map(|_| [0.0, 0.0, 1.0]).collect());
+    c
+}
+
+/// The valid files mutations start from: (extension, bytes).
+fn seeds() -> &'static Vec<(&'static str, Vec<u8>)> {
+    static SEEDS: OnceLock<Vec<(&'static str, Vec<u8>)>> = OnceLock::new();
+    SEEDS.get_or_init(|| {
+        let dir = common::temp_dir("fuzz-seeds");
+        let cloud = seed_cloud();
+        let mut out = Vec::new();
+        for ext in ["ply", "pcd", "xyz"] {
+            let path = dir.join(format!("seed.{ext}"));
+            dpr_gpu::io::write_cloud(&path, &cloud).unwrap();
+            out.push((ext, std::fs::read(&path).unwrap()));
+        }
+        let mut ascii_ply = format!(
+            "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
+             property uchar red\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n",
+            cloud.len()
+        );
+        for p in &cloud.points {
+            ascii_ply.push_str(&format!("{} {} {} 7\n", p[0], p[1], p[2]));
+        }
+        ascii_ply.push_str("3 0 1 2\n");
+        out.push(("ply", ascii_ply.into_bytes()));
+        let mut ascii_pcd = format!(
+            "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F U\nCOUNT 1 1 1 1\nWIDTH {n}\n\
+             HEIGHT 1\nPOINTS {n}\nDATA ascii\n",
+            n = cloud.len()
+        );
+        for p in &cloud.points {
+            ascii_pcd.push_str(&format!("{} {} {} 4278190335\n", p[0], p[1], p[2]));
+        }
+        out.push(("pcd", ascii_pcd.into_bytes()));
+        let mut csv = String::from("# x,y,z\n40\n");
+        for p in &cloud.points {
+            csv.push_str(&format!("{},{},{}\n", p[0], p[1], p[2]));
+        }
+        out.push(("txt", csv.into_bytes()));
+        out
+    })
+}
+
+/// A fresh path for one fuzz case.
+fn case_path(ext: &str) -> PathBuf {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    static N: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let dir = DIR.get_or_init(|| common::temp_dir("fuzz-cases"));
+    let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    dir.join(format!("case{n}.{ext}"))
+}
+
+/// Reads `bytes` as a file with extension `ext`: an error is fine, a panic is not, and a cloud must be valid.
+fn read_must_not_panic(ext: &str, bytes: &[u8]) {
+    let path = case_path(ext);
+    std::fs::write(&path, bytes).unwrap();
+    for opts in [LoadOptions::default(), LoadOptions { drop_zero_points: true, ..LoadOptions::default() }] {
+        if let Ok((cloud, _)) = read_cloud(&path, &opts) {
+            cloud.validate("fuzzed").unwrap();
+        }
+    }
+    let _ = std::fs::remove_file(path);
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    #[test]
+    fn cloud_readers_survive_mutated_files(
+        which in 0..6usize,
+        mutations in proptest::collection::vec(mutation(), 1..6),
+    ) {
+        let (ext, bytes) = &seeds()[which];
+        read_must_not_panic(ext, &mutate(bytes.clone(), &mutations));
+    }
+
+    #[test]
+    fn weights_reader_survives_mutated_files(mutations in proptest::collection::vec(mutation(), 1..4)) {
+        let bytes = mutate(small_weights_bytes().clone(), &mutations);
+        if let Ok(w) = Weights::from_bytes(&bytes, "fuzz") {
+            w.config.validate().unwrap();
+        }
+    }
+}
+
+/// Random registration settings (mostly valid, some absurd): validation refuses the bad ones with an error, and
+/// the rest register a small pair without a panic, giving a finite pose and a consistent verdict.
+#[test]
+fn register_settings_never_panic() {
+    let strategy = (
+        prop_oneof![8 => 0..300usize, 1 => Just(usize::MAX), 1 => Just(1usize << 40)],
+        prop_oneof![
+            4 => Just(None), 4 => (0.05..2.0f32).prop_map(Some), 1 => (-1.0..0.05f32).prop_map(Some),
+            1 => Just(Some(f32::NAN)), 1 => Just(Some(f32::INFINITY))
+        ],
+        prop_oneof![4 => Just(None), 4 => (-0.01..0.2f32).prop_map(Some), 1 => Just(Some(f32::NAN))],
+        prop_oneof![4 => Just(None), 4 => (-0.1..1.0f32).prop_map(Some), 1 => Just(Some(0.0f32))],
+        prop_oneof![8 => 0..5usize, 1 => 5..100usize],
+        prop_oneof![8 => 0..64usize, 1 => Just(usize::MAX)],
+        prop_oneof![8 => 0..500usize, 1 => Just(usize::MAX)],
+        prop_oneof![8 => 0.0..1.0f64, 1 => Just(f64::NAN), 1 => Just(-1.0)],
+        any::<bool>(),
+        any::<u64>(),
+    );
+    let weights = Weights::from_bytes(small_weights_bytes(), "fuzz").unwrap();
+    let registered = std::sync::atomic::AtomicUsize::new(0);
+    let mut runner = proptest::test_runner::TestRunner::new(config());
+    runner
+        .run(&strategy, |(keypoints, radius, voxel, threshold, mutual, normal_k, iterations, ratio, ransac, seed)| {
+            let mut s = RegistrationSettings {
+                keypoints,
+                radius,
+                voxel,
+                inlier_threshold: threshold,
+                normal_neighbors: normal_k,
+                seed,
+                ..RegistrationSettings::default()
+            };
+            s.matching = if mutual == 0 { dpr_gpu::MatchMode::Closest } else { dpr_gpu::MatchMode::Mutual(mutual) };
+            s.ransac.max_iterations = iterations;
+            s.verdict.min_inlier_ratio = ratio;
+            s.estimator = if ransac { dpr_gpu::Estimator::Ransac } else { dpr_gpu::Estimator::RelativeNet };
+            if let Ok(registrar) = Registrar::with_weights(&s, &weights) {
+                registered.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let (source, target) = small_pair();
+                if let Ok(result) = registrar.register(source, target) {
+                    prop_assert!(result.estimate.target_from_source.iter().all(|v| v.is_finite()));
+                    prop_assert_eq!(result.success, result.reason.is_none());
+                }
+            }
+            Ok(())
+        })
+        .unwrap();
+    let registered = registered.into_inner();
+    assert!(registered * 10 >= cases() as usize, "only {registered} of {} settings were valid", cases());
+}
+
+/// A tiny model's weights file.
+fn small_weights_bytes() -> &'static Vec<u8> {
+    static BYTES: OnceLock<Vec<u8>> = OnceLock::new();
+    BYTES.get_or_init(|| {
+        let config = ModelConfig {
+            points_per_patch: 8,
+            grid: [3, 3],
+            encoder_widths: vec![8, 8],
+            head_widths: vec![16],
+            fold_widths: vec![8],
+            relative_widths: vec![8],
+            ..ModelConfig::default()
+        };
+        Weights::init(&config, 5).unwrap().to_bytes().unwrap()
+    })
+}
+
+/// A small generated pair.
+fn small_pair() -> &'static (PointCloud, PointCloud) {
+    static PAIR: OnceLock<(PointCloud, PointCloud)> = OnceLock::new();
+    PAIR.get_or_init(|| {
+        let (s, t, _) = common::room_pair(2, 400);
+        (s, t)
+    })
+}
+
+// ------------------------------------------------------------------------- pinned regression cases
+
+/// Inputs that once failed a reader (found while hardening), replayed as plain tests.
+#[test]
+fn pinned_reader_regressions() {
+    let cases: &[(&str, &[u8])] = &[
+        // A PLY header followed by NUL bytes and no end_header.
+        ("ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n\x00\x00\x00"),
+        // A CR-only XYZ file.
+        ("xyz", b"1 2 3\r4 5 6\r"),
+        // A vertex count that overflows the stride product.
+        ("ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 18446744073709551615\nproperty double x\nproperty double y\nproperty double z\nend_header\n"),
+        // PCD WIDTH x HEIGHT overflow.
+        ("pcd", b"FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 4294967296\nHEIGHT 4294967296\nDATA binary\n"),
+        // Six columns of colour.
+        ("xyz", b"1 2 3 255 0 0\n"),
+    ];
+    for (ext, bytes) in cases {
+        read_must_not_panic(ext, bytes);
+    }
+}
+
+#[test]
+fn mutate_applies_each_kind() {
+    let base = b"ply 123\n".to_vec();
+    assert_eq!(mutate(base.clone(), &[Mutation::Truncate(0.5)]), b"ply ");
+    assert_eq!(mutate(base.clone(), &[Mutation::Number(0.0, "-1")]), b"ply -1\n");
+    assert_eq!(mutate(base.clone(), &[Mutation::Remove(0.0, 4)]), b"123\n");
+    assert_eq!(mutate(base, &[Mutation::Insert(1.0, vec![b'x'])]), b"ply 123\nx");
+}
