@@ -159,6 +159,13 @@ impl Registrar {
     /// Preprocesses `cloud` and computes keypoints and codewords. `stream` separates the random choices of
     /// different scans under one seed (0 for the source, 1 for the target in `register`).
     pub fn describe(&self, cloud: &PointCloud, stream: u64) -> Result<ScanFeatures> {
+        self.describe_from(cloud, stream, self.settings.viewpoint)
+    }
+
+    /// [`Registrar::describe`] for a scan whose sensor sat at `viewpoint` (scan frame): estimated normals face
+    /// it. A scan moved by a rigid motion M is described as the original when `viewpoint` moves with it (M
+    /// times the original viewpoint).
+    pub fn describe_from(&self, cloud: &PointCloud, stream: u64, viewpoint: [f32; 3]) -> Result<ScanFeatures> {
         let s = &self.settings;
         let mut clock = Stopwatch::new();
         cloud.validate("cloud")?;
@@ -182,7 +189,7 @@ impl Registrar {
                 *n = n.map(|c| c / len);
             }
         } else {
-            cloud.normals = Some(estimate_normals(&cloud.points, &index, s.normal_neighbors, s.viewpoint));
+            cloud.normals = Some(estimate_normals(&cloud.points, &index, s.normal_neighbors, viewpoint));
         }
         clock.lap("normals");
         let mut rng = Rng::derived(s.seed, 2 * stream);

@@ -2,6 +2,8 @@
 //! patch features, permutation invariance of the encoders, matching against a brute-force ranking, and pose
 //! recovery from correspondences with a known transform.
 
+mod common;
+
 use dpr_gpu::backend::CpuBackend;
 use dpr_gpu::cpu::mutual_knn::{codeword_distance, mutual_knn};
 use dpr_gpu::cpu::patch_features::point_features;
@@ -208,4 +210,38 @@ fn ransac_is_deterministic_per_seed() {
     assert_eq!(a.target_from_source, b.target_from_source);
     assert_eq!(a.hypotheses_scored, b.hypotheses_scored);
     assert!(ransac(&p.source[..2], &p.target[..2], 0.05, &RansacSettings::default(), 9).is_err());
+}
+
+#[test]
+fn a_moved_scan_described_from_its_moved_sensor_gets_the_moved_normals() {
+    // Estimated normals face the sensor. Moving a scan without its sensor (as a rotation about the centroid does)
+    // flips some of them; `describe_from` with the moved viewpoint must give exactly the moved normals.
+    let cloud = common::room_corner(3, 3000);
+    let settings =
+        dpr_gpu::RegistrationSettings { keypoints: 50, voxel: None, viewpoint: [1.5, 1.5, 1.0], ..Default::default() };
+    let weights = Weights::init(&tiny_config(), 0).unwrap();
+    let registrar = dpr_gpu::Registrar::with_weights(&settings, &weights).unwrap();
+    let original = registrar.describe(&cloud, 0).unwrap();
+    let m = dpr_gpu::pose::matrix_from_parts(
+        &nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI).into_inner(),
+        &Vector3::new(0.5, 3.0, 2.0),
+    );
+    let moved = cloud.transformed(&m);
+    let rotate = |n: [f32; 3]| {
+        transform_point(&m, n).iter().zip(transform_point(&m, [0.0; 3])).map(|(a, b)| a - b).collect::<Vec<f32>>()
+    };
+    // Among normals whose direction is well defined on both sides (|cos| > 0.9; PCA at edges is ill-conditioned
+    // and may turn in f32), the share that point the other way.
+    let flipped = |f: &dpr_gpu::pipeline::ScanFeatures| {
+        let (a, b) = (original.cloud.normals.as_ref().unwrap(), f.cloud.normals.as_ref().unwrap());
+        let cos: Vec<f32> =
+            a.iter().zip(b).map(|(n, g)| rotate(*n).iter().zip(g.iter()).map(|(x, y)| x * y).sum::<f32>()).collect();
+        let defined = cos.iter().filter(|c| c.abs() > 0.9).count();
+        cos.iter().filter(|&&c| c < -0.9).count() as f64 / defined.max(1) as f64
+    };
+    let with_sensor = registrar.describe_from(&moved, 0, transform_point(&m, settings.viewpoint)).unwrap();
+    assert!(flipped(&with_sensor) < 0.002, "{}", flipped(&with_sensor));
+    // Control: the sensor left behind at the old viewpoint flips a good share of the normals.
+    let left_behind = registrar.describe(&moved, 0).unwrap();
+    assert!(flipped(&left_behind) > 0.05, "{}", flipped(&left_behind));
 }

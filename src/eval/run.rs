@@ -306,8 +306,11 @@ fn run_views(
             for key in keys {
                 let (features, rotation_deg) = match key.1 {
                     Some(v) => {
-                        let moved = cloud.transformed(&motion(&rotations, sweep, f, v));
-                        (registrar.describe(&moved, f as u64)?, sweep.map(|s| s.degrees[v]))
+                        // The sensor moves with the scan: estimated normals keep facing it.
+                        let m = motion(&rotations, sweep, f, v);
+                        let viewpoint = crate::pose::transform_point(&m, registrar.settings.viewpoint);
+                        let moved = cloud.transformed(&m);
+                        (registrar.describe_from(&moved, f as u64, viewpoint)?, sweep.map(|s| s.degrees[v]))
                     }
                     None => (registrar.describe(&cloud, f as u64)?, None),
                 };
