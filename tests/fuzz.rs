@@ -2,7 +2,8 @@
 //! weights files are mutated (bytes flipped, set, inserted, removed, truncated, ranges duplicated) and fed to
 //! the readers, and random registration settings to the pipeline. Nothing may panic; what reads must be a
 //! valid cloud. Each target runs a fixed number of cases (`FUZZ_CASES`, default 1000), about 2 s in all in
-//! release builds, well under the 2 minutes CI allows in total. Failing inputs are kept by proptest in
+//! release builds, well under the 2 minutes CI allows in total. The generator is seeded (`FUZZ_SEED`, fixed by
+//! default; `FUZZ_SEED=random` explores new inputs), so CI runs the same cases every time. Failing inputs are kept by proptest in
 //! `tests/fuzz.proptest-regressions` and replayed first; inputs that once failed are also pinned below as
 //! plain tests.
 
@@ -12,6 +13,7 @@ use dpr_gpu::io::{LoadOptions, read_cloud};
 use dpr_gpu::model::{ModelConfig, Weights};
 use dpr_gpu::{PointCloud, Registrar, RegistrationSettings};
 use proptest::prelude::*;
+use proptest::test_runner::RngSeed;
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
@@ -20,8 +22,18 @@ fn cases() -> u32 {
     std::env::var("FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(1000)
 }
 
+/// The generator seed: `FUZZ_SEED`, or a fixed default so that CI runs the same cases every time. Set
+/// `FUZZ_SEED=random` to explore new inputs while developing.
+fn rng_seed() -> RngSeed {
+    match std::env::var("FUZZ_SEED").ok().as_deref() {
+        Some("random") => RngSeed::Random,
+        Some(text) => RngSeed::Fixed(text.parse().expect("FUZZ_SEED must be an integer or 'random'")),
+        None => RngSeed::Fixed(0x5eed_f022),
+    }
+}
+
 fn config() -> ProptestConfig {
-    ProptestConfig { cases: cases(), ..ProptestConfig::default() }
+    ProptestConfig { cases: cases(), rng_seed: rng_seed(), ..ProptestConfig::default() }
 }
 
 /// One mutation of a byte string.
@@ -283,6 +295,9 @@ fn pinned_reader_regressions() {
         ("ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 18446744073709551615\nproperty double x\nproperty double y\nproperty double z\nend_header\n"),
         // PCD WIDTH x HEIGHT overflow.
         ("pcd", b"FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 4294967296\nHEIGHT 4294967296\nDATA binary\n"),
+        // A PCD field COUNT of 2^32 once asked for a 64 GiB token buffer.
+        ("pcd", b"FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 4294967296\nPOINTS 1\nDATA ascii\n1 2 3\n"),
+        ("pcd", b"FIELDS x y z d\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 18446744073709551615\nPOINTS 1\nDATA binary\n"),
         // Six columns of colour.
         ("xyz", b"1 2 3 255 0 0\n"),
     ];

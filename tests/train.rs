@@ -443,7 +443,9 @@ fn whole_model_gradient_matches(config: ModelConfig) {
     let weights = weights_with_biases(&config, 21);
     let mut rng = Rng::new(22);
     let samples: Vec<PairSample> = (0..2).map(|_| random_sample(&config, &mut rng)).collect();
-    let settings = LossSettings { lambda_pose: 0.7, lambda_feat: 0.3, ..LossSettings::default() };
+    // The full gradient: the pose loss also reaches PPF-FoldNet, so every tensor matches the total loss.
+    let settings =
+        LossSettings { lambda_pose: 0.7, lambda_feat: 0.3, pose_trains_ppf: true, ..LossSettings::default() };
     let (_, grads) = batch_objective(&weights, &samples, &settings).unwrap();
     let specs = tensor_specs(&config);
     let (mut checked, mut agreed) = (0, 0);
@@ -477,6 +479,17 @@ fn whole_model_gradient_matches(config: ModelConfig) {
     let (_, g) = batch_objective(&weights, &samples, &no_pose).unwrap();
     assert!(g.get(&config, "relative.0.weight").unwrap().iter().all(|&v| v == 0.0));
     assert!(g.get(&config, "pc.encoder.0.weight").unwrap().iter().any(|&v| v != 0.0));
+    // Held constant for the pose loss, PPF-FoldNet gets exactly the gradient it gets without that loss, while
+    // PC-FoldNet and RelativeNet keep theirs.
+    let detached = LossSettings { pose_trains_ppf: false, ..settings };
+    let (_, d) = batch_objective(&weights, &samples, &detached).unwrap();
+    for name in ["ppf.encoder.0.weight", "ppf.head.0.weight"] {
+        assert_eq!(d.get(&config, name).unwrap(), g.get(&config, name).unwrap(), "{name}");
+    }
+    for name in ["pc.encoder.0.weight", "relative.0.weight"] {
+        assert_eq!(d.get(&config, name).unwrap(), grads.get(&config, name).unwrap(), "{name}");
+    }
+    assert_ne!(d.get(&config, "ppf.encoder.0.weight").unwrap(), grads.get(&config, "ppf.encoder.0.weight").unwrap());
 }
 
 #[test]

@@ -81,6 +81,9 @@ pub struct Args {
     /// Drop the feature-consistency loss (ablation).
     #[arg(long)]
     pub no_feat: bool,
+    /// Let the pose loss train PPF-FoldNet too (by default the PPF codeword is held constant for it).
+    #[arg(long)]
+    pub pose_trains_ppf: bool,
     /// Seed of the initial weights and of the sampling [default: 0].
     #[arg(long)]
     pub seed: Option<u64>,
@@ -154,6 +157,7 @@ fn fresh_settings(args: &Args) -> TrainSettings {
     s.loss.rec = !args.no_rec;
     s.loss.pose = !args.no_pose;
     s.loss.feat = !args.no_feat;
+    s.loss.pose_trains_ppf = args.pose_trains_ppf;
     s.sampling.voxel = args.voxel.unwrap_or(s.sampling.voxel);
     s.sampling.match_distance = args.match_distance.unwrap_or(s.sampling.match_distance);
     s.sampling.rotate_target = args.rotate_target;
@@ -185,6 +189,7 @@ fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> an
     check("--no-rec", args.no_rec && s.loss.rec);
     check("--no-pose", args.no_pose && s.loss.pose);
     check("--no-feat", args.no_feat && s.loss.feat);
+    check("--pose-trains-ppf", args.pose_trains_ppf && !s.loss.pose_trains_ppf);
     check("--voxel", args.voxel.is_some_and(|v| v != s.sampling.voxel));
     check("--match-distance", args.match_distance.is_some_and(|v| v != s.sampling.match_distance));
     check("--rotate-target", args.rotate_target && !s.sampling.rotate_target);

@@ -12,6 +12,10 @@ use crate::cloud::PointCloud;
 use crate::error::Result;
 use std::path::Path;
 
+/// Most values one point record may hold (the sum of every field's COUNT); real descriptors such as
+/// VFH (308) stay far below it, and it bounds every per-point allocation and offset.
+const MAX_VALUES_PER_POINT: usize = 1 << 16;
+
 /// How the body is stored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Data {
@@ -172,6 +176,11 @@ fn fields<'a>(path: &Path, data_line: usize, raw: &RawHeader<'a>) -> Result<Vec<
         let count = counts[i].parse::<usize>().ok().filter(|&c| c > 0).ok_or_else(|| {
             at_line(path, count_line, format!("field '{}' has an invalid COUNT '{}'", names[i], counts[i]))
         })?;
+        if count > MAX_VALUES_PER_POINT {
+            let message =
+                format!("field '{}' has COUNT {count}; at most {MAX_VALUES_PER_POINT} are supported", names[i]);
+            return Err(at_line(path, count_line, message));
+        }
         fields.push(Field { name: names[i].to_string(), ty, count });
     }
     Ok(fields)
@@ -231,6 +240,10 @@ fn layout(path: &Path, header: &Header) -> Result<Layout> {
         positions.push((value, offset));
         value += field.count;
         offset += field.count * field.ty.size();
+        if value > MAX_VALUES_PER_POINT {
+            let message = format!("a point has more than {MAX_VALUES_PER_POINT} values (sum of COUNT)");
+            return Err(at_line(path, header.data_line, message));
+        }
     }
     let find = |name: &str| header.fields.iter().position(|f| f.name == name);
     let missing: Vec<String> = ["x", "y", "z"].iter().filter(|n| find(n).is_none()).map(|n| format!("'{n}'")).collect();

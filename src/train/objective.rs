@@ -47,11 +47,16 @@ pub struct LossSettings {
     pub lambda_pose: f64,
     /// lambda2, the weight of `L_feat`.
     pub lambda_feat: f64,
+    /// Let `L_pose` train PPF-FoldNet too (through the PPF codeword in the pose feature). Off by default: the
+    /// PPF codeword is then a constant to the pose loss, so the rotation head cannot pull the matching features
+    /// away from what reconstruction and feature consistency ask of them.
+    #[serde(default)]
+    pub pose_trains_ppf: bool,
 }
 
 impl Default for LossSettings {
     fn default() -> Self {
-        LossSettings { rec: true, pose: true, feat: true, lambda_pose: 1.0, lambda_feat: 0.1 }
+        LossSettings { rec: true, pose: true, feat: true, lambda_pose: 1.0, lambda_feat: 0.1, pose_trains_ppf: false }
     }
 }
 
@@ -149,7 +154,9 @@ pub fn sample_objective(
         for (p, d_f) in [d_fs, d_ft].iter().enumerate() {
             for (i, &g) in d_f.iter().enumerate() {
                 d_pc_cw[p * cw + i] += g;
-                d_ppf_cw[p * cw + i] -= g;
+                if settings.pose_trains_ppf {
+                    d_ppf_cw[p * cw + i] -= g;
+                }
             }
         }
     }
