@@ -40,24 +40,19 @@ pub struct ScanFeatures {
     pub timings: Vec<StageTime>,
 }
 
-/// The shipped default weights file.
-pub fn default_weights_path() -> PathBuf {
-    if let Some(p) = std::env::var_os(WEIGHTS_ENV) {
-        return PathBuf::from(p);
-    }
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("weights").join("default.safetensors")
+/// The weights file that replaces the built-in default weights, if any: `settings.weights`, else the file
+/// named by [`WEIGHTS_ENV`].
+pub fn weights_file(settings: &RegistrationSettings) -> Option<PathBuf> {
+    settings.weights.clone().or_else(|| std::env::var_os(WEIGHTS_ENV).map(PathBuf::from))
 }
 
-/// Loads the weights named by the settings (or the default ones).
+/// Loads the weights the settings name, or the built-in default weights ([`Weights::built_in`]), which are
+/// compiled into the library: an installed binary or Python extension never looks for the source checkout.
 pub fn load_weights(settings: &RegistrationSettings) -> Result<Weights> {
-    let path = settings.weights.clone().unwrap_or_else(default_weights_path);
-    if settings.weights.is_none() && !path.exists() {
-        return Err(Error::invalid(format!(
-            "no default weights at {} (set --weights FILE, or {WEIGHTS_ENV})",
-            path.display()
-        )));
+    match weights_file(settings) {
+        Some(path) => Weights::load(&path),
+        None => Weights::built_in(),
     }
-    Weights::load(&path)
 }
 
 /// Creates the backend `kind` for `model`. `Auto` takes a GPU adapter when one exists and otherwise warns and

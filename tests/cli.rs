@@ -140,3 +140,34 @@ fn init_weights_and_info_describe_the_model() {
     assert!(stdout.contains("parameters total"));
     assert_clean_failure(&dpr(&["init-weights", dir.join("x").to_str().unwrap(), "--config", "huge"]), "huge");
 }
+
+#[test]
+fn a_copied_binary_registers_the_example_pair_with_its_built_in_weights() {
+    // The weights travel inside the binary: a copy in an empty directory, run from there with no weights file
+    // named anywhere, registers the example pair to its exact ground truth (examples/pair/pairs.txt).
+    let dir = temp_dir("cli-copied-binary");
+    let binary = dir.join("dpr-gpu");
+    std::fs::copy(env!("CARGO_BIN_EXE_dpr-gpu"), &binary).unwrap();
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/pair");
+    for name in ["cloud_bin_0.ply", "cloud_bin_1.ply"] {
+        std::fs::copy(example.join(name), dir.join(name)).unwrap();
+    }
+    let o = Command::new(&binary)
+        .current_dir(&dir)
+        .env_remove("DPR_GPU_WEIGHTS")
+        .args(["register", "cloud_bin_1.ply", "cloud_bin_0.ply", "--backend", "cpu", "--json"])
+        .output()
+        .unwrap();
+    let (stdout, stderr) = text(&o);
+    assert!(o.status.success(), "{stderr}");
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
+    let rows = v["target_from_source"].as_array().unwrap();
+    let estimate = Matrix4::from_fn(|r, c| rows[r][c].as_f64().unwrap());
+    let pairs = std::fs::read_to_string(example.join("pairs.txt")).unwrap();
+    let line = pairs.lines().find(|l| !l.starts_with('#')).unwrap();
+    let values: Vec<f64> = line.split_whitespace().skip(2).map(|x| x.parse().unwrap()).collect();
+    let truth = Matrix4::from_row_slice(&values);
+    assert!(rotation_error_deg(&estimate, &truth) < 5.0, "rotation error {}", rotation_error_deg(&estimate, &truth));
+    assert!(translation_error(&estimate, &truth) < 0.1, "translation error {}", translation_error(&estimate, &truth));
+    assert_eq!(v["success"], true);
+}

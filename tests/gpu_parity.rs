@@ -840,7 +840,7 @@ fn register_with_relativenet_matches_cpu_on_a_generated_pair() {
     let s = seed(71);
     // The shipped (trained) weights: with random ones RelativeNet's rotations are noise, every hypothesis has
     // one inlier and the comparison would only exercise tie-breaking.
-    let weights = Weights::load(&dpr_gpu::pipeline::default_weights_path()).unwrap();
+    let weights = Weights::built_in().unwrap();
     let (gpu_b, cpu_b) = backends_for(g, Model::from_weights(&weights).unwrap());
     let settings = dpr_gpu::RegistrationSettings {
         keypoints: 120,

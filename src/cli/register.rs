@@ -4,7 +4,7 @@ use crate::io::{
     LoadOptions, OriginShift, XyzColumns, check_outputs, check_writable_cloud_path, read_cloud, write_atomic,
     write_cloud,
 };
-use crate::pipeline::{Registrar, default_weights_path};
+use crate::pipeline::{Registrar, weights_file};
 use crate::settings::*;
 use anyhow::bail;
 use nalgebra::{Matrix4, Vector3};
@@ -133,9 +133,9 @@ impl RegisterOptions {
         Ok(LoadOptions { drop_zero_points: self.drop_zero, xyz_columns, ..LoadOptions::default() })
     }
 
-    /// The weights file these options load (for comparing outputs with it).
-    pub fn weights_path(&self) -> PathBuf {
-        self.weights.clone().unwrap_or_else(default_weights_path)
+    /// The weights file these options load, if not the built-in weights (for comparing outputs with it).
+    pub fn weights_path(&self) -> anyhow::Result<Option<PathBuf>> {
+        Ok(weights_file(&self.to_settings()?))
     }
 }
 
@@ -195,7 +195,7 @@ pub const EXIT_UNTRUSTED: u8 = 3;
 pub fn run(args: Args) -> anyhow::Result<bool> {
     let settings = args.options.to_settings()?;
     parse_estimator(&args.options.estimator)?;
-    let weights = args.options.weights_path();
+    let weights = args.options.weights_path()?;
     let mut outputs: Vec<(&str, &Path)> = Vec::new();
     if let Some(p) = &args.out {
         outputs.push(("--out", p));
@@ -204,7 +204,9 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
         check_writable_cloud_path(p)?;
         outputs.push(("--aligned", p));
     }
-    check_outputs(&[&args.source, &args.target, &weights], &outputs)?;
+    let mut inputs = vec![args.source.as_path(), args.target.as_path()];
+    inputs.extend(weights.as_deref());
+    check_outputs(&inputs, &outputs)?;
     let load = args.options.load_options()?;
     let started = std::time::Instant::now();
     // Georeferenced clouds: both are shifted by one origin (from the source) in f64 before the f32 conversion.

@@ -9,6 +9,9 @@ use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
+/// The bytes of `weights/default.safetensors` as built: the weights used when no file is named.
+pub const BUILT_IN_WEIGHTS: &[u8] = include_bytes!("../../weights/default.safetensors");
+
 /// Metadata key holding the model configuration as JSON.
 pub const CONFIG_KEY: &str = "dpr_gpu.config";
 /// Metadata key holding the format version.
@@ -105,6 +108,11 @@ impl Weights {
     /// Writes a safetensors file atomically.
     pub fn save(&self, path: &Path) -> Result<()> {
         crate::io::write_atomic(path, &self.to_bytes()?)
+    }
+
+    /// The shipped default weights (`weights/default.safetensors`), compiled into the library.
+    pub fn built_in() -> Result<Weights> {
+        Weights::from_bytes(BUILT_IN_WEIGHTS, "built-in default weights")
     }
 
     /// Reads and checks a weights file (at most 1 GiB).
