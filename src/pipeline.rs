@@ -87,27 +87,42 @@ fn validate_settings(settings: &RegistrationSettings, config: &crate::model::Mod
     Ok(())
 }
 
-struct Stopwatch {
+/// Called after every stage with its name (`source.normals`, `matching`...) and its wall time in seconds.
+pub type ProgressFn = dyn Fn(&str, f64) + Send + Sync;
+
+/// Stage times, reported to the progress callback as they finish.
+struct Stopwatch<'a> {
     start: Instant,
     timings: Vec<StageTime>,
+    /// The callback and the prefix of this scan's stage names.
+    progress: Option<(&'a ProgressFn, &'static str)>,
 }
 
-impl Stopwatch {
-    fn new() -> Self {
-        Stopwatch { start: Instant::now(), timings: Vec::new() }
+impl<'a> Stopwatch<'a> {
+    fn new(progress: Option<(&'a ProgressFn, &'static str)>) -> Self {
+        Stopwatch { start: Instant::now(), timings: Vec::new(), progress }
     }
     fn lap(&mut self, stage: &str) {
         let now = Instant::now();
-        self.timings.push(StageTime { stage: stage.to_string(), seconds: (now - self.start).as_secs_f64() });
+        let seconds = (now - self.start).as_secs_f64();
+        if let Some((report, prefix)) = self.progress {
+            report(&format!("{prefix}{stage}"), seconds);
+        }
+        self.timings.push(StageTime { stage: stage.to_string(), seconds });
         self.start = now;
     }
 }
+
+/// Stages a pairwise registration reports to the progress callback: seven per scan, then matching and
+/// estimation.
+pub const PAIR_STAGES: usize = 16;
 
 /// A configured pipeline: model and backend loaded once, reused across pairs.
 pub struct Registrar {
     /// The settings it was built with.
     pub settings: RegistrationSettings,
     backend: Box<dyn Backend>,
+    progress: Option<Box<ProgressFn>>,
 }
 
 impl Registrar {
@@ -128,7 +143,23 @@ impl Registrar {
     /// `weights` and `backend` fields are ignored.
     pub fn with_backend(settings: &RegistrationSettings, backend: Box<dyn Backend>) -> Result<Registrar> {
         validate_settings(settings, &backend.model().config)?;
-        Ok(Registrar { settings: settings.clone(), backend })
+        Ok(Registrar { settings: settings.clone(), backend, progress: None })
+    }
+
+    /// Calls `progress` after every stage (for a progress display); see [`ProgressFn`].
+    pub fn with_progress(mut self, progress: Box<ProgressFn>) -> Registrar {
+        self.progress = Some(progress);
+        self
+    }
+
+    /// The progress callback with the stage-name prefix of scan `stream` (0: source, 1: target).
+    fn progress_for(&self, stream: u64) -> Option<(&ProgressFn, &'static str)> {
+        let prefix = match stream {
+            0 => "source.",
+            1 => "target.",
+            _ => "",
+        };
+        self.progress.as_deref().map(|p| (p, prefix))
     }
 
     /// The backend's name.
@@ -162,7 +193,7 @@ impl Registrar {
     /// times the original viewpoint).
     pub fn describe_from(&self, cloud: &PointCloud, stream: u64, viewpoint: [f32; 3]) -> Result<ScanFeatures> {
         let s = &self.settings;
-        let mut clock = Stopwatch::new();
+        let mut clock = Stopwatch::new(self.progress_for(stream));
         cloud.validate("cloud")?;
         let mut cloud = match s.voxel {
             Some(v) => voxel_downsample(cloud, v)?,
@@ -298,7 +329,7 @@ impl Registrar {
     pub fn register(&self, source: &PointCloud, target: &PointCloud) -> Result<RegistrationResult> {
         let described_source = self.describe(source, 0).map_err(|e| prefix("source", e))?;
         let described_target = self.describe(target, 1).map_err(|e| prefix("target", e))?;
-        let mut clock = Stopwatch::new();
+        let mut clock = Stopwatch::new(self.progress_for(2));
         let correspondences = self.correspond(&described_source, &described_target)?;
         clock.lap("matching");
         let estimate =

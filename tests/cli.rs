@@ -171,3 +171,26 @@ fn a_copied_binary_registers_the_example_pair_with_its_built_in_weights() {
     assert!(translation_error(&estimate, &truth) < 0.1, "translation error {}", translation_error(&estimate, &truth));
     assert_eq!(v["success"], true);
 }
+
+#[test]
+fn bench_without_a_gpu_times_the_cpu_and_says_what_it_did_not_measure() {
+    // WGPU_BACKEND=dx12 on a machine without DX12 leaves no adapter: the default `--backend both` still times
+    // every stage on the CPU, and says the GPU was not measured; `--backend gpu` fails with one line.
+    let bench = |backend: &str| {
+        Command::new(env!("CARGO_BIN_EXE_dpr-gpu"))
+            .env("WGPU_BACKEND", "dx12")
+            .args(["bench", "--keypoints", "16", "--points", "16", "--repeat", "1", "--backend", backend])
+            .output()
+            .unwrap()
+    };
+    let o = bench("both");
+    let (stdout, stderr) = text(&o);
+    assert!(o.status.success(), "{stderr}");
+    assert!(stdout.contains("gpu: not measured"), "{stdout}");
+    for stage in ["encode ppf", "predict_rotations", "hypotheses", "score_hypotheses", "dense 512->512"] {
+        let row = stdout.lines().find(|l| l.starts_with(stage)).unwrap_or_else(|| panic!("no {stage} row: {stdout}"));
+        let cpu_ms: f64 = row[34..].split_whitespace().next().unwrap().parse().expect("a CPU time");
+        assert!(cpu_ms >= 0.0 && row.split_whitespace().any(|c| c == "-"), "{row}");
+    }
+    assert_clean_failure(&bench("gpu"), "GPU");
+}

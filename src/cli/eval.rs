@@ -4,7 +4,9 @@
 use crate::cli::register::{RegisterOptions, parse_estimator};
 use crate::eval::dataset::{SceneData, load_dataset};
 use crate::eval::gtlog::{LogRecord, format_log, read_log};
-use crate::eval::report::{EstimatorReport, Report, RotationReport, format_table, protocol_notes, rotation_notes};
+use crate::eval::report::{
+    EstimatorReport, Report, RotationReport, format_pairs, format_table, legend, protocol_notes, rotation_notes,
+};
 use crate::eval::rotate::{FragmentRotation, RotationSweep, angle_label};
 use crate::eval::run::{
     EvalOptions, estimator_name, pairs_to_run, run_scene, run_scene_sweep, score_log, score_log_sweep,
@@ -97,7 +99,16 @@ fn log_path_for(log: &str, scene: &SceneData, scene_count: usize) -> anyhow::Res
 fn write_report(out: &Path, report: &Report) -> anyhow::Result<()> {
     let json = serde_json::to_string_pretty(report).context("serialising the report")?;
     write_atomic(&out.join("report.json"), json.as_bytes())?;
+    print!("{}", format_pairs(report));
+    println!();
     print!("{}", format_table(report));
+    print!("{}", legend(&report.thresholds));
+    if report.estimators.iter().all(|e| e.mean.registration_recall.is_none()) {
+        println!(
+            "note: RR is '-' because no gt.log pair here counts for registration recall (the 3DMatch protocol counts \
+             only non-consecutive fragments, j - i > 1); pass the folder's pairs.txt to score every pair"
+        );
+    }
     for e in &report.estimators {
         if let Some(line) = verdict_summary(e) {
             println!("{}: {line}", e.estimator);

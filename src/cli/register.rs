@@ -188,6 +188,21 @@ fn name_files(e: crate::Error, source: &Path, target: &Path) -> anyhow::Error {
     anyhow::anyhow!("registering {} onto {}: {text}", source.display(), target.display())
 }
 
+/// A progress bar over the pipeline's stages on stderr when it is a terminal (hidden when piped).
+fn stage_bar() -> indicatif::ProgressBar {
+    use std::io::IsTerminal;
+    if !std::io::stderr().is_terminal() {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(crate::pipeline::PAIR_STAGES as u64);
+    let style = indicatif::ProgressStyle::with_template("{spinner} {elapsed_precise} [{bar:20}] {pos}/{len} {msg}")
+        .expect("valid template");
+    bar.set_style(style.progress_chars("=> "));
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    bar.set_message("describing the source");
+    bar
+}
+
 /// Exit status of `register` when the result is not trusted (the pose is still printed).
 pub const EXIT_UNTRUSTED: u8 = 3;
 
@@ -214,8 +229,17 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
     let origin = source_report.origin;
     let (target, target_report) = read_cloud(&args.target, &LoadOptions { origin: OriginShift::At(origin), ..load })?;
     let load_seconds = started.elapsed().as_secs_f64();
-    let registrar = Registrar::new(&settings)?;
-    let mut result = registrar.register(&source, &target).map_err(|e| name_files(e, &args.source, &args.target))?;
+    let bar = stage_bar();
+    let registrar = Registrar::new(&settings)?.with_progress({
+        let bar = bar.clone();
+        Box::new(move |stage, seconds| {
+            bar.inc(1);
+            bar.set_message(format!("{stage} took {seconds:.2} s"));
+        })
+    });
+    let outcome = registrar.register(&source, &target).map_err(|e| name_files(e, &args.source, &args.target));
+    bar.finish_and_clear();
+    let mut result = outcome?;
     result.timings.insert(0, StageTime { stage: "load".into(), seconds: load_seconds });
     let shifted = result.estimate.target_from_source;
     let t = unshift_pose(&shifted, origin);
@@ -233,6 +257,7 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
     }
     if args.json {
         let mut value = serde_json::to_value(&result)?;
+        value["total_seconds"] = started.elapsed().as_secs_f64().into();
         value["source_points"] = source.len().into();
         value["target_points"] = target.len().into();
         value["dropped_points"] = (source_report.dropped_non_finite
@@ -267,6 +292,7 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
         for st in &result.timings {
             println!("  {:<24} {:>9.3}", st.stage, st.seconds);
         }
+        println!("  {:<24} {:>9.3}", "total", started.elapsed().as_secs_f64());
         match &result.reason {
             None => println!("verdict: success"),
             Some(reason) => println!("verdict: NOT TRUSTED: {reason}"),

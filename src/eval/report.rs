@@ -239,6 +239,64 @@ pub fn format_table(report: &Report) -> String {
     out
 }
 
+/// The per-pair table: for every estimator (and sweep angle) and scene, each pair that is in gt.log or was
+/// reported, with its rotation and translation errors, the criterion value and the outcome.
+pub fn format_pairs(report: &Report) -> String {
+    let mut out = format!(
+        "{:<12} {:>6} {:<20} {:>9} {:>9} {:>9} {:>10} {:>6} {:>7} {}\n",
+        "estimator", "rot", "scene", "pair j>i", "rot(deg)", "trans", "criterion", "IR", "counts", "outcome"
+    );
+    let opt = |v: Option<f64>, digits: usize| v.map_or_else(|| "-".to_string(), |x| format!("{x:.digits$}"));
+    for e in &report.estimators {
+        let angle = e.rotation_deg.map(super::rotate::angle_label).unwrap_or_default();
+        for s in &e.scenes {
+            for p in &s.pairs {
+                let outcome = match (p.success, p.reported) {
+                    (Some(true), _) => "ok",
+                    (Some(false), true) => "FAIL",
+                    (Some(false), false) => "missing",
+                    (None, _) => "not in gt.log",
+                };
+                out.push_str(&format!(
+                    "{:<12} {:>6} {:<20} {:>9} {:>9} {:>9} {:>10} {:>6} {:>7} {outcome}\n",
+                    e.estimator,
+                    angle,
+                    s.scene,
+                    format!("{}>{}", p.j, p.i),
+                    opt(p.rotation_error_deg, 2),
+                    opt(p.translation_error, 3),
+                    opt(p.error, 4),
+                    opt(p.feature_match.as_ref().map(|f| f.inlier_ratio()), 3),
+                    if p.counts_for_recall { "yes" } else { "no" },
+                ));
+            }
+        }
+    }
+    out
+}
+
+/// What the table's abbreviations mean, printed under it.
+pub fn legend(t: &Thresholds) -> String {
+    [
+        "legend:".to_string(),
+        "  pairs  gt.log pairs of the scene; RRset: those that count for registration recall (3DMatch: j - i > 1)"
+            .to_string(),
+        "  good   RRset pairs registered correctly".to_string(),
+        format!(
+            "  FMR    feature-match recall: share of gt.log pairs whose correspondences have an inlier ratio > {} (inlier: within {:.4} under the ground truth)",
+            t.tau2, t.tau1
+        ),
+        "  IR     mean inlier ratio of the correspondences over gt.log pairs".to_string(),
+        "  RR     registration recall: good / RRset; '-' when the scene has no pair that counts (e.g. only consecutive fragments)"
+            .to_string(),
+        "  prec   precision: good / results reported for pairs that count".to_string(),
+        "  criterion  e^T Sigma e / Sigma_11 (m^2, 3DMatch scenes) or source-point RMSE (pairs files); counts: the pair counts for RR"
+            .to_string(),
+    ]
+    .join("\n")
+        + "\n"
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -312,5 +370,36 @@ mod tests {
         let json = serde_json::to_value(&r).unwrap();
         assert_eq!(json["estimators"][1]["rotation_deg"], 90.0);
         assert_eq!(json["rotation"]["degrees"][1], 90.0);
+    }
+
+    #[test]
+    fn pair_table_lists_every_pair_with_its_errors_and_outcome() {
+        use super::super::score::{FeatureMatch, PairReport};
+        let pair = |j: usize, success: Option<bool>, reported: bool| PairReport {
+            i: 0,
+            j,
+            in_gt: success.is_some(),
+            counts_for_recall: j > 1,
+            reported,
+            error: reported.then_some(0.01),
+            success,
+            rotation_error_deg: reported.then_some(1.5),
+            translation_error: reported.then_some(0.02),
+            feature_match: Some(FeatureMatch { correspondences: 10, inliers: 4 }),
+            run: None,
+        };
+        let mut kitchen = score("kitchen", Some(0.5));
+        kitchen.pairs = vec![pair(2, Some(true), true), pair(3, Some(false), true), pair(4, Some(false), false)];
+        let r = report(vec![EstimatorReport::new("ransac", vec![kitchen])], None);
+        let table = format_pairs(&r);
+        let rows: Vec<&str> = table.lines().skip(1).collect();
+        assert_eq!(rows.len(), 3, "{table}");
+        assert!(rows[0].contains("2>0") && rows[0].contains("1.50") && rows[0].ends_with("ok"), "{table}");
+        assert!(rows[0].contains("0.400"), "inlier ratio 4/10: {table}");
+        assert!(rows[1].ends_with("FAIL") && rows[2].ends_with("missing"), "{table}");
+        let legend = legend(&Thresholds::default());
+        for abbreviation in ["RRset", "FMR", "IR", "RR ", "prec", "'-'"] {
+            assert!(legend.contains(abbreviation), "{abbreviation} not explained: {legend}");
+        }
     }
 }
