@@ -124,6 +124,12 @@ pub fn rigid_fit(source: &[[f32; 3]], target: &[[f32; 3]]) -> Option<Matrix4<f64
     Some(matrix_from_parts(&r, &t))
 }
 
+/// A 4x4 transform as plain text: four rows of four numbers (9 decimals), one row per line, the format `register
+/// --out` writes and `Display` of [`crate::PoseEstimate`] prints.
+pub fn matrix_text(m: &Matrix4<f64>) -> String {
+    (0..4).map(|r| (0..4).map(|c| format!("{:.9}", m[(r, c)])).collect::<Vec<_>>().join(" ") + "\n").collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -247,6 +247,30 @@ pub struct RegistrationResult {
     pub reason: Option<String>,
 }
 
+impl std::fmt::Display for PoseEstimate {
+    /// `target_from_source` as four plain rows, then its support.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", crate::pose::matrix_text(&self.target_from_source))?;
+        write!(
+            f,
+            "inliers {} (fitness {:.4}, inlier RMSE {:.5}), {} hypotheses scored",
+            self.inliers, self.fitness, self.inlier_rmse, self.hypotheses_scored
+        )
+    }
+}
+
+impl std::fmt::Display for RegistrationResult {
+    /// The pose (see [`PoseEstimate`]'s `Display`), the correspondences, the backend and the verdict.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "{}", self.estimate)?;
+        writeln!(f, "{} correspondences, backend {}", self.correspondences, self.backend)?;
+        match &self.reason {
+            None => write!(f, "verdict: success"),
+            Some(reason) => write!(f, "verdict: NOT TRUSTED: {reason}"),
+        }
+    }
+}
+
 /// Serialises a 4x4 matrix as four rows.
 pub fn serialize_matrix<S: serde::Serializer>(m: &Matrix4<f64>, s: S) -> Result<S::Ok, S::Error> {
     let rows: Vec<[f64; 4]> = (0..4).map(|r| [m[(r, 0)], m[(r, 1)], m[(r, 2)], m[(r, 3)]]).collect();

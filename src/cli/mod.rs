@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 pub mod bench;
 pub mod eval;
 pub mod register;
+pub mod synopsis;
 pub mod synth;
 pub mod train;
 pub mod weights;

@@ -49,6 +49,12 @@ pub struct RegisterOptions {
     /// Refine the final pose with point-to-plane ICP.
     #[arg(long)]
     pub icp: bool,
+    /// ICP's largest point-pair distance in cloud units (default: radius / 6); implies --icp.
+    #[arg(long)]
+    pub icp_distance: Option<f32>,
+    /// ICP's iteration limit (default: 30); implies --icp.
+    #[arg(long)]
+    pub icp_iterations: Option<usize>,
     /// Drop exact (0,0,0) points when loading.
     #[arg(long)]
     pub drop_zero: bool,
@@ -119,9 +125,12 @@ impl RegisterOptions {
             min_inlier_ratio: self.min_inlier_ratio,
             min_spread_over_threshold: self.min_inlier_spread,
         };
-        if self.icp {
+        if self.icp || self.icp_distance.is_some() || self.icp_iterations.is_some() {
             let radius = self.radius.unwrap_or(0.30);
-            s.icp = Some(IcpSettings { max_correspondence_distance: radius / 6.0, max_iterations: 30 });
+            s.icp = Some(IcpSettings {
+                max_correspondence_distance: self.icp_distance.unwrap_or(radius / 6.0),
+                max_iterations: self.icp_iterations.unwrap_or(30),
+            });
         }
         s.validate()?;
         Ok(s)
@@ -158,11 +167,6 @@ pub struct Args {
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
-}
-
-/// The 4x4 matrix as text, one row per line.
-pub fn matrix_text(m: &nalgebra::Matrix4<f64>) -> String {
-    (0..4).map(|r| (0..4).map(|c| format!("{:.9}", m[(r, c)])).collect::<Vec<_>>().join(" ") + "\n").collect()
 }
 
 /// `shifted` (a pose between clouds shifted by `-origin`) in the unshifted frames:
@@ -245,7 +249,7 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
     let t = unshift_pose(&shifted, origin);
     result.estimate.target_from_source = t;
     if let Some(path) = &args.out {
-        write_atomic(path, matrix_text(&t).as_bytes())?;
+        write_atomic(path, crate::pose::matrix_text(&t).as_bytes())?;
     }
     if let Some(path) = &args.aligned {
         let mut aligned = source.transformed(&shifted);
@@ -280,7 +284,7 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
         }
         println!("backend: {}", result.backend);
         println!("target_from_source (p_target = T p_source):");
-        print!("{}", matrix_text(&t));
+        print!("{}", crate::pose::matrix_text(&t));
         let e = &result.estimate;
         if result.empty_patches > 0 {
             println!("keypoints without neighbours within the radius (dropped): {}", result.empty_patches);

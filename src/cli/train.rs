@@ -99,7 +99,8 @@ pub struct Args {
     /// Do not rotate source fragments (labels are then the dataset's own relative rotations).
     #[arg(long)]
     pub no_rotate_source: bool,
-    /// Largest augmentation rotation in degrees (180: uniform over SO(3)) [default: 180].
+    /// Largest augmentation rotation in degrees (180: uniform over SO(3)) [default: 180, what the default
+    /// angle-bin head trains on; the paper's quaternion head did not learn beyond about 45 (weights/README.md)].
     #[arg(long)]
     pub max_rotation: Option<f64>,
     /// Start from these weights instead of a random initialisation (their config is used).
