@@ -48,12 +48,14 @@
 #![warn(missing_docs)]
 
 pub mod backend;
+#[cfg(feature = "cli")]
 pub mod cli;
 pub mod cloud;
 pub mod cpu;
 pub mod error;
 pub mod estimate;
 pub mod eval;
+#[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod io;
 pub mod model;

@@ -60,7 +60,9 @@ pub fn load_weights(settings: &RegistrationSettings) -> Result<Weights> {
 pub fn create_backend(kind: BackendKind, model: Model) -> Result<Box<dyn Backend>> {
     match kind {
         BackendKind::Cpu => Ok(Box::new(CpuBackend::new(model))),
+        #[cfg(feature = "gpu")]
         BackendKind::Gpu => Ok(Box::new(crate::gpu::GpuBackend::new(model)?)),
+        #[cfg(feature = "gpu")]
         BackendKind::Auto => match crate::gpu::GpuBackend::new(model.clone()) {
             Ok(gpu) => Ok(Box::new(gpu)),
             Err(e) => {
@@ -68,6 +70,10 @@ pub fn create_backend(kind: BackendKind, model: Model) -> Result<Box<dyn Backend
                 Ok(Box::new(CpuBackend::new(model)))
             }
         },
+        #[cfg(not(feature = "gpu"))]
+        BackendKind::Gpu => Err(Error::Gpu("dpr-gpu was built without its `gpu` feature".into())),
+        #[cfg(not(feature = "gpu"))]
+        BackendKind::Auto => Ok(Box::new(CpuBackend::new(model))),
     }
 }
 

@@ -18,7 +18,8 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 /// How a scene is generated.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "snake_case")]
 pub enum Style {
     /// The original generator: Kinect-like camera, hand-held trajectory, fixed ranges (byte-identical to
