@@ -64,6 +64,7 @@ pub mod pose;
 pub mod preprocess;
 pub mod rng;
 pub mod settings;
+pub mod snapshot;
 pub mod spatial;
 pub mod synth;
 pub mod train;

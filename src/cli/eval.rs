@@ -66,6 +66,10 @@ pub struct Args {
     /// Seed of the rotation axes of --rotate [default: 0].
     #[arg(long, value_name = "S")]
     pub rotate_seed: Option<u64>,
+    /// Write a PNG picture of every registered pair (before / after, three views) into this folder, as
+    /// DIR/<estimator>[/rot<DEG>]/<scene>/<source>_to_<target>.png.
+    #[arg(long, value_name = "DIR")]
+    pub snapshots: Option<PathBuf>,
 }
 
 /// The estimators named by `--estimator` (`relativenet`, `ransac` or `both`).
@@ -328,7 +332,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         load: args.register.load_options()?,
         all_pairs: args.all_pairs,
         min_overlap: args.min_overlap,
+        snapshots: args.snapshots.clone(),
     };
+    if let Some(dir) = &args.snapshots {
+        if let Some(log) = &args.log {
+            bail!("--snapshots draws the pairs the pipeline registers; --log {log} only scores a result log");
+        }
+        if dir.exists() && !dir.is_dir() {
+            bail!("--snapshots {}: not a folder", dir.display());
+        }
+    }
     let sweep = match &args.rotate {
         Some(degrees) => Some(RotationSweep::new(degrees.clone(), args.rotate_seed.unwrap_or(0))?),
         None if args.rotate_seed.is_some() => bail!("--rotate-seed needs --rotate"),
@@ -342,6 +355,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let scenes = load_dataset(&args.dataset).with_context(|| format!("loading {}", args.dataset.display()))?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    if let Some(dir) = &args.snapshots {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
     let report = match (&args.log, &sweep) {
         (Some(log), Some(s)) => score_logs_sweep(&args, log, scenes, &opts, s)?,
         (Some(log), None) => score_logs(&args, log, scenes, &opts)?,

@@ -1,8 +1,9 @@
 //! `dpr-gpu register` and the registration options shared with `eval`.
 
+use crate::cloud::PointCloud;
 use crate::io::{
     LoadOptions, OriginShift, XyzColumns, check_outputs, check_writable_cloud_path, read_cloud, write_atomic,
-    write_cloud,
+    write_cloud, write_ply_with_colors,
 };
 use crate::pipeline::{Registrar, weights_file};
 use crate::settings::*;
@@ -164,6 +165,15 @@ pub struct Args {
     /// Write the source transformed into the target frame here (binary PLY).
     #[arg(long)]
     pub aligned: Option<PathBuf>,
+    /// With --aligned: write the moved source and the target together, coloured (source orange, target
+    /// blue; vertex red/green/blue), into that PLY file.
+    #[arg(long, requires = "aligned")]
+    pub merged: bool,
+    /// Write a PNG picture of the two scans before and after registration here (2 rows: before / after; 3
+    /// columns: top, front and side views along the target's principal axes; source orange, target blue,
+    /// overlap olive).
+    #[arg(long, value_name = "OUT.png")]
+    pub snapshot: Option<PathBuf>,
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
@@ -175,6 +185,23 @@ pub fn unshift_pose(shifted: &Matrix4<f64>, origin: [i64; 3]) -> Matrix4<f64> {
     let o = Vector3::new(origin[0] as f64, origin[1] as f64, origin[2] as f64);
     let (shift, unshift) = (Matrix4::new_translation(&-o), Matrix4::new_translation(&o));
     unshift * shifted * shift
+}
+
+/// `cloud` (in the frame shifted by `-origin`) back in the input frame.
+fn unshifted(mut cloud: PointCloud, origin: [i64; 3]) -> PointCloud {
+    if origin != [0; 3] {
+        let o = origin.map(|c| c as f64);
+        for p in &mut cloud.points {
+            *p = [0, 1, 2].map(|i| (f64::from(p[i]) + o[i]) as f32);
+        }
+    }
+    cloud
+}
+
+/// True for a `.ply` path, or an existing device or FIFO (`/dev/null`), which takes binary PLY.
+fn is_ply_or_special(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("ply"))
+        || std::fs::metadata(path).is_ok_and(|m| !m.is_file() && !m.is_dir())
 }
 
 /// A pipeline error with the file names added, so every error about a cloud names its file: after "source" or
@@ -221,7 +248,14 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
     }
     if let Some(p) = &args.aligned {
         check_writable_cloud_path(p)?;
+        if args.merged && !is_ply_or_special(p) {
+            bail!("--aligned {} with --merged: a merged, coloured cloud is written as PLY; name it *.ply", p.display());
+        }
         outputs.push(("--aligned", p));
+    }
+    if let Some(p) = &args.snapshot {
+        crate::snapshot::check_snapshot_path("--snapshot", p)?;
+        outputs.push(("--snapshot", p));
     }
     let mut inputs = vec![args.source.as_path(), args.target.as_path()];
     inputs.extend(weights.as_deref());
@@ -252,12 +286,18 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
         write_atomic(path, crate::pose::matrix_text(&t).as_bytes())?;
     }
     if let Some(path) = &args.aligned {
-        let mut aligned = source.transformed(&shifted);
-        let o = origin.map(|c| c as f64);
-        for p in &mut aligned.points {
-            *p = [0, 1, 2].map(|i| (f64::from(p[i]) + o[i]) as f32);
+        let aligned = unshifted(source.transformed(&shifted), origin);
+        if args.merged {
+            let (merged, colors) = crate::snapshot::merged_pair(&aligned, &unshifted(target.clone(), origin));
+            write_ply_with_colors(path, &merged, &colors)?;
+        } else {
+            write_cloud(path, &aligned)?;
         }
-        write_cloud(path, &aligned)?;
+    }
+    if let Some(path) = &args.snapshot {
+        // Drawn in the shifted frames: a picture does not change with a common shift, and f32 stays precise.
+        let options = crate::snapshot::SnapshotOptions::default();
+        crate::snapshot::write_snapshot(path, &source, &target, &shifted, &options)?;
     }
     if args.json {
         let mut value = serde_json::to_value(&result)?;

@@ -24,6 +24,7 @@ use crate::rng::Rng;
 use crate::settings::{Estimator, StageTime};
 use nalgebra::Matrix4;
 use std::collections::HashMap;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Options of an evaluation run.
@@ -41,6 +42,9 @@ pub struct EvalOptions {
     pub all_pairs: bool,
     /// Overlap needed to report a pair with `all_pairs` (0.23 in `register2Fragments.m`).
     pub min_overlap: f64,
+    /// When set, [`run_scene`] and [`run_scene_sweep`] write a snapshot (see [`crate::snapshot`]) of every pair
+    /// they register, for every estimator and angle, at [`snapshot_path`] under this folder.
+    pub snapshots: Option<PathBuf>,
 }
 
 impl Default for EvalOptions {
@@ -51,6 +55,7 @@ impl Default for EvalOptions {
             load: LoadOptions::default(),
             all_pairs: false,
             min_overlap: 0.23,
+            snapshots: None,
         }
     }
 }
@@ -61,6 +66,48 @@ pub fn estimator_name(e: Estimator) -> &'static str {
         Estimator::RelativeNet => "relativenet",
         Estimator::Ransac => "ransac",
     }
+}
+
+/// Where `eval --snapshots DIR` writes the picture of pair (i, j) (source fragment j onto target fragment i):
+/// `DIR/<estimator>[/rot<DEG>]/<scene>/<source>_to_<target>.png`, where `<source>` and `<target>` are the
+/// fragments' file stems (e.g. `cloud_bin_5_to_cloud_bin_2.png`), or their indices when two fragment files of
+/// the scene share a stem.
+pub fn snapshot_path(
+    dir: &Path,
+    estimator: Estimator,
+    rotation_deg: Option<f64>,
+    scene: &SceneData,
+    (i, j): (usize, usize),
+) -> PathBuf {
+    let stems: Vec<String> = scene
+        .files
+        .iter()
+        .map(|f| f.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default())
+        .collect();
+    let unique = stems.iter().enumerate().all(|(k, s)| !s.is_empty() && !stems[..k].contains(s));
+    let label = |f: usize| if unique && f < stems.len() { stems[f].clone() } else { f.to_string() };
+    let mut path = dir.join(estimator_name(estimator));
+    if let Some(d) = rotation_deg {
+        path.push(format!("rot{}", super::rotate::angle_label(d)));
+    }
+    path.push(&scene.name);
+    path.push(format!("{}_to_{}.png", label(j), label(i)));
+    path
+}
+
+/// Writes the snapshot of one registered pair, creating its folder.
+fn write_pair_snapshot(
+    path: &Path,
+    source: &ScanFeatures,
+    target: &ScanFeatures,
+    target_from_source: &Matrix4<f64>,
+    lines: Vec<([f32; 3], [f32; 3])>,
+) -> Result<()> {
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
+    let options = crate::snapshot::SnapshotOptions { lines, ..Default::default() };
+    crate::snapshot::write_snapshot(path, &source.cloud, &target.cloud, target_from_source, &options)
 }
 
 /// Loads one cloud.
@@ -365,6 +412,23 @@ fn run_views(
                 };
                 match pose {
                     Ok(p) => {
+                        if let Some(dir) = &opts.snapshots {
+                            let rotation = sweep.map(|s| s.degrees[v]);
+                            let path = snapshot_path(dir, estimator, rotation, scene, (i, j));
+                            let used = correspondences.as_deref().unwrap_or_default();
+                            let lines = crate::snapshot::inlier_lines(
+                                used,
+                                &p.target_from_source,
+                                registrar.inlier_threshold(),
+                            );
+                            write_pair_snapshot(
+                                &path,
+                                &source.features,
+                                &target.features,
+                                &p.target_from_source,
+                                lines,
+                            )?;
+                        }
                         run.hypotheses = p.hypotheses_scored;
                         run.estimator_inliers = p.inliers;
                         let report = match (&target.index, &source.index) {

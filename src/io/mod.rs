@@ -103,8 +103,18 @@ pub fn read_cloud(path: &Path, options: &LoadOptions) -> Result<(PointCloud, Loa
 /// [`Error::InvalidInput`] when the normals do not match the points one to one, and [`Error::Io`] when the file
 /// cannot be written.
 pub fn write_ply(path: &Path, cloud: &PointCloud) -> Result<()> {
-    let bytes =
-        ply::encode_binary_le(cloud).map_err(|message| Error::invalid(format!("{}: {message}", path.display())))?;
+    let bytes = ply::encode_binary_le(cloud, None)
+        .map_err(|message| Error::invalid(format!("{}: {message}", path.display())))?;
+    write_atomic(path, &bytes)
+}
+
+/// Writes `cloud` as binary little-endian PLY with one colour per point, atomically: the vertex element has
+/// `float x y z`, `float nx ny nz` when the cloud has normals, then `uchar red green blue` (the names common
+/// viewers such as MeshLab, CloudCompare and Open3D read). Fails with [`Error::InvalidInput`] when the normals
+/// or `colors` do not match the points one to one, and [`Error::Io`] when the file cannot be written.
+pub fn write_ply_with_colors(path: &Path, cloud: &PointCloud, colors: &[[u8; 3]]) -> Result<()> {
+    let bytes = ply::encode_binary_le(cloud, Some(colors))
+        .map_err(|message| Error::invalid(format!("{}: {message}", path.display())))?;
     write_atomic(path, &bytes)
 }
 

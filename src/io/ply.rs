@@ -455,29 +455,37 @@ fn property_size(kind: Kind) -> usize {
     }
 }
 
-/// Encodes `cloud` as binary little-endian PLY; an error message when the normals don't match the points.
-pub(super) fn encode_binary_le(cloud: &PointCloud) -> Result<Vec<u8>, String> {
-    if let Some(normals) = &cloud.normals
-        && normals.len() != cloud.points.len()
+/// Encodes `cloud` as binary little-endian PLY, with `uchar red green blue` per vertex when `colors` is given;
+/// an error message when the normals or colours don't match the points one to one.
+pub(super) fn encode_binary_le(cloud: &PointCloud, colors: Option<&[[u8; 3]]>) -> Result<Vec<u8>, String> {
+    let normals = super::checked_normals(cloud)?;
+    if let Some(c) = colors
+        && c.len() != cloud.points.len()
     {
-        return Err(format!("{} normals for {} points", normals.len(), cloud.points.len()));
+        return Err(format!("{} colours for {} points", c.len(), cloud.points.len()));
     }
     let mut header = format!(
         "ply\nformat binary_little_endian 1.0\ncomment written by dpr-gpu\nelement vertex {}\n\
          property float x\nproperty float y\nproperty float z\n",
         cloud.points.len()
     );
-    if cloud.normals.is_some() {
+    if normals.is_some() {
         header.push_str("property float nx\nproperty float ny\nproperty float nz\n");
     }
+    if colors.is_some() {
+        header.push_str("property uchar red\nproperty uchar green\nproperty uchar blue\n");
+    }
     header.push_str("end_header\n");
-    let floats = if cloud.normals.is_some() { 6 } else { 3 };
-    let mut bytes = Vec::with_capacity(header.len() + cloud.points.len() * floats * 4);
+    let stride = if normals.is_some() { 24 } else { 12 } + if colors.is_some() { 3 } else { 0 };
+    let mut bytes = Vec::with_capacity(header.len() + cloud.points.len() * stride);
     bytes.extend_from_slice(header.as_bytes());
     for (i, point) in cloud.points.iter().enumerate() {
-        let normal = cloud.normals.as_ref().map(|n| &n[i]);
+        let normal = normals.map(|n| &n[i]);
         for value in point.iter().chain(normal.into_iter().flatten()) {
             bytes.extend_from_slice(&value.to_le_bytes());
+        }
+        if let Some(c) = colors {
+            bytes.extend_from_slice(&c[i]);
         }
     }
     Ok(bytes)
@@ -535,6 +543,20 @@ mod tests {
     #[test]
     fn encode_rejects_mismatched_normals() {
         let cloud = PointCloud { points: vec![[0.0; 3]], normals: Some(vec![]) };
-        assert!(encode_binary_le(&cloud).is_err());
+        assert!(encode_binary_le(&cloud, None).is_err());
+    }
+
+    #[test]
+    fn colours_are_written_after_the_floats_and_read_back_as_points() {
+        let cloud = PointCloud { points: vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]], normals: None };
+        assert!(encode_binary_le(&cloud, Some(&[[1, 2, 3]])).is_err());
+        let bytes = encode_binary_le(&cloud, Some(&[[1, 2, 3], [250, 251, 252]])).unwrap();
+        let text = String::from_utf8_lossy(&bytes);
+        assert!(text.contains("property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"));
+        let body = &bytes[text.find("end_header\n").unwrap() + "end_header\n".len()..];
+        assert_eq!(body.len(), 2 * 15);
+        assert_eq!(&body[12..15], &[1, 2, 3]);
+        assert_eq!(&body[27..30], &[250, 251, 252]);
+        assert_eq!(parse_str(&bytes).unwrap().0, cloud);
     }
 }
