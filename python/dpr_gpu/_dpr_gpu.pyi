@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 import os
-from typing import Literal, Optional, Sequence, Tuple, Union
+from typing import Literal, Optional, Sequence, Tuple, Union, final
 
 import numpy as np
 import numpy.typing as npt
 
+__all__ = ["__version__", "Features", "PoseEstimate", "RegistrationResult", "Registrar", "read_cloud", "_library_defaults"]
 __version__: str
 
 _Points = npt.ArrayLike
 _PathLike = Union[str, "os.PathLike[str]"]
 
+@final
 class Features:
     """One described scan: keypoints, their normals and their learned descriptors (kept opaque)."""
 
@@ -33,6 +35,7 @@ class Features:
         """Wall time per description stage in seconds."""
     def __len__(self) -> int: ...
 
+@final
 class PoseEstimate:
     """A pose estimated from correspondences (``Registrar.estimate``)."""
 
@@ -48,6 +51,7 @@ class PoseEstimate:
     @property
     def hypotheses_scored(self) -> int: ...
 
+@final
 class RegistrationResult:
     """The outcome of registering a source scan onto a target scan."""
 
@@ -97,11 +101,12 @@ class RegistrationResult:
     def reason(self) -> Optional[str]:
         """Why the pose cannot be trusted; None on success."""
 
+@final
 class Registrar:
     """The registration pipeline with weights, model and backend loaded once."""
 
-    def __init__(
-        self,
+    def __new__(
+        cls,
         *,
         weights: Optional[_PathLike] = None,
         radius: Optional[float] = None,
@@ -125,7 +130,7 @@ class Registrar:
         min_inliers: int = 12,
         min_inlier_ratio: float = 0.055,
         min_spread_over_threshold: float = 2.0,
-    ) -> None: ...
+    ) -> Registrar: ...
     @property
     def settings(self) -> dict[str, object]:
         """The settings in effect, keyed by the keyword argument names."""
