@@ -333,6 +333,12 @@ impl Registrar {
 
     /// The whole pipeline on two clouds.
     pub fn register(&self, source: &PointCloud, target: &PointCloud) -> Result<RegistrationResult> {
+        Ok(self.register_detailed(source, target)?.result)
+    }
+
+    /// [`Registrar::register`], also returning the described scans and the correspondences the result came from
+    /// (for bindings and pictures that show keypoints and matches).
+    pub fn register_detailed(&self, source: &PointCloud, target: &PointCloud) -> Result<Registration> {
         let described_source = self.describe(source, 0).map_err(|e| prefix("source", e))?;
         let described_target = self.describe(target, 1).map_err(|e| prefix("target", e))?;
         let mut clock = Stopwatch::new(self.progress_for(2));
@@ -349,7 +355,7 @@ impl Registrar {
         }
         timings.extend(clock.timings);
         let verdict = self.judge(&estimate, &correspondences);
-        Ok(RegistrationResult {
+        let result = RegistrationResult {
             success: verdict.success,
             reason: verdict.reason,
             estimate,
@@ -357,8 +363,22 @@ impl Registrar {
             empty_patches: described_source.empty_patches + described_target.empty_patches,
             timings,
             backend: self.backend.name(),
-        })
+        };
+        Ok(Registration { result, source: described_source, target: described_target, correspondences })
     }
+}
+
+/// Everything [`Registrar::register_detailed`] computed: the result, and what it was computed from.
+#[derive(Clone, Debug)]
+pub struct Registration {
+    /// What [`Registrar::register`] returns.
+    pub result: RegistrationResult,
+    /// The described source scan (stream 0).
+    pub source: ScanFeatures,
+    /// The described target scan (stream 1).
+    pub target: ScanFeatures,
+    /// The correspondences fed to the estimator (indices into the scans' keypoints).
+    pub correspondences: Vec<Correspondence>,
 }
 
 fn prefix(what: &str, e: Error) -> Error {

@@ -97,6 +97,24 @@ pub fn read_cloud(path: &Path, options: &LoadOptions) -> Result<(PointCloud, Loa
     }
 }
 
+/// Builds a cloud from in-memory rows `x y z nx ny nz` (the normal part is ignored unless `with_normals`),
+/// applying exactly the filtering and origin shift [`read_cloud`] applies to a file's points: rows with a NaN
+/// or infinite coordinate (after conversion to `f32`), or with a non-finite normal when normals are given, are
+/// dropped and counted; `options.drop_zero_points` drops exact zeros. Bindings (the Python package) use it so
+/// that arrays and files are treated alike.
+pub fn cloud_from_rows(
+    rows: impl IntoIterator<Item = [f64; 6]>,
+    with_normals: bool,
+    options: &LoadOptions,
+) -> (PointCloud, LoadReport) {
+    let rows = rows.into_iter();
+    let mut builder = CloudBuilder::new(options, with_normals, rows.size_hint().0.min(MAX_PREALLOC));
+    for row in rows {
+        builder.push(&row);
+    }
+    builder.finish()
+}
+
 /// Writes `cloud` as binary little-endian PLY (normals included when present), atomically.
 ///
 /// The vertex element has `float x y z`, plus `float nx ny nz` when the cloud has normals. Fails with
@@ -488,6 +506,21 @@ mod tests {
         assert_eq!(cloud.points, vec![[0.0; 3]]);
         assert_eq!(cloud.normals, None);
         assert_eq!(report, LoadReport::default());
+    }
+
+    #[test]
+    fn rows_are_filtered_and_shifted_as_files_are() {
+        let text = "1e5 2 3\nnan 1 1\n100001 5 inf\n1e300 0 0\n0 0 0\n100000.5 2.25 -3\n";
+        let options = LoadOptions { drop_zero_points: true, origin: OriginShift::Auto, ..LoadOptions::default() };
+        let from_file = xyz::parse(Path::new("rows.xyz"), text.as_bytes(), &options, true).unwrap();
+        let rows = text.lines().map(|l| {
+            let v: Vec<f64> = l.split_whitespace().map(|t| t.parse().unwrap()).collect();
+            [v[0], v[1], v[2], 0.0, 0.0, 0.0]
+        });
+        let from_rows = cloud_from_rows(rows, false, &options);
+        assert_eq!(from_rows, from_file);
+        assert_eq!(from_rows.0.points, vec![[0.0, 0.0, 0.0], [0.5, 0.25, -6.0]]);
+        assert_eq!(from_rows.1, LoadReport { dropped_non_finite: 3, dropped_zero: 1, origin: [100_000, 2, 3] });
     }
 
     #[test]

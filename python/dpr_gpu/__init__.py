@@ -1,0 +1,64 @@
+"""dpr-gpu: learned pairwise registration of 3D scans (RelativeNet / PPF-FoldNet), numpy in and out.
+
+Transforms are named by their frames: ``target_from_source`` maps source points into the target frame,
+``p_target = T @ p_source``. Distances are in the clouds' units (metres by default).
+
+Quick start::
+
+    import numpy as np
+    import dpr_gpu
+
+    source, _ = dpr_gpu.read_cloud("source.ply")
+    target, _ = dpr_gpu.read_cloud("target.ply")
+    result = dpr_gpu.register(source, target, backend="cpu", seed=0)
+    print(result.target_from_source, result.success, result.reason)
+
+``register`` builds a ``Registrar`` (weights, model and backend) for one pair; keep a ``Registrar`` to register
+many pairs, or to run the steps (``describe``, ``correspond``, ``estimate``) one at a time.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Optional
+
+from ._dpr_gpu import (
+    Features,
+    PoseEstimate,
+    Registrar,
+    RegistrationResult,
+    __version__,
+    read_cloud,
+)
+
+__all__ = [
+    "Features",
+    "PoseEstimate",
+    "Registrar",
+    "RegistrationResult",
+    "__version__",
+    "read_cloud",
+    "register",
+]
+
+
+def register(
+    source: Any,
+    target: Any,
+    *,
+    source_normals: Optional[Any] = None,
+    target_normals: Optional[Any] = None,
+    **settings: Any,
+) -> RegistrationResult:
+    """Registers ``source`` onto ``target`` and returns a ``RegistrationResult``.
+
+    ``source`` and ``target`` are (N, 3) float32 or float64 arrays (C- or F-ordered, strided views too); the
+    optional normals have the same shape. Rows with a NaN or infinite value are dropped, as the command line
+    drops them from files. ``settings`` are the keyword arguments of ``Registrar`` (``radius``, ``keypoints``,
+    ``estimator``, ``backend``, ``seed``, ``icp``, ``weights``...), with the library's defaults; the computation
+    runs without the GIL.
+
+    Raises ``ValueError`` for bad arrays or settings, ``OSError`` when a weights file cannot be read and
+    ``RuntimeError`` when the GPU backend fails.
+    """
+    registrar = Registrar(**settings)
+    return registrar.register(source, target, source_normals=source_normals, target_normals=target_normals)

@@ -1,0 +1,408 @@
+//! `Registrar`: the pipeline with its model and backend loaded once, and the scan features it describes.
+
+use crate::arrays::{cloud_from_arrays, index_pairs, positions, vectors};
+use crate::errors::{to_py_err, value_error};
+use crate::result::{PoseEstimate, RegistrationResult, SnapshotInputs, timings_dict};
+use crate::settings::{ESTIMATORS, SettingsArgs, settings_dict};
+use dpr_gpu::cli::register::unshift_pose;
+use dpr_gpu::io::{LoadOptions, OriginShift};
+use dpr_gpu::pipeline::{ScanFeatures, load_weights};
+use dpr_gpu::{Correspondence, RegistrationSettings};
+use numpy::{PyArray2, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Source of `Registrar` identities, so features are only combined by the registrar that described them.
+static NEXT_REGISTRAR: AtomicU64 = AtomicU64::new(0);
+
+/// One described scan: keypoints, their normals and their learned descriptors (kept opaque).
+///
+/// Made by ``Registrar.describe``; pass two of them to ``Registrar.correspond`` and ``Registrar.estimate``.
+#[pyclass(frozen, module = "dpr_gpu")]
+pub struct Features {
+    /// The library's description of the scan.
+    features: Arc<ScanFeatures>,
+    /// The registrar that described it.
+    registrar: u64,
+    /// The random stream the scan was described with.
+    stream: u64,
+}
+
+#[pymethods]
+impl Features {
+    /// Keypoint positions (scan frame) as a (K, 3) float64 array: keypoints whose patch had neighbours.
+    #[getter]
+    fn keypoints<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        positions(py, &self.features.keypoints, [0; 3])
+    }
+
+    /// Unit normals at the keypoints (scan frame) as a (K, 3) float64 array.
+    #[getter]
+    fn keypoint_normals<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        vectors(py, &self.features.keypoint_normals)
+    }
+
+    /// Keypoints dropped because no other point lay within the patch radius.
+    #[getter]
+    fn empty_patches(&self) -> usize {
+        self.features.empty_patches
+    }
+
+    /// The random stream the scan was described with (``register`` uses 0 for the source, 1 for the target).
+    #[getter]
+    fn stream(&self) -> u64 {
+        self.stream
+    }
+
+    /// Wall time per description stage in seconds (dict, in pipeline order).
+    #[getter]
+    fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        timings_dict(py, &self.features.timings)
+    }
+
+    /// Number of keypoints.
+    fn __len__(&self) -> usize {
+        self.features.keypoints.len()
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Features(keypoints={}, empty_patches={}, stream={})",
+            self.features.keypoints.len(),
+            self.features.empty_patches,
+            self.stream
+        )
+    }
+}
+
+/// The registration pipeline with its weights, model and compute backend loaded once: reuse one ``Registrar``
+/// for many pairs.
+///
+/// Keyword arguments are the library's ``RegistrationSettings`` (distances in the clouds' units, metres by
+/// default):
+///
+/// - ``weights``: weights file (safetensors); None uses the weights built into the package (or the file named
+///   by the ``DPR_GPU_WEIGHTS`` environment variable).
+/// - ``radius``: patch radius; None takes the radius the weights were trained with (0.30 m).
+/// - ``voxel``: voxel size for downsampling before normals and keypoints; None keeps every point.
+/// - ``keypoints``: keypoints per scan. ``keypoint_mode``: ``"random"`` or ``"uniform"`` (farthest-point).
+/// - ``normal_neighbors``: neighbours for PCA normals (scans without normals). ``viewpoint``: normals are
+///   flipped to face this point (each scan's own frame).
+/// - ``matching``: ``"mutual"`` (mutual ``mutual_k`` nearest neighbours, 1..4) or ``"closest"``.
+/// - ``estimator``: ``"relativenet"`` (one hypothesis per correspondence) or ``"ransac"``.
+/// - ``inlier_threshold``: None uses radius / 3. ``ransac_iterations``, ``ransac_confidence``: RANSAC criteria.
+/// - ``icp``: refine with point-to-plane ICP; ``icp_max_correspondence_distance`` (None: radius / 6) and
+///   ``icp_max_iterations``.
+/// - ``drop_zero_points``: drop exact (0, 0, 0) rows (invalid LiDAR returns).
+/// - ``seed``: seed for every random choice (same inputs and seed, same result).
+/// - ``backend``: ``"auto"`` (a GPU when one exists, else the CPU with a warning), ``"cpu"`` or ``"gpu"``.
+/// - ``min_inliers``, ``min_inlier_ratio``, ``min_spread_over_threshold``: thresholds of the success verdict.
+///
+/// Raises ``ValueError`` for bad settings or weights that do not fit, ``OSError`` when the weights file cannot be
+/// read, ``RuntimeError`` when ``backend="gpu"`` finds no usable GPU.
+#[pyclass(frozen, module = "dpr_gpu")]
+pub struct Registrar {
+    /// The library's pipeline.
+    inner: Arc<dpr_gpu::Registrar>,
+    /// Identity for [`Features::registrar`].
+    id: u64,
+}
+
+impl Registrar {
+    /// `features`' description, checked to come from this registrar.
+    fn own<'a>(&self, features: &'a Bound<'_, Features>, what: &str) -> PyResult<&'a Arc<ScanFeatures>> {
+        let f = features.get();
+        if f.registrar != self.id {
+            return Err(value_error(format!("{what}: these features were described by another Registrar")));
+        }
+        Ok(&f.features)
+    }
+
+    /// The load options for arrays given to this registrar.
+    fn load_options(&self, origin: OriginShift) -> LoadOptions {
+        LoadOptions { drop_zero_points: self.inner.settings.drop_zero_points, origin, ..LoadOptions::default() }
+    }
+}
+
+#[pymethods]
+impl Registrar {
+    #[new]
+    #[pyo3(signature = (
+        *,
+        weights = None,
+        radius = None,
+        voxel = None,
+        keypoints = 2500,
+        keypoint_mode = "random".to_string(),
+        normal_neighbors = 30,
+        viewpoint = [0.0, 0.0, 0.0],
+        matching = "mutual".to_string(),
+        mutual_k = 1,
+        estimator = "relativenet".to_string(),
+        inlier_threshold = None,
+        ransac_iterations = 100_000,
+        ransac_confidence = 0.999,
+        icp = false,
+        icp_max_correspondence_distance = None,
+        icp_max_iterations = 30,
+        drop_zero_points = false,
+        seed = 0,
+        backend = "auto".to_string(),
+        min_inliers = 12,
+        min_inlier_ratio = 0.055,
+        min_spread_over_threshold = 2.0,
+    ),
+    text_signature = "(*, weights=None, radius=None, voxel=None, keypoints=2500, keypoint_mode='random', \
+        normal_neighbors=30, viewpoint=(0.0, 0.0, 0.0), matching='mutual', mutual_k=1, estimator='relativenet', \
+        inlier_threshold=None, ransac_iterations=100000, ransac_confidence=0.999, icp=False, \
+        icp_max_correspondence_distance=None, icp_max_iterations=30, drop_zero_points=False, seed=0, \
+        backend='auto', min_inliers=12, min_inlier_ratio=0.055, min_spread_over_threshold=2.0)")]
+    #[expect(clippy::too_many_arguments, reason = "one keyword argument per setting, as Python callers expect")]
+    fn new(
+        py: Python<'_>,
+        weights: Option<PathBuf>,
+        radius: Option<f32>,
+        voxel: Option<f32>,
+        keypoints: i64,
+        keypoint_mode: String,
+        normal_neighbors: i64,
+        viewpoint: [f32; 3],
+        matching: String,
+        mutual_k: i64,
+        estimator: String,
+        inlier_threshold: Option<f32>,
+        ransac_iterations: i64,
+        ransac_confidence: f64,
+        icp: bool,
+        icp_max_correspondence_distance: Option<f32>,
+        icp_max_iterations: i64,
+        drop_zero_points: bool,
+        seed: i128,
+        backend: String,
+        min_inliers: i64,
+        min_inlier_ratio: f64,
+        min_spread_over_threshold: f64,
+    ) -> PyResult<Registrar> {
+        let args = SettingsArgs {
+            weights,
+            radius,
+            voxel,
+            keypoints,
+            keypoint_mode,
+            normal_neighbors,
+            viewpoint,
+            matching,
+            mutual_k,
+            estimator,
+            inlier_threshold,
+            ransac_iterations,
+            ransac_confidence,
+            icp,
+            icp_max_correspondence_distance,
+            icp_max_iterations,
+            drop_zero_points,
+            seed,
+            backend,
+            min_inliers,
+            min_inlier_ratio,
+            min_spread_over_threshold,
+        };
+        let probe = RegistrationSettings { weights: args.weights.clone(), ..RegistrationSettings::default() };
+        let loaded = py.detach(|| load_weights(&probe)).map_err(to_py_err)?;
+        let settings = args.to_settings(loaded.config.radius)?;
+        let inner = py.detach(|| dpr_gpu::Registrar::with_weights(&settings, &loaded)).map_err(to_py_err)?;
+        Ok(Registrar { inner: Arc::new(inner), id: NEXT_REGISTRAR.fetch_add(1, Ordering::Relaxed) })
+    }
+
+    /// The settings in effect, as a dict of the keyword arguments (defaults resolved where the library resolves
+    /// them at construction, e.g. the ICP distance).
+    #[getter]
+    fn settings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        settings_dict(py, &self.inner.settings)
+    }
+
+    /// The backend (and adapter) that runs the learned stages, e.g. ``"cpu"``.
+    #[getter]
+    fn backend(&self) -> String {
+        self.inner.backend_name()
+    }
+
+    /// The patch radius in use (cloud units).
+    #[getter]
+    fn radius(&self) -> f32 {
+        self.inner.radius()
+    }
+
+    /// The inlier threshold in use (cloud units).
+    #[getter]
+    fn inlier_threshold(&self) -> f32 {
+        self.inner.inlier_threshold()
+    }
+
+    /// Describes one scan: preprocessing, normals (from ``normals`` when given, else estimated), keypoints and
+    /// their learned descriptors.
+    ///
+    /// ``points`` (and ``normals``) are (N, 3) float32 or float64 arrays in any memory order; rows with a NaN or
+    /// infinite value are dropped, as the file readers do. Coordinates are converted to float32 as given:
+    /// subtract an origin from georeferenced coordinates first (``register`` does this itself). ``stream``
+    /// separates the random choices of different scans under one seed; ``register`` describes the source with
+    /// stream 0 and the target with stream 1. Raises ``ValueError`` for bad arrays or too few points.
+    #[pyo3(signature = (points, normals = None, *, stream = 0))]
+    fn describe(
+        &self,
+        py: Python<'_>,
+        points: &Bound<'_, PyAny>,
+        normals: Option<&Bound<'_, PyAny>>,
+        stream: u64,
+    ) -> PyResult<Features> {
+        let (cloud, _) = cloud_from_arrays(points, normals, "points", &self.load_options(OriginShift::None))?;
+        let inner = &self.inner;
+        let features = py.detach(|| inner.describe(&cloud, stream)).map_err(to_py_err)?;
+        Ok(Features { features: Arc::new(features), registrar: self.id, stream })
+    }
+
+    /// Correspondences between two described scans (matching rule from the settings), as a (K, 2) int64 array
+    /// of keypoint indices: column 0 indexes ``source.keypoints``, column 1 ``target.keypoints``.
+    fn correspond<'py>(
+        &self,
+        py: Python<'py>,
+        source: &Bound<'py, Features>,
+        target: &Bound<'py, Features>,
+    ) -> PyResult<Bound<'py, PyArray2<i64>>> {
+        let (s, t) = (self.own(source, "source")?, self.own(target, "target")?);
+        let inner = &self.inner;
+        let found = py.detach(|| inner.correspond(s, t)).map_err(to_py_err)?;
+        Ok(index_pairs(py, found.iter().map(|c| [c.source_index, c.target_index])))
+    }
+
+    /// Estimates target_from_source from correspondences ((K, 2) integer keypoint indices, as from
+    /// ``correspond``, possibly filtered), then refines it with ICP when enabled. ``estimator`` overrides the
+    /// setting (``"relativenet"`` or ``"ransac"``). Raises ``ValueError`` for indices out of range or fewer
+    /// than 3 correspondences.
+    #[pyo3(signature = (source, target, correspondences, *, estimator = None))]
+    fn estimate(
+        &self,
+        py: Python<'_>,
+        source: &Bound<'_, Features>,
+        target: &Bound<'_, Features>,
+        correspondences: &Bound<'_, PyAny>,
+        estimator: Option<String>,
+    ) -> PyResult<PoseEstimate> {
+        let (s, t) = (self.own(source, "source")?, self.own(target, "target")?);
+        let estimator = match estimator {
+            Some(name) => crate::settings::choose("estimator", &name, ESTIMATORS)?,
+            None => self.inner.settings.estimator,
+        };
+        let pairs = index_rows(correspondences)?;
+        let list = correspondences_between(s, t, &pairs)?;
+        let inner = &self.inner;
+        let estimate = py.detach(|| inner.estimate(s, t, &list, estimator)).map_err(to_py_err)?;
+        Ok(PoseEstimate { estimate })
+    }
+
+    /// Registers ``source`` onto ``target``: the whole pipeline. Returns a ``RegistrationResult`` whose
+    /// ``target_from_source`` maps source points into the target frame.
+    ///
+    /// ``source``, ``target`` (and the optional normals) are (N, 3) float32 or float64 arrays in any memory
+    /// order, copied only into the library's own point type. Rows with a NaN or infinite value are dropped as
+    /// the command line drops them from files, and large (georeferenced) coordinates are shifted by one origin
+    /// before the float32 conversion, as the command line does. Raises ``ValueError`` for bad arrays or too few
+    /// points, ``RuntimeError`` for GPU failures.
+    #[pyo3(signature = (source, target, *, source_normals = None, target_normals = None))]
+    fn register(
+        &self,
+        py: Python<'_>,
+        source: &Bound<'_, PyAny>,
+        target: &Bound<'_, PyAny>,
+        source_normals: Option<&Bound<'_, PyAny>>,
+        target_normals: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<RegistrationResult> {
+        let (source, source_report) =
+            cloud_from_arrays(source, source_normals, "source", &self.load_options(OriginShift::Auto))?;
+        let origin = source_report.origin;
+        let (target, target_report) =
+            cloud_from_arrays(target, target_normals, "target", &self.load_options(OriginShift::At(origin)))?;
+        let inner = &self.inner;
+        let registration = py.detach(|| inner.register_detailed(&source, &target)).map_err(to_py_err)?;
+        let mut result = registration.result;
+        let shifted = result.estimate.target_from_source;
+        result.estimate.target_from_source = unshift_pose(&shifted, origin);
+        let dropped = [source_report, target_report].iter().map(|r| r.dropped_non_finite + r.dropped_zero).sum();
+        Ok(RegistrationResult {
+            result,
+            correspondences: registration.correspondences,
+            source_keypoints: registration.source.keypoints,
+            target_keypoints: registration.target.keypoints,
+            origin,
+            dropped_points: dropped,
+            snapshot: SnapshotInputs { source, target, shifted_target_from_source: shifted },
+        })
+    }
+
+    fn __repr__(&self) -> String {
+        let s = &self.inner.settings;
+        format!(
+            "Registrar(backend='{}', keypoints={}, estimator='{}', radius={})",
+            self.inner.backend_name(),
+            s.keypoints,
+            crate::settings::name_of(s.estimator, ESTIMATORS),
+            self.inner.radius()
+        )
+    }
+}
+
+/// `object` as (K, 2) integer index pairs.
+fn index_rows(object: &Bound<'_, PyAny>) -> PyResult<Vec<[i64; 2]>> {
+    let numpy = object.py().import("numpy")?;
+    let array = numpy.call_method1("asarray", (object,))?;
+    let untyped = array.cast::<PyUntypedArray>()?;
+    let kind: String = array.getattr("dtype")?.getattr("kind")?.extract()?;
+    let shape = untyped.shape().to_vec();
+    if shape.len() != 2 || shape[1] != 2 || !(kind == "i" || kind == "u") {
+        let shape = shape.iter().map(|d| d.to_string()).collect::<Vec<_>>().join(", ");
+        return Err(value_error(format!(
+            "correspondences: expected a (K, 2) array of integer keypoint indices, got shape ({shape}) of dtype {}",
+            untyped.dtype()
+        )));
+    }
+    let as_i64 = array.call_method1("astype", ("int64",))?;
+    let typed = as_i64.cast::<PyArray2<i64>>()?;
+    let readonly = typed.try_readonly().map_err(|e| value_error(format!("correspondences: {e}")))?;
+    Ok(readonly.as_array().rows().into_iter().map(|r| [r[0], r[1]]).collect())
+}
+
+/// The library's correspondences for index `pairs` between two described scans (positions from the keypoints,
+/// feature distance between the codewords); indices out of range are refused.
+fn correspondences_between(
+    source: &ScanFeatures,
+    target: &ScanFeatures,
+    pairs: &[[i64; 2]],
+) -> PyResult<Vec<Correspondence>> {
+    let dim = source.ppf_codewords.len() / source.keypoints.len().max(1);
+    let check = |i: i64, n: usize, what: &str, row: usize| {
+        usize::try_from(i)
+            .ok()
+            .filter(|&i| i < n)
+            .ok_or_else(|| value_error(format!("correspondences row {row}: {what} index {i} is out of range (0..{n})")))
+    };
+    pairs
+        .iter()
+        .enumerate()
+        .map(|(row, &[s, t])| {
+            let s = check(s, source.keypoints.len(), "source", row)?;
+            let t = check(t, target.keypoints.len(), "target", row)?;
+            let (a, b) = (&source.ppf_codewords[s * dim..(s + 1) * dim], &target.ppf_codewords[t * dim..(t + 1) * dim]);
+            let distance = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f32>().sqrt();
+            Ok(Correspondence {
+                source_index: s as u32,
+                target_index: t as u32,
+                source_point: source.keypoints[s],
+                target_point: target.keypoints[t],
+                feature_distance: distance,
+            })
+        })
+        .collect()
+}
