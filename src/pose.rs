@@ -130,6 +130,14 @@ pub fn matrix_text(m: &Matrix4<f64>) -> String {
     (0..4).map(|r| (0..4).map(|c| format!("{:.9}", m[(r, c)])).collect::<Vec<_>>().join(" ") + "\n").collect()
 }
 
+/// `shifted` (a pose between clouds shifted by `-origin`) in the unshifted frames:
+/// T = translate(o) * T' * translate(-o).
+pub fn unshift_pose(shifted: &Matrix4<f64>, origin: [i64; 3]) -> Matrix4<f64> {
+    let o = Vector3::new(origin[0] as f64, origin[1] as f64, origin[2] as f64);
+    let (shift, unshift) = (Matrix4::new_translation(&-o), Matrix4::new_translation(&o));
+    unshift * shifted * shift
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -100,6 +100,8 @@ class RegistrationResult:
     @property
     def reason(self) -> Optional[str]:
         """Why the pose cannot be trusted; None on success."""
+    def snapshot(self, path: _PathLike, *, inliers: bool = True) -> None:
+        """Write a PNG of both scans before (top row) and after (bottom row) registration."""
 
 @final
 class Registrar:

@@ -4,9 +4,9 @@ use crate::arrays::{cloud_from_arrays, index_pairs, positions, vectors};
 use crate::errors::{to_py_err, value_error};
 use crate::result::{PoseEstimate, RegistrationResult, SnapshotInputs, timings_dict};
 use crate::settings::{ESTIMATORS, SettingsArgs, settings_dict};
-use dpr_gpu::cli::register::unshift_pose;
 use dpr_gpu::io::{LoadOptions, OriginShift};
 use dpr_gpu::pipeline::{ScanFeatures, load_weights};
+use dpr_gpu::pose::unshift_pose;
 use dpr_gpu::{Correspondence, RegistrationSettings};
 use numpy::{PyArray2, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -338,7 +338,12 @@ impl Registrar {
             target_keypoints: registration.target.keypoints,
             origin,
             dropped_points: dropped,
-            snapshot: SnapshotInputs { source, target, shifted_target_from_source: shifted },
+            snapshot: SnapshotInputs {
+                source,
+                target,
+                shifted_target_from_source: shifted,
+                inlier_threshold: inner.inlier_threshold(),
+            },
         })
     }
 

@@ -1,6 +1,7 @@
 //! `RegistrationResult` and `PoseEstimate`: what registration returns, as numpy arrays and plain Python values.
 
 use crate::arrays::{index_pairs, matrix, positions, values};
+use dpr_gpu::snapshot::{SnapshotOptions, inlier_lines, write_snapshot};
 use dpr_gpu::{Correspondence, PointCloud, PoseEstimate as RustPoseEstimate, StageTime};
 use nalgebra::Matrix4;
 use numpy::{PyArray1, PyArray2};
@@ -16,19 +17,18 @@ pub(crate) fn timings_dict<'py>(py: Python<'py>, timings: &[StageTime]) -> PyRes
     Ok(d)
 }
 
-/// What a future `RegistrationResult.snapshot(path)` draws: both scans as registered (after the loader's
-/// filtering, in the shifted frame the computation used) and the pose between them in that frame. The
-/// correspondences are on the result itself.
+/// What `RegistrationResult.snapshot(path)` draws: both scans as registered (after the loader's filtering, in
+/// the shifted frame the computation used) and the pose between them in that frame. The correspondences are on
+/// the result itself.
 pub(crate) struct SnapshotInputs {
     /// The source scan.
-    #[expect(dead_code, reason = "read by RegistrationResult.snapshot, which comes with the snapshot module")]
     pub source: PointCloud,
     /// The target scan.
-    #[expect(dead_code, reason = "read by RegistrationResult.snapshot, which comes with the snapshot module")]
     pub target: PointCloud,
     /// target_from_source between the shifted scans.
-    #[expect(dead_code, reason = "read by RegistrationResult.snapshot, which comes with the snapshot module")]
     pub shifted_target_from_source: Matrix4<f64>,
+    /// The registrar's inlier threshold (cloud units), for the inlier lines.
+    pub inlier_threshold: f32,
 }
 
 /// The outcome of registering a source scan onto a target scan.
@@ -51,7 +51,6 @@ pub struct RegistrationResult {
     /// Input rows dropped (non-finite values, or zeros with `drop_zero_points`), both scans together.
     pub(crate) dropped_points: usize,
     /// Kept for `snapshot(path)`.
-    #[expect(dead_code, reason = "read by RegistrationResult.snapshot, which comes with the snapshot module")]
     pub(crate) snapshot: SnapshotInputs,
 }
 
@@ -166,8 +165,20 @@ impl RegistrationResult {
         )
     }
 
-    // `snapshot(path)` goes here: it renders `self.snapshot` (and `self.correspondences`) with the library's
-    // snapshot module, releasing the GIL while drawing, and maps errors with `crate::errors::to_py_err`.
+    /// Writes a PNG picture of the registration to ``path``: the top row shows both scans as given, the bottom
+    /// row after moving the source by ``target_from_source``; the columns are orthographic views along the
+    /// target's principal axes. Source orange, target blue, overlap olive; with ``inliers`` the inlier
+    /// correspondences are drawn in the bottom row. Written atomically, never onto an existing input.
+    #[pyo3(signature = (path, *, inliers = true))]
+    fn snapshot(&self, py: Python<'_>, path: std::path::PathBuf, inliers: bool) -> PyResult<()> {
+        let s = &self.snapshot;
+        let mut options = SnapshotOptions::default();
+        if inliers {
+            options.lines = inlier_lines(&self.correspondences, &s.shifted_target_from_source, s.inlier_threshold);
+        }
+        py.detach(|| write_snapshot(&path, &s.source, &s.target, &s.shifted_target_from_source, &options))
+            .map_err(crate::errors::to_py_err)
+    }
 }
 
 /// A pose estimated from correspondences (``Registrar.estimate``).

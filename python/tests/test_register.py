@@ -181,3 +181,21 @@ def test_bad_settings_raise_value_error(settings, needle):
 def test_unknown_settings_raise_type_error():
     with pytest.raises(TypeError):
         dpr_gpu.register(np.zeros((20, 3)), np.zeros((20, 3)), keypoint=10)
+
+
+def test_snapshot_writes_the_documented_png_and_refuses_a_missing_folder(room_pair, tmp_path):
+    import struct
+
+    source, target, _ = room_pair
+    result = dpr_gpu.register(source, target, **RECOVER)
+    out = tmp_path / "pair.png"
+    result.snapshot(out)
+    data = out.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    width, height = struct.unpack(">II", data[16:24])
+    # Three 360-pixel panels per row, two rows, 4-pixel gaps (the library's default layout).
+    assert (width, height) == (3 * 360 + 4 * 4, 2 * 360 + 3 * 4)
+    result.snapshot(tmp_path / "no_lines.png", inliers=False)
+    assert (tmp_path / "no_lines.png").read_bytes() != data
+    with pytest.raises((OSError, ValueError), match="does not exist"):
+        result.snapshot(tmp_path / "missing" / "pair.png")

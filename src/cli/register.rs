@@ -8,7 +8,6 @@ use crate::io::{
 use crate::pipeline::{Registrar, weights_file};
 use crate::settings::*;
 use anyhow::bail;
-use nalgebra::{Matrix4, Vector3};
 use std::path::{Path, PathBuf};
 
 /// Registration options (shared by `register` and `eval`).
@@ -179,14 +178,6 @@ pub struct Args {
     pub json: bool,
 }
 
-/// `shifted` (a pose between clouds shifted by `-origin`) in the unshifted frames:
-/// T = translate(o) * T' * translate(-o).
-pub fn unshift_pose(shifted: &Matrix4<f64>, origin: [i64; 3]) -> Matrix4<f64> {
-    let o = Vector3::new(origin[0] as f64, origin[1] as f64, origin[2] as f64);
-    let (shift, unshift) = (Matrix4::new_translation(&-o), Matrix4::new_translation(&o));
-    unshift * shifted * shift
-}
-
 /// `cloud` (in the frame shifted by `-origin`) back in the input frame.
 fn unshifted(mut cloud: PointCloud, origin: [i64; 3]) -> PointCloud {
     if origin != [0; 3] {
@@ -280,7 +271,7 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
     let mut result = outcome?;
     result.timings.insert(0, StageTime { stage: "load".into(), seconds: load_seconds });
     let shifted = result.estimate.target_from_source;
-    let t = unshift_pose(&shifted, origin);
+    let t = crate::pose::unshift_pose(&shifted, origin);
     result.estimate.target_from_source = t;
     if let Some(path) = &args.out {
         write_atomic(path, crate::pose::matrix_text(&t).as_bytes())?;
