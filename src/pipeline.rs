@@ -55,25 +55,28 @@ pub fn load_weights(settings: &RegistrationSettings) -> Result<Weights> {
     }
 }
 
-/// Creates the backend `kind` for `model`. `Auto` takes a GPU adapter when one exists and otherwise warns and
-/// falls back to the CPU reference path.
+/// Creates the backend `kind` for `model`; see [`choose_backend`].
 pub fn create_backend(kind: BackendKind, model: Model) -> Result<Box<dyn Backend>> {
+    Ok(choose_backend(kind, model)?.0)
+}
+
+/// Creates the backend `kind` for `model` and says why it is the one. `Auto` takes a hardware GPU adapter when
+/// there is one and otherwise the CPU reference path; it never takes a software rasteriser (an adapter whose
+/// device type is CPU, such as lavapipe) unless `DPR_GPU_ALLOW_SOFTWARE=1` or `WGPU_ADAPTER_NAME` asks for it.
+pub fn choose_backend(kind: BackendKind, model: Model) -> Result<(Box<dyn Backend>, String)> {
     match kind {
-        BackendKind::Cpu => Ok(Box::new(CpuBackend::new(model))),
+        BackendKind::Cpu => Ok((Box::new(CpuBackend::new(model)), "asked for (--backend cpu)".into())),
         #[cfg(feature = "gpu")]
-        BackendKind::Gpu => Ok(Box::new(crate::gpu::GpuBackend::new(model)?)),
+        BackendKind::Gpu => Ok((Box::new(crate::gpu::GpuBackend::new(model)?), "asked for (--backend gpu)".into())),
         #[cfg(feature = "gpu")]
-        BackendKind::Auto => match crate::gpu::GpuBackend::new(model.clone()) {
-            Ok(gpu) => Ok(Box::new(gpu)),
-            Err(e) => {
-                eprintln!("warning: {e}; using the CPU reference path");
-                Ok(Box::new(CpuBackend::new(model)))
-            }
+        BackendKind::Auto => match crate::gpu::GpuBackend::new_hardware(model.clone()) {
+            Ok(gpu) => Ok((Box::new(gpu), "auto: a hardware GPU adapter was found".into())),
+            Err(e) => Ok((Box::new(CpuBackend::new(model)), format!("auto: {e}"))),
         },
         #[cfg(not(feature = "gpu"))]
         BackendKind::Gpu => Err(Error::Gpu("dpr-gpu was built without its `gpu` feature".into())),
         #[cfg(not(feature = "gpu"))]
-        BackendKind::Auto => Ok(Box::new(CpuBackend::new(model))),
+        BackendKind::Auto => Ok((Box::new(CpuBackend::new(model)), "auto: built without the `gpu` feature".into())),
     }
 }
 
@@ -128,6 +131,8 @@ pub struct Registrar {
     /// The settings it was built with.
     pub settings: RegistrationSettings,
     backend: Box<dyn Backend>,
+    /// Why this backend (see [`choose_backend`]).
+    backend_reason: String,
     progress: Option<Box<ProgressFn>>,
 }
 
@@ -142,14 +147,22 @@ impl Registrar {
     pub fn with_weights(settings: &RegistrationSettings, weights: &Weights) -> Result<Registrar> {
         validate_settings(settings, &weights.config)?;
         let model = Model::from_weights(weights)?;
-        Registrar::with_backend(settings, create_backend(settings.backend, model)?)
+        let (backend, reason) = choose_backend(settings.backend, model)?;
+        let mut registrar = Registrar::with_backend(settings, backend)?;
+        registrar.backend_reason = reason;
+        Ok(registrar)
     }
 
     /// Builds the pipeline around a backend made by the caller (e.g. one sharing a GPU device); the settings'
     /// `weights` and `backend` fields are ignored.
     pub fn with_backend(settings: &RegistrationSettings, backend: Box<dyn Backend>) -> Result<Registrar> {
         validate_settings(settings, &backend.model().config)?;
-        Ok(Registrar { settings: settings.clone(), backend, progress: None })
+        Ok(Registrar {
+            settings: settings.clone(),
+            backend,
+            backend_reason: "given by the caller".into(),
+            progress: None,
+        })
     }
 
     /// Calls `progress` after every stage (for a progress display); see [`ProgressFn`].
@@ -171,6 +184,11 @@ impl Registrar {
     /// The backend's name.
     pub fn backend_name(&self) -> String {
         self.backend.name()
+    }
+
+    /// Why the backend was chosen, e.g. "auto: no hardware GPU adapter (...)".
+    pub fn backend_reason(&self) -> &str {
+        &self.backend_reason
     }
 
     /// The backend.

@@ -181,7 +181,7 @@ impl Default for RegistrationSettings {
             icp: None,
             drop_zero_points: false,
             seed: 0,
-            backend: BackendKind::Cpu,
+            backend: BackendKind::Auto,
             verdict: crate::verdict::VerdictSettings::default(),
         }
     }

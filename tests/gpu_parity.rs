@@ -12,6 +12,7 @@
 //! depend on float rounding (max_pool, mutual_knn on a given matrix, inlier counts away from the threshold)
 //! must match exactly.
 
+use dpr_gpu::BackendKind;
 use dpr_gpu::backend::RotationInputs;
 use dpr_gpu::backend::{Backend, CpuBackend};
 use dpr_gpu::cpu::dense::DenseShape;
@@ -20,7 +21,7 @@ use dpr_gpu::cpu::rotation_head::rotation_head as cpu_rotation_head;
 use dpr_gpu::cpu::score_hypotheses::{HypothesisScore, score_hypotheses as cpu_score, squared_residual};
 use dpr_gpu::cpu::{self, mutual_knn::Match};
 use dpr_gpu::gpu::testing::{gpu_or_skip as gpu, new_gpu_or_skip};
-use dpr_gpu::gpu::{self, Gpu, GpuBackend};
+use dpr_gpu::gpu::{self, Gpu, GpuBackend, GpuContext};
 use dpr_gpu::model::config::{PoseFrame, RotationOutput};
 use dpr_gpu::model::{Model, ModelConfig, Net, Weights};
 use dpr_gpu::preprocess::GatheredPatches;
@@ -867,6 +868,33 @@ fn register_with_relativenet_matches_cpu_on_a_generated_pair() {
     assert!(cp.inliers >= 10, "the CPU reference registers the pair ({} inliers), seed {s}", cp.inliers);
 }
 
+/// `--backend auto` never takes a software rasteriser on its own: on a CPU-type adapter (lavapipe in CI) the
+/// hardware-only policy finds nothing and names what it skipped, and the registrar falls back to the CPU and says
+/// why; `DPR_GPU_ALLOW_SOFTWARE=1` lets it take the adapter. On a hardware adapter it takes a hardware one.
+fn auto_backend_skips_software_adapters() {
+    use dpr_gpu::gpu::context::{ALLOW_SOFTWARE_ENV, AdapterPolicy};
+    let Some(g) = gpu() else { return };
+    let backends = dpr_gpu::gpu::testing::test_backends().unwrap();
+    let hardware = GpuContext::with_policy(backends, AdapterPolicy::HardwareOnly);
+    if g.context.info.device_type != wgpu::DeviceType::Cpu {
+        assert_ne!(hardware.expect("a hardware adapter exists").info.device_type, wgpu::DeviceType::Cpu);
+        return;
+    }
+    let message = hardware.err().expect("a software adapter is not taken automatically").to_string();
+    assert!(message.contains("no hardware GPU adapter") && message.contains(&g.context.info.name), "{message}");
+    let model = Model::from_weights(
+        &Weights::init(&ModelConfig { points_per_patch: 16, ..ModelConfig::default() }, 1).unwrap(),
+    )
+    .unwrap();
+    let (backend, reason) = dpr_gpu::pipeline::choose_backend(BackendKind::Auto, model).unwrap();
+    assert!(backend.name().starts_with("cpu") && reason.contains("software"), "{} / {reason}", backend.name());
+    // SAFETY: the GPU harness runs its tests one at a time on this thread; nothing else reads the environment now.
+    unsafe { std::env::set_var(ALLOW_SOFTWARE_ENV, "1") };
+    let allowed = GpuContext::with_policy(backends, AdapterPolicy::HardwareOnly);
+    unsafe { std::env::remove_var(ALLOW_SOFTWARE_ENV) };
+    assert_eq!(allowed.expect("allowed by the environment").info.name, g.context.info.name);
+}
+
 fn main() -> std::process::ExitCode {
     dpr_gpu::gpu::testing::run_tests(&[
         ("patch_features_matches_cpu_ragged", patch_features_matches_cpu_ragged),
@@ -890,6 +918,7 @@ fn main() -> std::process::ExitCode {
         ("invalid_calls_are_errors_not_panics", invalid_calls_are_errors_not_panics),
         ("register_matches_cpu_on_a_generated_pair", register_matches_cpu_on_a_generated_pair),
         ("poison_inputs_stay_in_their_patches", poison_inputs_stay_in_their_patches),
+        ("auto_backend_skips_software_adapters", auto_backend_skips_software_adapters),
         (
             "register_with_relativenet_matches_cpu_on_a_generated_pair",
             register_with_relativenet_matches_cpu_on_a_generated_pair,

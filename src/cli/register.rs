@@ -58,8 +58,9 @@ pub struct RegisterOptions {
     /// Drop exact (0,0,0) points when loading.
     #[arg(long)]
     pub drop_zero: bool,
-    /// Compute backend: cpu, gpu or auto.
-    #[arg(long, default_value = "cpu")]
+    /// Compute backend: auto (a hardware GPU when there is one, else the CPU; never a software rasteriser
+    /// unless DPR_GPU_ALLOW_SOFTWARE=1), gpu (any adapter, software ones included) or cpu.
+    #[arg(long, default_value = "auto")]
     pub backend: String,
     /// What the columns of XYZ/TXT/PTS inputs hold, e.g. x,y,z,nx,ny,nz or x,y,z,r,g,b (other names are
     /// ignored); default: columns 4-6 are normals when every row has unit length there, else the file is refused.
@@ -293,6 +294,7 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
     if args.json {
         let mut value = serde_json::to_value(&result)?;
         value["total_seconds"] = started.elapsed().as_secs_f64().into();
+        value["backend_reason"] = registrar.backend_reason().into();
         value["source_points"] = source.len().into();
         value["target_points"] = target.len().into();
         value["dropped_points"] = (source_report.dropped_non_finite
@@ -313,7 +315,7 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
         if origin != [0; 3] {
             println!("large coordinates: both clouds shifted by -{origin:?} for the computation");
         }
-        println!("backend: {}", result.backend);
+        println!("backend: {} ({})", result.backend, registrar.backend_reason());
         println!("target_from_source (p_target = T p_source):");
         print!("{}", crate::pose::matrix_text(&t));
         let e = &result.estimate;

@@ -21,6 +21,18 @@ pub const MAX_BUFFER_ENV: &str = "DPR_GPU_MAX_BUFFER_MIB";
 
 /// Default per-buffer cap: enough for 5000 patches x 2048 points chunked, small enough for any GPU.
 pub const DEFAULT_MAX_BUFFER_MIB: u64 = 128;
+/// Environment variable that lets `--backend auto` take a software adapter (lavapipe, llvmpipe, WARP).
+pub const ALLOW_SOFTWARE_ENV: &str = "DPR_GPU_ALLOW_SOFTWARE";
+
+/// Which adapters a context may take.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AdapterPolicy {
+    /// Any adapter, software rasterisers included (`--backend gpu`: the user asked for a GPU backend).
+    Any,
+    /// Hardware adapters only: never one whose device type is CPU (`--backend auto`), unless
+    /// [`ALLOW_SOFTWARE_ENV`] is set to 1 or `WGPU_ADAPTER_NAME` names one.
+    HardwareOnly,
+}
 
 /// Reads one limit as a u64.
 type LimitGetter = fn(&wgpu::Limits) -> u64;
@@ -91,18 +103,24 @@ pub fn parse_backends(list: &str) -> std::result::Result<wgpu::Backends, String>
 }
 
 impl GpuContext {
-    /// A context on the backends from the environment ([`backends_from_env`]).
+    /// A context on the backends from the environment ([`backends_from_env`]), on any adapter.
     pub fn new() -> Result<GpuContext> {
-        GpuContext::with_backends(backends_from_env()?)
+        GpuContext::with_policy(backends_from_env()?, AdapterPolicy::Any)
     }
 
-    /// A context on one of `backends`; `Error::Gpu` when no adapter exists or one lacks a needed limit.
+    /// A context on one of `backends`, on any adapter; `Error::Gpu` when no adapter exists or one lacks a
+    /// needed limit.
     pub fn with_backends(backends: wgpu::Backends) -> Result<GpuContext> {
+        GpuContext::with_policy(backends, AdapterPolicy::Any)
+    }
+
+    /// A context on one of `backends` on an adapter `policy` allows.
+    pub fn with_policy(backends: wgpu::Backends, policy: AdapterPolicy) -> Result<GpuContext> {
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
         desc.backends = backends;
         desc.flags = wgpu::InstanceFlags::default().with_env();
         let instance = wgpu::Instance::new(desc);
-        let adapter = pick_adapter(&instance, backends)?;
+        let adapter = pick_adapter(&instance, backends, policy)?;
         let info = adapter.get_info();
         let name = format!("{} ({:?})", info.name, info.backend);
         if !adapter.get_downlevel_capabilities().flags.contains(wgpu::DownlevelFlags::COMPUTE_SHADERS) {
@@ -210,7 +228,7 @@ impl GpuContext {
 }
 
 /// The adapter named by `WGPU_ADAPTER_NAME`, else the default high-performance one.
-fn pick_adapter(instance: &wgpu::Instance, backends: wgpu::Backends) -> Result<wgpu::Adapter> {
+fn pick_adapter(instance: &wgpu::Instance, backends: wgpu::Backends, policy: AdapterPolicy) -> Result<wgpu::Adapter> {
     let adapters = pollster::block_on(instance.enumerate_adapters(backends));
     let names =
         || adapters.iter().map(|a| format!("{} ({:?})", a.get_info().name, a.get_info().backend)).collect::<Vec<_>>();
@@ -219,6 +237,26 @@ fn pick_adapter(instance: &wgpu::Instance, backends: wgpu::Backends) -> Result<w
         return adapters.iter().find(|a| a.get_info().name.to_lowercase().contains(&wanted_lc)).cloned().ok_or_else(
             || Error::Gpu(format!("WGPU_ADAPTER_NAME={wanted} matches none of the adapters {:?}", names())),
         );
+    }
+    let software_allowed = std::env::var(ALLOW_SOFTWARE_ENV).is_ok_and(|v| v.trim() == "1");
+    if policy == AdapterPolicy::HardwareOnly && !software_allowed {
+        // The best hardware adapter: discrete, then integrated, then virtual, then other; never a CPU device.
+        let rank = |t: wgpu::DeviceType| match t {
+            wgpu::DeviceType::DiscreteGpu => Some(0),
+            wgpu::DeviceType::IntegratedGpu => Some(1),
+            wgpu::DeviceType::VirtualGpu => Some(2),
+            wgpu::DeviceType::Other => Some(3),
+            wgpu::DeviceType::Cpu => None,
+        };
+        let best = adapters.iter().filter_map(|a| Some((rank(a.get_info().device_type)?, a))).min_by_key(|(r, _)| *r);
+        return best.map(|(_, a)| a.clone()).ok_or_else(|| {
+            let seen = names();
+            let what = if seen.is_empty() { "no adapter at all".to_string() } else { format!("only {seen:?}") };
+            Error::Gpu(format!(
+                "no hardware GPU adapter ({what}; software rasterisers are not used automatically: pass --backend \
+                 gpu or set {ALLOW_SOFTWARE_ENV}=1 to use one)"
+            ))
+        });
     }
     let options = wgpu::RequestAdapterOptions {
         power_preference: wgpu::PowerPreference::from_env().unwrap_or(wgpu::PowerPreference::HighPerformance),

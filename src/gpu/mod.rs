@@ -77,6 +77,11 @@ impl Gpu {
         Gpu::from_context(GpuContext::new()?)
     }
 
+    /// [`Gpu::new`] on an adapter `policy` allows.
+    pub fn with_policy(policy: context::AdapterPolicy) -> Result<Gpu> {
+        Gpu::from_context(GpuContext::with_policy(context::backends_from_env()?, policy)?)
+    }
+
     /// Compiles every kernel on `context`.
     pub fn from_context(context: GpuContext) -> Result<Gpu> {
         let kernels = Kernels::new(&context)?;
@@ -121,9 +126,14 @@ pub struct GpuBackend {
 }
 
 impl GpuBackend {
-    /// Creates a device (backends from the environment) and uploads `model`'s weights.
+    /// Creates a device (backends from the environment, any adapter) and uploads `model`'s weights.
     pub fn new(model: Model) -> Result<GpuBackend> {
         GpuBackend::with_gpu(Arc::new(Gpu::new()?), model)
+    }
+
+    /// [`GpuBackend::new`] on a hardware adapter only (what `--backend auto` takes).
+    pub fn new_hardware(model: Model) -> Result<GpuBackend> {
+        GpuBackend::with_gpu(Arc::new(Gpu::with_policy(context::AdapterPolicy::HardwareOnly)?), model)
     }
 
     /// Uploads `model`'s weights to an existing (possibly shared) device.
