@@ -244,11 +244,17 @@ fn register_writes_a_snapshot_and_a_merged_ply_and_refuses_bad_paths() {
     let estimate = Matrix4::from_fn(|r, c| rows[r][c].as_f64().unwrap());
     let image = tiny_skia::Pixmap::load_png(&png).unwrap();
     assert_eq!((image.width(), image.height()), SnapshotOptions::default().image_size());
-    // The picture is the library's rendering of the same clouds and pose.
+    // The picture is the library's rendering of the same clouds and pose, plus the inlier correspondences in
+    // the after (bottom) row.
     let expected = render_snapshot(&source, &target, &estimate, &SnapshotOptions::default()).unwrap();
-    let mismatched = image.data().iter().zip(expected.rgba()).filter(|(a, b)| a != b).count();
+    let half = image.data().len() / 2;
+    let differ = |range: std::ops::Range<usize>| {
+        image.data()[range.clone()].iter().zip(&expected.rgba()[range]).filter(|(a, b)| a != b).count()
+    };
+    let (before, after) = (differ(0..half), differ(half..image.data().len()));
     // The pose went through 9-digit JSON: a handful of dots may land one pixel over.
-    assert!(mismatched * 1000 < image.data().len(), "{mismatched} bytes differ");
+    assert!(before * 1000 < half, "{before} bytes of the before row differ");
+    assert!(after > before + 100, "the inlier lines are missing from the after row ({after} vs {before})");
     let (back, _) = read_cloud(&merged, &LoadOptions::default()).unwrap();
     assert_eq!(back.len(), source.len() + target.len());
     assert_eq!(&back.points[source.len()..], &target.points[..]);

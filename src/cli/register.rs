@@ -267,9 +267,11 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
             bar.set_message(format!("{stage} took {seconds:.2} s"));
         })
     });
-    let outcome = registrar.register(&source, &target).map_err(|e| name_files(e, &args.source, &args.target));
+    let outcome =
+        registrar.register_detailed(&source, &target).map_err(|e| name_files(e, &args.source, &args.target));
     bar.finish_and_clear();
-    let mut result = outcome?;
+    let registration = outcome?;
+    let mut result = registration.result;
     result.timings.insert(0, StageTime { stage: "load".into(), seconds: load_seconds });
     let shifted = result.estimate.target_from_source;
     let t = crate::pose::unshift_pose(&shifted, origin);
@@ -288,7 +290,9 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
     }
     if let Some(path) = &args.snapshot {
         // Drawn in the shifted frames: a picture does not change with a common shift, and f32 stays precise.
-        let options = crate::snapshot::SnapshotOptions::default();
+        let lines =
+            crate::snapshot::inlier_lines(&registration.correspondences, &shifted, registrar.inlier_threshold());
+        let options = crate::snapshot::SnapshotOptions { lines, ..Default::default() };
         crate::snapshot::write_snapshot(path, &source, &target, &shifted, &options)?;
     }
     if args.json {
