@@ -59,6 +59,7 @@ pub mod eval;
 pub mod gpu;
 pub mod io;
 pub mod model;
+pub mod multiway;
 pub mod pipeline;
 pub mod pose;
 pub mod preprocess;
@@ -76,5 +77,6 @@ pub use error::{Error, Result};
 /// downstream crate needs no dependency of its own to use results.
 pub use nalgebra;
 pub use nalgebra::{Matrix3, Matrix4, Vector3};
+pub use multiway::{MultiwaySettings, Trajectory, multiway};
 pub use pipeline::{Registrar, register};
 pub use settings::*;
