@@ -4,8 +4,8 @@
 use crate::error::{Error, Result};
 use crate::eval::gtlog::LogRecord;
 use crate::eval::metrics::{information_error, inverse};
-use crate::pose::{rigid_fit_f64, rotation_error_deg, translation_error};
-use nalgebra::{Matrix4, Matrix6, Vector3};
+use crate::pose::{nearest_rotation, rigid_fit_f64, rotation_error_deg, translation_error};
+use nalgebra::{Matrix3, Matrix4, Matrix6, Vector3};
 use serde::Serialize;
 
 use super::trajectory::Trajectory;
@@ -36,7 +36,8 @@ pub struct TrajectoryErrors {
     pub ate_rmse: f64,
     /// Largest such distance.
     pub ate_max: f64,
-    /// Mean rotation error of the aligned poses (degrees).
+    /// Mean rotation error (degrees) after the best rotation alignment of the orientations alone (the chordal
+    /// mean of R_gt R_estᵀ), which stays well defined when the scan origins lie nearly on a line.
     pub rotation_mean_deg: f64,
     /// Largest rotation error (degrees).
     pub rotation_max_deg: f64,
@@ -63,14 +64,17 @@ pub fn trajectory_errors(estimate: &Trajectory, truth: &Trajectory) -> Result<Tr
         Some(a) => (a, Alignment::Kabsch),
         None => (truth.world_from_scan[0] * inverse(&estimate.world_from_scan[0]), Alignment::FirstScan),
     };
+    let rotation = |m: &Matrix4<f64>| m.fixed_view::<3, 3>(0, 0).into_owned();
+    let chordal: Matrix3<f64> =
+        estimate.world_from_scan.iter().zip(&truth.world_from_scan).map(|(e, g)| rotation(g) * rotation(e).transpose()).sum();
+    let rotation_alignment = crate::pose::matrix_from_parts(&nearest_rotation(&chordal), &Vector3::zeros());
     let mut sum_sq = 0.0;
     let (mut ate_max, mut rot_sum, mut rot_max) = (0.0f64, 0.0, 0.0f64);
     for (e, g) in estimate.world_from_scan.iter().zip(&truth.world_from_scan) {
-        let aligned = truth_from_estimate * e;
-        let d = translation_error(&aligned, g);
+        let d = translation_error(&(truth_from_estimate * e), g);
         sum_sq += d * d;
         ate_max = ate_max.max(d);
-        let r = rotation_error_deg(&aligned, g);
+        let r = rotation_error_deg(&(rotation_alignment * e), g);
         rot_sum += r;
         rot_max = rot_max.max(r);
     }
