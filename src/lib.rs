@@ -73,10 +73,10 @@ pub mod verdict;
 
 pub use cloud::PointCloud;
 pub use error::{Error, Result};
+pub use multiway::{MultiwaySettings, Trajectory, multiway};
 /// The linear-algebra crate of the public API (`target_from_source` is a [`Matrix4`]), re-exported so a
 /// downstream crate needs no dependency of its own to use results.
 pub use nalgebra;
 pub use nalgebra::{Matrix3, Matrix4, Vector3};
-pub use multiway::{MultiwaySettings, Trajectory, multiway};
 pub use pipeline::{Registrar, register};
 pub use settings::*;

@@ -102,7 +102,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let edges: Vec<EdgeRecord> = match &edges_path {
         Some(p) => {
             let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            serde_json::from_str::<EdgesFile>(&text).with_context(|| format!("{}: not a multiway edges file", p.display()))?.edges
+            serde_json::from_str::<EdgesFile>(&text)
+                .with_context(|| format!("{}: not a multiway edges file", p.display()))?
+                .edges
         }
         None => Vec::new(),
     };
@@ -125,7 +127,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Truth::Pairs(records) => {
             let pairs = pairwise_errors(&trajectory, records, &ids, &info_of);
             report.insert("pairs".into(), serde_json::to_value(&pairs)?);
-            let by_pair: HashMap<(usize, usize), Matrix4<f64>> = records.iter().map(|r| ((r.i, r.j), r.matrix)).collect();
+            let by_pair: HashMap<(usize, usize), Matrix4<f64>> =
+                records.iter().map(|r| ((r.i, r.j), r.matrix)).collect();
             let ids = ids.clone();
             Box::new(move |a, b| by_pair.get(&(ids[a], ids[b])).copied())
         }
@@ -157,7 +160,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     if let Truth::Pairs(records) = &truth {
         let pairs = pairwise_errors(&trajectory, records, &ids, &info_of);
-        println!("pairwise poses against {} ({} of {} pairs among these scans):", args.ground_truth.display(), pairs.len(), records.len());
+        println!(
+            "pairwise poses against {} ({} of {} pairs among these scans):",
+            args.ground_truth.display(),
+            pairs.len(),
+            records.len()
+        );
         for p in &pairs {
             println!(
                 "  ({:>3}, {:>3})  rotation {:>8.3} deg  translation {:>8.4}  {}",

@@ -97,11 +97,7 @@ pub fn scan_paths(input: &Path) -> anyhow::Result<Vec<PathBuf>> {
     } else {
         let text = std::fs::read_to_string(input).with_context(|| format!("reading scan list {}", input.display()))?;
         let base = input.parent().unwrap_or(Path::new("."));
-        text.lines()
-            .map(str::trim)
-            .filter(|l| !l.is_empty() && !l.starts_with('#'))
-            .map(|l| base.join(l))
-            .collect()
+        text.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with('#')).map(|l| base.join(l)).collect()
     };
     if paths.len() < 2 {
         bail!("{}: multiway registration needs at least 2 scans, found {}", input.display(), paths.len());
@@ -288,7 +284,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let result = outcome?;
 
     let trajectory = Trajectory {
-        world_from_scan: result.trajectory.world_from_scan.iter().map(|w| crate::pose::unshift_pose(w, origin)).collect(),
+        world_from_scan: result
+            .trajectory
+            .world_from_scan
+            .iter()
+            .map(|w| crate::pose::unshift_pose(w, origin))
+            .collect(),
     };
     trajectory.write_log(&trajectory_path)?;
     let edges = EdgesFile {
@@ -318,7 +319,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     let unplaced: Vec<usize> = (0..paths.len()).filter(|&k| !result.connected[k]).collect();
     if !unplaced.is_empty() {
-        eprintln!("warning: scans {unplaced:?} are not connected to scan 0 by any surviving edge; their poses are guesses");
+        eprintln!(
+            "warning: scans {unplaced:?} are not connected to scan 0 by any surviving edge; their poses are guesses"
+        );
     }
     println!("time: {:.1} s", started.elapsed().as_secs_f64());
     println!("wrote {}, {}, {}", trajectory_path.display(), edges_path.display(), scans_path.display());

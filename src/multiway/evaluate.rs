@@ -65,8 +65,12 @@ pub fn trajectory_errors(estimate: &Trajectory, truth: &Trajectory) -> Result<Tr
         None => (truth.world_from_scan[0] * inverse(&estimate.world_from_scan[0]), Alignment::FirstScan),
     };
     let rotation = |m: &Matrix4<f64>| m.fixed_view::<3, 3>(0, 0).into_owned();
-    let chordal: Matrix3<f64> =
-        estimate.world_from_scan.iter().zip(&truth.world_from_scan).map(|(e, g)| rotation(g) * rotation(e).transpose()).sum();
+    let chordal: Matrix3<f64> = estimate
+        .world_from_scan
+        .iter()
+        .zip(&truth.world_from_scan)
+        .map(|(e, g)| rotation(g) * rotation(e).transpose())
+        .sum();
     let rotation_alignment = crate::pose::matrix_from_parts(&nearest_rotation(&chordal), &Vector3::zeros());
     let mut sum_sq = 0.0;
     let (mut ate_max, mut rot_sum, mut rot_max) = (0.0f64, 0.0, 0.0f64);
@@ -93,7 +97,11 @@ pub fn trajectory_errors(estimate: &Trajectory, truth: &Trajectory) -> Result<Tr
 /// matrix (Σ(0,0) > 0) the information error is at most [`REGISTERED_MAX_INFORMATION_ERROR`]; without one, the
 /// rotation and translation errors are within [`REGISTERED_MAX_ROTATION_DEG`] and
 /// [`REGISTERED_MAX_TRANSLATION`]. Also returns the information error when it was used.
-pub fn is_correct(estimate: &Matrix4<f64>, truth: &Matrix4<f64>, information: Option<&Matrix6<f64>>) -> (bool, Option<f64>) {
+pub fn is_correct(
+    estimate: &Matrix4<f64>,
+    truth: &Matrix4<f64>,
+    information: Option<&Matrix6<f64>>,
+) -> (bool, Option<f64>) {
     match information.filter(|s| s[(0, 0)] > 0.0) {
         Some(s) => {
             let err = information_error(truth, estimate, s);

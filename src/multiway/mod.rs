@@ -331,11 +331,7 @@ pub fn optimize_pairs(n: usize, results: &[PairResult], option: &GlobalOptimizat
 /// All scans in the world frame of `trajectory`, merged and voxel-downsampled (one point per `voxel` cell).
 pub fn fuse(scans: &[PointCloud], trajectory: &Trajectory, voxel: f32) -> Result<PointCloud> {
     if scans.len() != trajectory.len() {
-        return Err(Error::invalid(format!(
-            "{} scans but {} trajectory poses",
-            scans.len(),
-            trajectory.len()
-        )));
+        return Err(Error::invalid(format!("{} scans but {} trajectory poses", scans.len(), trajectory.len())));
     }
     let mut merged = PointCloud { points: Vec::new(), normals: Some(Vec::new()) };
     for (scan, pose) in scans.iter().zip(&trajectory.world_from_scan) {

@@ -54,12 +54,19 @@ impl GlobalOptimizationOption {
     /// Checks the values; the error names the setting.
     pub fn validate(&self) -> Result<()> {
         let positive = |name: &str, v: f64| {
-            if v.is_finite() && v > 0.0 { Ok(()) } else { Err(Error::invalid(format!("{name} must be positive, got {v}"))) }
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(Error::invalid(format!("{name} must be positive, got {v}")))
+            }
         };
         positive("max correspondence distance", self.max_correspondence_distance)?;
         positive("loop closure preference", self.preference_loop_closure)?;
         if !(0.0..=1.0).contains(&self.edge_prune_threshold) {
-            return Err(Error::invalid(format!("edge prune threshold must be in [0, 1], got {}", self.edge_prune_threshold)));
+            return Err(Error::invalid(format!(
+                "edge prune threshold must be in [0, 1], got {}",
+                self.edge_prune_threshold
+            )));
         }
         if self.max_iterations == 0 {
             return Err(Error::invalid("the optimisation needs at least one iteration"));
@@ -242,7 +249,9 @@ fn solve_weighted(poses: &[Matrix4<f64>], edges: &[(&GraphEdge, f64)], free: &[b
     }
     let problem = Problem { base: poses, column, edges: used, params: LmVector::zeros(next) };
     let (problem, report) = LevenbergMarquardt::new().minimize(problem);
-    if report.termination.was_usage_issue() || matches!(report.termination, levenberg_marquardt::TerminationReason::Numerical(_)) {
+    if report.termination.was_usage_issue()
+        || matches!(report.termination, levenberg_marquardt::TerminationReason::Numerical(_))
+    {
         return Err(Error::invalid(format!("pose graph optimisation failed: {:?}", report.termination)));
     }
     Ok(problem.poses())
@@ -341,7 +350,8 @@ mod tests {
         let mut rng = Rng::new(5);
         let h = 1e-6;
         for _ in 0..10 {
-            let (bi, bj, z) = (random_pose(&mut rng, 3.0, 2.0), random_pose(&mut rng, 3.0, 2.0), random_pose(&mut rng, 1.0, 1.0));
+            let (bi, bj, z) =
+                (random_pose(&mut rng, 3.0, 2.0), random_pose(&mut rng, 3.0, 2.0), random_pose(&mut rng, 1.0, 1.0));
             let phi_i = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 0.3;
             let phi_j = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 0.3;
             let (rho_i, rho_j) = (Vector3::new(0.1, -0.2, 0.3), Vector3::new(-0.3, 0.0, 0.2));
@@ -372,7 +382,8 @@ mod tests {
 
     #[test]
     fn information_sqrt_squares_back() {
-        let pts: Vec<[f64; 3]> = (0..20).map(|k| [k as f64 * 0.1, (k % 3) as f64, 1.0 + (k % 5) as f64 * 0.2]).collect();
+        let pts: Vec<[f64; 3]> =
+            (0..20).map(|k| [k as f64 * 0.1, (k % 3) as f64, 1.0 + (k % 5) as f64 * 0.2]).collect();
         let info = crate::eval::metrics::information_matrix(&pts);
         let s = information_sqrt(&info);
         assert!((s * s - info).abs().max() < 1e-9 * info.abs().max());

@@ -55,9 +55,7 @@ pub fn select_pairs(
 ) -> Vec<(usize, usize)> {
     let consecutive: Vec<(usize, usize)> = (1..n).map(|k| (k - 1, k)).collect();
     let mut others: Vec<((usize, usize), f64)> = match selection {
-        PairSelection::All => (0..n)
-            .flat_map(|i| (i + 2..n).map(move |j| ((i, j), -((j - i) as f64))))
-            .collect(),
+        PairSelection::All => (0..n).flat_map(|i| (i + 2..n).map(move |j| ((i, j), -((j - i) as f64)))).collect(),
         PairSelection::ConsecutiveAndRetrieval { k } => {
             let mut chosen: Vec<((usize, usize), f64)> = Vec::new();
             if let Some(pooled) = pooled {
@@ -104,10 +102,11 @@ mod tests {
     fn retrieval_adds_the_most_similar_non_consecutive_scans() {
         // Scans 0 and 4 look alike, as do 1 and 3; 2 is unlike everything (its best match, at similarity 0, is the
         // lowest index: scan 0).
-        let pooled: Vec<Vec<f32>> = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.1, 0.99, 0.0], [0.99, 0.1, 0.0]]
-            .iter()
-            .map(|v| pooled_codeword(v, 3))
-            .collect();
+        let pooled: Vec<Vec<f32>> =
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.1, 0.99, 0.0], [0.99, 0.1, 0.0]]
+                .iter()
+                .map(|v| pooled_codeword(v, 3))
+                .collect();
         let pairs = select_pairs(5, PairSelection::ConsecutiveAndRetrieval { k: 1 }, Some(&pooled), None);
         assert_eq!(pairs, [(0, 1), (1, 2), (2, 3), (3, 4), (0, 4), (1, 3), (0, 2)]);
         let capped = select_pairs(5, PairSelection::ConsecutiveAndRetrieval { k: 1 }, Some(&pooled), Some(5));

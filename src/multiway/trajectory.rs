@@ -41,12 +41,8 @@ impl Trajectory {
     /// The text of the trajectory `.log`: per scan k a line `k k N` and world_from_scan_k.
     pub fn to_log_text(&self) -> String {
         let n = self.len();
-        let records: Vec<LogRecord> = self
-            .world_from_scan
-            .iter()
-            .enumerate()
-            .map(|(k, &matrix)| LogRecord { i: k, j: k, n, matrix })
-            .collect();
+        let records: Vec<LogRecord> =
+            self.world_from_scan.iter().enumerate().map(|(k, &matrix)| LogRecord { i: k, j: k, n, matrix }).collect();
         format_log(&records)
     }
 
@@ -127,7 +123,11 @@ impl Trajectory {
         }
         poses.sort_by_key(|(k, _, _)| *k);
         if let Some((pos, (k, _, line))) = poses.iter().enumerate().find(|(pos, (k, _, _))| pos != k) {
-            return Err(Error::parse(path, format!("line {line}"), format!("pose {k} found but pose {pos} is missing")));
+            return Err(Error::parse(
+                path,
+                format!("line {line}"),
+                format!("pose {k} found but pose {pos} is missing"),
+            ));
         }
         Ok(Trajectory { world_from_scan: poses.into_iter().map(|(_, m, _)| m).collect() })
     }
@@ -151,7 +151,8 @@ mod tests {
             world_from_scan: (0..n)
                 .map(|_| {
                     let r = matrix_from_quaternion(rng.unit_quaternion());
-                    let t = nalgebra::Vector3::new(rng.uniform(-3.0, 3.0), rng.uniform(-3.0, 3.0), rng.uniform(-1.0, 1.0));
+                    let t =
+                        nalgebra::Vector3::new(rng.uniform(-3.0, 3.0), rng.uniform(-3.0, 3.0), rng.uniform(-1.0, 1.0));
                     matrix_from_parts(&r, &t)
                 })
                 .collect(),
