@@ -82,7 +82,7 @@ pub struct OptimizationReport {
     pub world_from_node: Vec<Matrix4<f64>>,
     /// Final line process per edge (1 for certain edges; pruned edges keep the value that pruned them).
     pub line_process: Vec<f64>,
-    /// Whether each edge is still in the graph after pruning.
+    /// Whether each edge is still in the graph after pruning (edges without information never are).
     pub survived: Vec<bool>,
     /// Nodes connected to node 0 by surviving edges; the others keep their initial poses.
     pub connected: Vec<bool>,
@@ -302,20 +302,18 @@ fn line_process_pass(
 pub fn optimize(graph: &PoseGraph, option: &GlobalOptimizationOption) -> Result<OptimizationReport> {
     graph.validate()?;
     option.validate()?;
-    let n_edges = graph.edges.len();
-    let mean_points = if n_edges == 0 {
-        1.0
-    } else {
-        graph.edges.iter().map(|e| e.information[(0, 0)]).sum::<f64>() / n_edges as f64
-    };
+    let counts: Vec<f64> = graph.edges.iter().map(|e| e.information[(0, 0)]).filter(|&c| c > 0.0).collect();
+    let mean_points = if counts.is_empty() { 1.0 } else { counts.iter().sum::<f64>() / counts.len() as f64 };
     let mu = option.preference_loop_closure * option.max_correspondence_distance.powi(2) * mean_points.max(1e-12);
     let mut poses = graph.world_from_node.clone();
-    let mut line_process = vec![1.0; n_edges];
-    let mut active = vec![true; n_edges];
+    // An edge without information (no point of the pair within the correspondence distance) constrains
+    // nothing: it stays out, so it cannot make a scan look connected.
+    let mut active: Vec<bool> = graph.edges.iter().map(|e| e.information[(0, 0)] > 0.0).collect();
+    let mut line_process: Vec<f64> = active.iter().map(|&a| if a { 1.0 } else { 0.0 }).collect();
     let mut iterations = line_process_pass(graph, &mut poses, &active, mu, option, &mut line_process)?;
     let mut pruned = false;
     for (k, e) in graph.edges.iter().enumerate() {
-        if e.uncertain && line_process[k] < option.edge_prune_threshold {
+        if active[k] && e.uncertain && line_process[k] < option.edge_prune_threshold {
             active[k] = false;
             pruned = true;
         }
@@ -392,5 +390,21 @@ mod tests {
         let info = crate::eval::metrics::information_matrix(&plane);
         let s = information_sqrt(&info);
         assert!((s * s - info).abs().max() < 1e-9 * info.abs().max());
+    }
+
+    #[test]
+    fn edges_without_information_stay_out_and_leave_their_scan_unconnected() {
+        let info = crate::eval::metrics::information_matrix(&[[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+        let shift = Matrix4::new_translation(&Vector3::new(1.0, 0.0, 0.0));
+        let edge = |i, j, information| GraphEdge { i, j, i_from_j: shift, information, uncertain: false };
+        let graph = PoseGraph {
+            world_from_node: vec![Matrix4::identity(); 3],
+            edges: vec![edge(0, 1, info), edge(1, 2, Matrix6::zeros())],
+        };
+        let report = optimize(&graph, &GlobalOptimizationOption::default()).unwrap();
+        assert_eq!(report.survived, [true, false]);
+        assert_eq!(report.connected, [true, true, false]);
+        assert!((report.world_from_node[1] - shift).abs().max() < 1e-9);
+        assert_eq!(report.world_from_node[2], Matrix4::identity());
     }
 }
