@@ -366,7 +366,9 @@ impl Registrar {
     #[pyo3(signature = (
         scans, normals = None, *, pairs = "consecutive+retrieval".to_string(), retrieval_k = 5, max_pairs = None,
         information_distance = None, loop_preference = 1.0
-    ))]
+    ),
+    text_signature = "($self, scans, normals=None, *, pairs='consecutive+retrieval', retrieval_k=5, max_pairs=None, \
+        information_distance=None, loop_preference=1.0)")]
     #[expect(clippy::too_many_arguments, reason = "one keyword argument per option, as Python callers expect")]
     fn multiway<'py>(
         &self,
