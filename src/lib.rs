@@ -59,6 +59,7 @@ pub mod eval;
 pub mod gpu;
 pub mod io;
 pub mod model;
+pub mod multiway;
 pub mod pipeline;
 pub mod pose;
 pub mod preprocess;
@@ -72,6 +73,7 @@ pub mod verdict;
 
 pub use cloud::PointCloud;
 pub use error::{Error, Result};
+pub use multiway::{MultiwaySettings, Trajectory, multiway};
 /// The linear-algebra crate of the public API (`target_from_source` is a [`Matrix4`]), re-exported so a
 /// downstream crate needs no dependency of its own to use results.
 pub use nalgebra;

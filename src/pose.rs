@@ -99,14 +99,23 @@ pub fn translation_error(a: &Matrix4<f64>, b: &Matrix4<f64>) -> f64 {
 /// `None` with fewer than 3 pairs or a degenerate (collinear) configuration.
 pub fn rigid_fit(source: &[[f32; 3]], target: &[[f32; 3]]) -> Option<Matrix4<f64>> {
     let n = source.len().min(target.len());
+    let source: Vec<Vector3<f64>> = source[..n].iter().map(|&p| v3(p)).collect();
+    let target: Vec<Vector3<f64>> = target[..n].iter().map(|&p| v3(p)).collect();
+    rigid_fit_f64(&source, &target)
+}
+
+/// [`rigid_fit`] in double precision (Kabsch / Umeyama without scale): the rigid `T` minimising
+/// sum |T source[i] - target[i]|^2. `None` with fewer than 3 pairs or a degenerate (collinear) configuration.
+pub fn rigid_fit_f64(source: &[Vector3<f64>], target: &[Vector3<f64>]) -> Option<Matrix4<f64>> {
+    let n = source.len().min(target.len());
     if n < 3 {
         return None;
     }
-    let cs = source[..n].iter().map(|&p| v3(p)).sum::<Vector3<f64>>() / n as f64;
-    let ct = target[..n].iter().map(|&p| v3(p)).sum::<Vector3<f64>>() / n as f64;
+    let cs = source[..n].iter().sum::<Vector3<f64>>() / n as f64;
+    let ct = target[..n].iter().sum::<Vector3<f64>>() / n as f64;
     let mut h = Matrix3::zeros();
     for i in 0..n {
-        h += (v3(source[i]) - cs) * (v3(target[i]) - ct).transpose();
+        h += (source[i] - cs) * (target[i] - ct).transpose();
     }
     let svd = h.svd(true, true);
     let (u, v_t) = (svd.u?, svd.v_t?);

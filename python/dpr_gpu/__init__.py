@@ -19,7 +19,7 @@ many pairs, or to run the steps (``describe``, ``correspond``, ``estimate``) one
 
 from __future__ import annotations
 
-from typing import Any, Optional
+from typing import Any, Optional, Sequence
 
 from ._dpr_gpu import (
     Features,
@@ -36,6 +36,7 @@ __all__ = [
     "Registrar",
     "RegistrationResult",
     "__version__",
+    "multiway",
     "read_cloud",
     "register",
 ]
@@ -62,3 +63,38 @@ def register(
     """
     registrar = Registrar(**settings)
     return registrar.register(source, target, source_normals=source_normals, target_normals=target_normals)
+
+
+def multiway(
+    scans: Sequence[Any],
+    *,
+    normals: Optional[Sequence[Any]] = None,
+    pairs: str = "consecutive+retrieval",
+    retrieval_k: int = 5,
+    max_pairs: Optional[int] = None,
+    information_distance: Optional[float] = None,
+    loop_preference: float = 1.0,
+    **settings: Any,
+) -> dict[str, Any]:
+    """Registers a collection of scans into one trajectory and returns a dict with ``world_from_scan``
+    ((N, 4, 4) float64, world = the first scan's frame), ``edges`` (one dict per registered pair, with whether it
+    survived the robust pose graph), ``connected`` and ``line_process_weight``.
+
+    Every scan is described once; ``pairs`` chooses the candidate pairs (``"all"``, or ``"consecutive+retrieval"``:
+    consecutive scans plus each scan's ``retrieval_k`` most similar scans by pooled codewords), ``max_pairs`` caps
+    them. Wrong loop closures are switched off by line processes (Choi et al. 2015); see
+    ``Registrar.multiway``. ``settings`` are the keyword arguments of ``Registrar``.
+
+    Raises ``ValueError`` for fewer than 2 scans or bad arrays or settings, ``OSError`` when a weights file
+    cannot be read and ``RuntimeError`` when the GPU backend fails.
+    """
+    registrar = Registrar(**settings)
+    return registrar.multiway(
+        scans,
+        normals,
+        pairs=pairs,
+        retrieval_k=retrieval_k,
+        max_pairs=max_pairs,
+        information_distance=information_distance,
+        loop_preference=loop_preference,
+    )

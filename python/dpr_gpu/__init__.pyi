@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal, Optional, Sequence
+from typing import Any, Literal, Optional, Sequence
 
 import numpy.typing as npt
 
@@ -14,7 +14,16 @@ from ._dpr_gpu import __version__ as __version__
 from ._dpr_gpu import _PathLike
 from ._dpr_gpu import read_cloud as read_cloud
 
-__all__ = ["Features", "PoseEstimate", "Registrar", "RegistrationResult", "__version__", "read_cloud", "register"]
+__all__ = [
+    "Features",
+    "PoseEstimate",
+    "Registrar",
+    "RegistrationResult",
+    "__version__",
+    "multiway",
+    "read_cloud",
+    "register",
+]
 
 def register(
     source: npt.ArrayLike,
@@ -46,3 +55,37 @@ def register(
     min_spread_over_threshold: float = 2.0,
 ) -> RegistrationResult:
     """Registers ``source`` onto ``target``; ``target_from_source`` maps source points into the target frame."""
+
+def multiway(
+    scans: Sequence[npt.ArrayLike],
+    *,
+    normals: Optional[Sequence[npt.ArrayLike]] = None,
+    pairs: Literal["all", "consecutive+retrieval"] = "consecutive+retrieval",
+    retrieval_k: int = 5,
+    max_pairs: Optional[int] = None,
+    information_distance: Optional[float] = None,
+    loop_preference: float = 1.0,
+    weights: Optional[_PathLike] = None,
+    radius: Optional[float] = None,
+    voxel: Optional[float] = None,
+    keypoints: int = 2500,
+    keypoint_mode: Literal["random", "uniform"] = "random",
+    normal_neighbors: int = 30,
+    viewpoint: Sequence[float] = (0.0, 0.0, 0.0),
+    matching: Literal["mutual", "closest"] = "mutual",
+    mutual_k: int = 1,
+    estimator: Literal["relativenet", "ransac"] = "relativenet",
+    inlier_threshold: Optional[float] = None,
+    ransac_iterations: int = 100_000,
+    ransac_confidence: float = 0.999,
+    icp: bool = False,
+    icp_max_correspondence_distance: Optional[float] = None,
+    icp_max_iterations: int = 30,
+    drop_zero_points: bool = False,
+    seed: int = 0,
+    backend: Literal["auto", "cpu", "gpu"] = "auto",
+    min_inliers: int = 12,
+    min_inlier_ratio: float = 0.055,
+    min_spread_over_threshold: float = 2.0,
+) -> dict[str, Any]:
+    """Registers many scans into one trajectory (robust pose graph): ``world_from_scan``, ``edges``..."""

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from typing import Literal, Optional, Sequence, Tuple, Union, final
+from typing import Any, Literal, Optional, Sequence, Tuple, Union, final
 
 import numpy as np
 import numpy.typing as npt
@@ -167,6 +167,18 @@ class Registrar:
         target_normals: Optional[_Points] = None,
     ) -> RegistrationResult:
         """Registers ``source`` onto ``target`` (the whole pipeline)."""
+    def multiway(
+        self,
+        scans: Sequence[_Points],
+        normals: Optional[Sequence[_Points]] = None,
+        *,
+        pairs: Literal["all", "consecutive+retrieval"] = "consecutive+retrieval",
+        retrieval_k: int = 5,
+        max_pairs: Optional[int] = None,
+        information_distance: Optional[float] = None,
+        loop_preference: float = 1.0,
+    ) -> dict[str, Any]:
+        """Registers many scans into one trajectory (robust pose graph): ``world_from_scan``, ``edges``..."""
 
 def read_cloud(
     path: _PathLike,

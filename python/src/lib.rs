@@ -4,6 +4,7 @@
 
 mod arrays;
 mod errors;
+mod multiway;
 mod registrar;
 mod result;
 mod settings;

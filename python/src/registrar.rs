@@ -347,6 +347,45 @@ impl Registrar {
         })
     }
 
+    /// Registers a collection of scans into one trajectory: every scan is described once, candidate pairs are
+    /// registered, and a robust pose graph (line processes, as in Choi et al. 2015) switches wrong loop
+    /// closures off.
+    ///
+    /// ``scans`` is a sequence of (N, 3) float arrays (``normals``: an optional sequence of the same shapes).
+    /// ``pairs``: ``"all"`` or ``"consecutive+retrieval"`` (consecutive scans plus each scan's ``retrieval_k``
+    /// most similar scans by pooled codewords); ``max_pairs`` caps the count (consecutive pairs first).
+    /// ``information_distance`` (None: the inlier threshold) builds the edge information matrices;
+    /// ``loop_preference`` (larger keeps more loop closures) scales the line processes.
+    ///
+    /// Returns a dict: ``world_from_scan`` ((N, 4, 4) float64, world = the first scan's frame), ``edges`` (one
+    /// dict per registered pair: ``i``, ``j``, ``i_from_j`` (x_i = T x_j), ``correspondences``, ``inliers``,
+    /// ``fitness``, ``inlier_rmse``, ``trusted``, ``reason``, ``information`` (6x6), ``kind`` (``"odometry"`` or
+    /// ``"loop"``), ``in_graph``, ``uncertain``, ``line_process``, ``survived``), ``connected`` (per scan: linked
+    /// to scan 0 by surviving edges) and ``line_process_weight``. Raises ``ValueError`` for fewer than 2 scans or
+    /// bad arrays or options.
+    #[pyo3(signature = (
+        scans, normals = None, *, pairs = "consecutive+retrieval".to_string(), retrieval_k = 5, max_pairs = None,
+        information_distance = None, loop_preference = 1.0
+    ),
+    text_signature = "($self, scans, normals=None, *, pairs='consecutive+retrieval', retrieval_k=5, max_pairs=None, \
+        information_distance=None, loop_preference=1.0)")]
+    #[expect(clippy::too_many_arguments, reason = "one keyword argument per option, as Python callers expect")]
+    fn multiway<'py>(
+        &self,
+        py: Python<'py>,
+        scans: &Bound<'py, PyAny>,
+        normals: Option<&Bound<'py, PyAny>>,
+        pairs: String,
+        retrieval_k: i64,
+        max_pairs: Option<i64>,
+        information_distance: Option<f64>,
+        loop_preference: f64,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let args =
+            crate::multiway::MultiwayArgs { pairs, retrieval_k, max_pairs, information_distance, loop_preference };
+        crate::multiway::run(py, &self.inner, self.load_options(OriginShift::None), scans, normals, args)
+    }
+
     fn __repr__(&self) -> String {
         let s = &self.inner.settings;
         format!(

@@ -4,6 +4,8 @@ use clap::{Parser, Subcommand};
 
 pub mod bench;
 pub mod eval;
+pub mod eval_trajectory;
+pub mod multiway;
 pub mod register;
 pub mod synopsis;
 pub mod synth;
@@ -36,6 +38,10 @@ pub enum Command {
     Train(train::Args),
     /// Evaluate registration on a dataset (3DMatch protocol) or score a result log.
     Eval(eval::Args),
+    /// Register a collection of scans into one trajectory (robust pose graph); resumable.
+    Multiway(multiway::Args),
+    /// Compare a trajectory with ground truth: ATE, rotation errors, loop closures kept.
+    EvalTrajectory(eval_trajectory::Args),
 }
 
 /// Runs the CLI; returns the process exit code. Errors are printed as one line.
@@ -51,6 +57,8 @@ pub fn main() -> std::process::ExitCode {
         Command::Synth(args) => synth::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Train(args) => train::run(args),
+        Command::Multiway(args) => multiway::run(args),
+        Command::EvalTrajectory(args) => eval_trajectory::run(args),
     };
     match outcome {
         Ok(()) if untrusted => std::process::ExitCode::from(register::EXIT_UNTRUSTED),

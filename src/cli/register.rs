@@ -180,7 +180,7 @@ pub struct Args {
 }
 
 /// `cloud` (in the frame shifted by `-origin`) back in the input frame.
-fn unshifted(mut cloud: PointCloud, origin: [i64; 3]) -> PointCloud {
+pub(crate) fn unshifted(mut cloud: PointCloud, origin: [i64; 3]) -> PointCloud {
     if origin != [0; 3] {
         let o = origin.map(|c| c as f64);
         for p in &mut cloud.points {
