@@ -267,8 +267,7 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
             bar.set_message(format!("{stage} took {seconds:.2} s"));
         })
     });
-    let outcome =
-        registrar.register_detailed(&source, &target).map_err(|e| name_files(e, &args.source, &args.target));
+    let outcome = registrar.register_detailed(&source, &target).map_err(|e| name_files(e, &args.source, &args.target));
     bar.finish_and_clear();
     let registration = outcome?;
     let mut result = registration.result;
