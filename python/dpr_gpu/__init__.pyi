@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any, Literal, Optional, Sequence
 
+from typing_extensions import Unpack
+
 import numpy.typing as npt
 
 from ._dpr_gpu import Features as Features
@@ -11,7 +13,7 @@ from ._dpr_gpu import PoseEstimate as PoseEstimate
 from ._dpr_gpu import Registrar as Registrar
 from ._dpr_gpu import RegistrationResult as RegistrationResult
 from ._dpr_gpu import __version__ as __version__
-from ._dpr_gpu import _PathLike
+from ._dpr_gpu import _Settings
 from ._dpr_gpu import read_cloud as read_cloud
 
 __all__ = [
@@ -31,28 +33,7 @@ def register(
     *,
     source_normals: Optional[npt.ArrayLike] = None,
     target_normals: Optional[npt.ArrayLike] = None,
-    weights: Optional[_PathLike] = None,
-    radius: Optional[float] = None,
-    voxel: Optional[float] = None,
-    keypoints: int = 2500,
-    keypoint_mode: Literal["random", "uniform"] = "random",
-    normal_neighbors: int = 30,
-    viewpoint: Sequence[float] = (0.0, 0.0, 0.0),
-    matching: Literal["mutual", "closest"] = "mutual",
-    mutual_k: int = 1,
-    estimator: Literal["relativenet", "ransac"] = "relativenet",
-    inlier_threshold: Optional[float] = None,
-    ransac_iterations: int = 100_000,
-    ransac_confidence: float = 0.999,
-    icp: bool = False,
-    icp_max_correspondence_distance: Optional[float] = None,
-    icp_max_iterations: int = 30,
-    drop_zero_points: bool = False,
-    seed: int = 0,
-    backend: Literal["auto", "cpu", "gpu"] = "auto",
-    min_inliers: int = 12,
-    min_inlier_ratio: float = 0.055,
-    min_spread_over_threshold: float = 2.0,
+    **settings: Unpack[_Settings],
 ) -> RegistrationResult:
     """Registers ``source`` onto ``target``; ``target_from_source`` maps source points into the target frame."""
 
@@ -65,27 +46,6 @@ def multiway(
     max_pairs: Optional[int] = None,
     information_distance: Optional[float] = None,
     loop_preference: float = 1.0,
-    weights: Optional[_PathLike] = None,
-    radius: Optional[float] = None,
-    voxel: Optional[float] = None,
-    keypoints: int = 2500,
-    keypoint_mode: Literal["random", "uniform"] = "random",
-    normal_neighbors: int = 30,
-    viewpoint: Sequence[float] = (0.0, 0.0, 0.0),
-    matching: Literal["mutual", "closest"] = "mutual",
-    mutual_k: int = 1,
-    estimator: Literal["relativenet", "ransac"] = "relativenet",
-    inlier_threshold: Optional[float] = None,
-    ransac_iterations: int = 100_000,
-    ransac_confidence: float = 0.999,
-    icp: bool = False,
-    icp_max_correspondence_distance: Optional[float] = None,
-    icp_max_iterations: int = 30,
-    drop_zero_points: bool = False,
-    seed: int = 0,
-    backend: Literal["auto", "cpu", "gpu"] = "auto",
-    min_inliers: int = 12,
-    min_inlier_ratio: float = 0.055,
-    min_spread_over_threshold: float = 2.0,
+    **settings: Unpack[_Settings],
 ) -> dict[str, Any]:
     """Registers many scans into one trajectory (robust pose graph): ``world_from_scan``, ``edges``..."""

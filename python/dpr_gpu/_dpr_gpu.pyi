@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from typing import Any, Literal, Optional, Sequence, Tuple, Union, final
+from typing import Any, Literal, Optional, Sequence, Tuple, TypedDict, Union, final
 
 import numpy as np
 import numpy.typing as npt
@@ -13,6 +13,32 @@ __version__: str
 
 _Points = npt.ArrayLike
 _PathLike = Union[str, "os.PathLike[str]"]
+
+class _Settings(TypedDict, total=False):
+    """The keyword arguments of ``Registrar`` (defaults there), which ``register`` and ``multiway`` pass on."""
+
+    weights: Optional[_PathLike]
+    radius: Optional[float]
+    voxel: Optional[float]
+    keypoints: int
+    keypoint_mode: Literal["random", "uniform"]
+    normal_neighbors: int
+    viewpoint: Sequence[float]
+    matching: Literal["mutual", "closest"]
+    mutual_k: int
+    estimator: Literal["relativenet", "ransac"]
+    inlier_threshold: Optional[float]
+    ransac_iterations: int
+    ransac_confidence: float
+    icp: bool
+    icp_max_correspondence_distance: Optional[float]
+    icp_max_iterations: int
+    drop_zero_points: bool
+    seed: int
+    backend: Literal["auto", "cpu", "gpu"]
+    min_inliers: int
+    min_inlier_ratio: float
+    min_spread_over_threshold: float
 
 @final
 class Features:
