@@ -78,6 +78,10 @@ pub struct RegistrationSettings {
     pub voxel: Option<f32>,
     /// Keypoints per scan.
     pub keypoints: usize,
+    /// The progressive schedule: describe this many keypoints per scan first, then twice as many, and so on up
+    /// to `keypoints`, while the result is not trusted (`crate::pipeline::keypoint_stages`). `None` describes
+    /// `keypoints` at once. A pair that needs every round ends with exactly the result of `None`.
+    pub first_keypoints: Option<usize>,
     /// How keypoints are chosen.
     pub keypoint_mode: KeypointMode,
     /// Neighbours used for PCA normals (ignored when the file has normals).
@@ -105,6 +109,8 @@ pub struct RegistrationSettings {
     pub verdict: crate::verdict::VerdictSettings,
 }
 
+/// Keypoints per scan of the progressive schedule's first round (see `RegistrationSettings::first_keypoints`).
+pub const DEFAULT_FIRST_KEYPOINTS: usize = 500;
 /// Most keypoints per scan.
 pub const MAX_KEYPOINTS: usize = 1_000_000;
 /// Most neighbours for PCA normals.
@@ -127,6 +133,11 @@ impl RegistrationSettings {
         positive("inlier threshold", self.inlier_threshold)?;
         if !(1..=MAX_KEYPOINTS).contains(&self.keypoints) {
             return Err(Error::invalid(format!("keypoints must be 1..={MAX_KEYPOINTS}, got {}", self.keypoints)));
+        }
+        if let Some(first) = self.first_keypoints
+            && !(1..=MAX_KEYPOINTS).contains(&first)
+        {
+            return Err(Error::invalid(format!("first keypoints must be 1..={MAX_KEYPOINTS}, got {first}")));
         }
         if !(3..=MAX_NORMAL_NEIGHBORS).contains(&self.normal_neighbors) {
             return Err(Error::invalid(format!(
@@ -171,6 +182,7 @@ impl Default for RegistrationSettings {
             radius: None,
             voxel: None,
             keypoints: 2500,
+            first_keypoints: Some(DEFAULT_FIRST_KEYPOINTS),
             keypoint_mode: KeypointMode::Random,
             normal_neighbors: 30,
             viewpoint: [0.0; 3],
@@ -235,6 +247,9 @@ pub struct RegistrationResult {
     pub estimate: PoseEstimate,
     /// Number of correspondences fed to the estimator.
     pub correspondences: usize,
+    /// Keypoints per scan of the round that gave the result (the progressive schedule stops at the first
+    /// trusted round).
+    pub keypoints: usize,
     /// Keypoints dropped (source + target) because no other point lay within the patch radius.
     pub empty_patches: usize,
     /// Wall time per stage, in pipeline order.

@@ -19,6 +19,10 @@ pub struct RegisterOptions {
     /// Keypoints per scan.
     #[arg(long, default_value_t = 2500)]
     pub keypoints: usize,
+    /// Progressive schedule: describe this many keypoints per scan first and double them, up to --keypoints,
+    /// only while the result is not trusted; 0 describes --keypoints at once.
+    #[arg(long, default_value_t = crate::settings::DEFAULT_FIRST_KEYPOINTS)]
+    pub first_keypoints: usize,
     /// Keypoint selection: random (3DMatch convention) or uniform (farthest-point sampling).
     #[arg(long, default_value = "random")]
     pub keypoint_mode: String,
@@ -95,6 +99,7 @@ impl RegisterOptions {
             radius: self.radius,
             voxel: self.voxel,
             keypoints: self.keypoints,
+            first_keypoints: (self.first_keypoints > 0).then_some(self.first_keypoints),
             normal_neighbors: self.normal_k,
             inlier_threshold: self.inlier_threshold,
             seed: self.seed,
@@ -263,6 +268,9 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
     let registrar = Registrar::new(&settings)?.with_progress({
         let bar = bar.clone();
         Box::new(move |stage, seconds| {
+            if bar.position() + 1 > bar.length().unwrap_or(0) {
+                bar.inc_length(crate::pipeline::ROUND_STAGES as u64);
+            }
             bar.inc(1);
             bar.set_message(format!("{stage} took {seconds:.2} s"));
         })
@@ -325,7 +333,7 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
         if result.empty_patches > 0 {
             println!("keypoints without neighbours within the radius (dropped): {}", result.empty_patches);
         }
-        println!("correspondences: {}", result.correspondences);
+        println!("correspondences: {} (from {} keypoints per scan)", result.correspondences, result.keypoints);
         println!("hypotheses scored: {}", e.hypotheses_scored);
         println!("inliers: {} (fitness {:.4}, inlier RMSE {:.5})", e.inliers, e.fitness, e.inlier_rmse);
         println!("stage times (s):");

@@ -398,26 +398,23 @@ fn run_views(
                     timings: vec![StageTime { stage: "correspond".into(), seconds: correspond_s }],
                     ..PairRun::default()
                 };
-                let pose = match &correspondences {
-                    Ok(c) => {
-                        run.correspondences = c.len();
-                        let started = Instant::now();
-                        let pose = registrar.estimate(&source.features, &target.features, c, estimator);
-                        run.timings
-                            .push(StageTime { stage: "estimate".into(), seconds: started.elapsed().as_secs_f64() });
-                        run.trusted = pose.as_ref().ok().map(|p| registrar.judge(p, c).success);
-                        pose
-                    }
-                    Err(err) => Err(Error::invalid(err.to_string())),
-                };
+                // The progressive schedule `register` runs, over prefixes of the described keypoints.
+                let started = Instant::now();
+                let round = registrar.register_described(&source.features, &target.features, estimator);
+                run.timings.push(StageTime { stage: "estimate".into(), seconds: started.elapsed().as_secs_f64() });
+                let pose = round.map(|r| {
+                    run.correspondences = r.correspondences.len();
+                    run.keypoints = r.keypoints;
+                    run.trusted = Some(r.verdict.success);
+                    (r.estimate, r.correspondences)
+                });
                 match pose {
-                    Ok(p) => {
+                    Ok((p, used)) => {
                         if let Some(dir) = &opts.snapshots {
                             let rotation = sweep.map(|s| s.degrees[v]);
                             let path = snapshot_path(dir, estimator, rotation, scene, (i, j));
-                            let used = correspondences.as_deref().unwrap_or_default();
                             let lines = crate::snapshot::inlier_lines(
-                                used,
+                                &used,
                                 &p.target_from_source,
                                 registrar.inlier_threshold(),
                             );

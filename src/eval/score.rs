@@ -75,6 +75,8 @@ impl FeatureMatch {
 pub struct PairRun {
     /// Correspondences fed to the estimator.
     pub correspondences: usize,
+    /// Keypoints per scan of the progressive schedule's round that gave the pose.
+    pub keypoints: usize,
     /// Pose hypotheses the estimator scored.
     pub hypotheses: usize,
     /// Correspondences within the estimator's inlier threshold under its pose.

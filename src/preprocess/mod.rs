@@ -6,7 +6,7 @@ pub mod patches;
 pub mod voxel;
 
 pub use keypoints::select_keypoints;
-pub use normals::estimate_normals;
+pub use normals::{estimate_normals, estimate_normals_at};
 pub use patches::{Patches, extract_patches};
 pub use voxel::voxel_downsample;
 

@@ -8,52 +8,63 @@ use rayon::prelude::*;
 /// nearest neighbours (itself included), flipped to face `viewpoint`. Points with fewer than 3 neighbours or a
 /// degenerate neighbourhood get the direction to the viewpoint (or +z when they sit on it).
 pub fn estimate_normals(points: &[[f32; 3]], index: &PointIndex, k: usize, viewpoint: [f32; 3]) -> Vec<[f32; 3]> {
-    let k = k.max(3);
-    points
-        .par_iter()
-        .map(|p| {
-            let neighbors = index.nearest_n(p, k);
-            let to_view = Vector3::new(viewpoint[0] - p[0], viewpoint[1] - p[1], viewpoint[2] - p[2]);
-            let fallback = || {
-                let n = to_view.norm();
-                if n > 0.0 { (to_view / n).into() } else { [0.0, 0.0, 1.0] }
-            };
-            if neighbors.len() < 3 {
-                return fallback();
-            }
-            let pts: Vec<Vector3<f64>> = neighbors
-                .iter()
-                .map(|n| {
-                    let q = points[n.index];
-                    Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64)
-                })
-                .collect();
-            let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
-            let cov = pts.iter().fold(Matrix3::zeros(), |acc, q| {
-                let d = q - mean;
-                acc + d * d.transpose()
-            });
-            if cov.norm() == 0.0 {
-                return fallback();
-            }
-            let eig = SymmetricEigen::new(cov);
-            let (imin, _) = eig
-                .eigenvalues
-                .iter()
-                .enumerate()
-                .fold((0, f64::INFINITY), |best, (i, &v)| if v < best.1 { (i, v) } else { best });
-            let mut n: Vector3<f64> = eig.eigenvectors.column(imin).into_owned();
-            let len = n.norm();
-            if len <= 0.0 || !len.is_finite() {
-                return fallback();
-            }
-            n /= len;
-            if n.dot(&to_view.cast::<f64>()) < 0.0 {
-                n = -n;
-            }
-            [n.x as f32, n.y as f32, n.z as f32]
+    points.par_iter().map(|p| point_normal(points, index, p, k, viewpoint)).collect()
+}
+
+/// [`estimate_normals`] for the points `ids` only, in that order: each is exactly the normal
+/// `estimate_normals` gives that point.
+pub fn estimate_normals_at(
+    points: &[[f32; 3]],
+    index: &PointIndex,
+    ids: &[usize],
+    k: usize,
+    viewpoint: [f32; 3],
+) -> Vec<[f32; 3]> {
+    ids.par_iter().map(|&i| point_normal(points, index, &points[i], k, viewpoint)).collect()
+}
+
+/// The normal of the point at `p` (see [`estimate_normals`]).
+fn point_normal(points: &[[f32; 3]], index: &PointIndex, p: &[f32; 3], k: usize, viewpoint: [f32; 3]) -> [f32; 3] {
+    let neighbors = index.nearest_n(p, k.max(3));
+    let to_view = Vector3::new(viewpoint[0] - p[0], viewpoint[1] - p[1], viewpoint[2] - p[2]);
+    let fallback = || {
+        let n = to_view.norm();
+        if n > 0.0 { (to_view / n).into() } else { [0.0, 0.0, 1.0] }
+    };
+    if neighbors.len() < 3 {
+        return fallback();
+    }
+    let pts: Vec<Vector3<f64>> = neighbors
+        .iter()
+        .map(|n| {
+            let q = points[n.index];
+            Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64)
         })
-        .collect()
+        .collect();
+    let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
+    let cov = pts.iter().fold(Matrix3::zeros(), |acc, q| {
+        let d = q - mean;
+        acc + d * d.transpose()
+    });
+    if cov.norm() == 0.0 {
+        return fallback();
+    }
+    let eig = SymmetricEigen::new(cov);
+    let (imin, _) = eig
+        .eigenvalues
+        .iter()
+        .enumerate()
+        .fold((0, f64::INFINITY), |best, (i, &v)| if v < best.1 { (i, v) } else { best });
+    let mut n: Vector3<f64> = eig.eigenvectors.column(imin).into_owned();
+    let len = n.norm();
+    if len <= 0.0 || !len.is_finite() {
+        return fallback();
+    }
+    n /= len;
+    if n.dot(&to_view.cast::<f64>()) < 0.0 {
+        n = -n;
+    }
+    [n.x as f32, n.y as f32, n.z as f32]
 }
 
 #[cfg(test)]
@@ -72,6 +83,19 @@ mod tests {
         }
         for n in estimate_normals(&pts, &index, 10, [0.0, 0.0, 5.0]) {
             assert!((n[2] - 1.0).abs() < 1e-4, "{n:?}");
+        }
+    }
+
+    #[test]
+    fn normals_at_a_subset_are_exactly_the_full_ones() {
+        let mut rng = Rng::new(4);
+        let pts: Vec<[f32; 3]> = (0..500).map(|_| [0; 3].map(|_: i32| rng.uniform(-1.0, 1.0) as f32)).collect();
+        let index = PointIndex::new(&pts).unwrap();
+        let all = estimate_normals(&pts, &index, 12, [0.0, 0.0, 3.0]);
+        let ids = [499, 3, 250, 3, 0];
+        let some = estimate_normals_at(&pts, &index, &ids, 12, [0.0, 0.0, 3.0]);
+        for (n, &i) in some.iter().zip(&ids) {
+            assert_eq!(n, &all[i]);
         }
     }
 }

@@ -1,0 +1,633 @@
+//! The registration pipeline: load weights, describe each scan (keypoints, patches, codewords), correspond,
+//! estimate the pose. `register` runs it all; `Registrar` exposes the steps for evaluation tools and keeps the
+//! model and backend loaded across pairs.
+
+use crate::backend::{Backend, CpuBackend, RotationInputs};
+use crate::cloud::PointCloud;
+use crate::error::{Error, Result};
+use crate::estimate::{icp_point_to_plane, ransac, verify};
+use crate::model::{Model, Net, Weights};
+use crate::preprocess::{estimate_normals_at, extract_patches, gather, select_keypoints, voxel_downsample};
+use crate::rng::Rng;
+use crate::settings::*;
+use crate::spatial::PointIndex;
+use std::path::PathBuf;
+use std::time::Instant;
+
+mod scan;
+mod stages;
+
+pub use scan::ScanFeatures;
+use scan::{DescribingScan, MissingNormals};
+pub use stages::{Round, keypoint_stages};
+
+/// Fewest points a scan may have after preprocessing.
+pub const MIN_POINTS: usize = 10;
+/// Fewest correspondences an estimator accepts.
+pub const MIN_CORRESPONDENCES: usize = 3;
+/// Environment variable that overrides the default weights path.
+pub const WEIGHTS_ENV: &str = "DPR_GPU_WEIGHTS";
+
+/// The weights file that replaces the built-in default weights, if any: `settings.weights`, else the file
+/// named by [`WEIGHTS_ENV`].
+pub fn weights_file(settings: &RegistrationSettings) -> Option<PathBuf> {
+    settings.weights.clone().or_else(|| std::env::var_os(WEIGHTS_ENV).map(PathBuf::from))
+}
+
+/// Loads the weights the settings name, or the built-in default weights ([`Weights::built_in`]), which are
+/// compiled into the library: an installed binary or Python extension never looks for the source checkout.
+pub fn load_weights(settings: &RegistrationSettings) -> Result<Weights> {
+    match weights_file(settings) {
+        Some(path) => Weights::load(&path),
+        None => Weights::built_in(),
+    }
+}
+
+/// Creates the backend `kind` for `model`; see [`choose_backend`].
+pub fn create_backend(kind: BackendKind, model: Model) -> Result<Box<dyn Backend>> {
+    Ok(choose_backend(kind, model)?.0)
+}
+
+/// Creates the backend `kind` for `model` and says why it is the one. `Auto` takes a hardware GPU adapter when
+/// there is one and otherwise the CPU reference path; it never takes a software rasteriser (an adapter whose
+/// device type is CPU, such as lavapipe) unless `DPR_GPU_ALLOW_SOFTWARE=1` or `WGPU_ADAPTER_NAME` asks for it.
+pub fn choose_backend(kind: BackendKind, model: Model) -> Result<(Box<dyn Backend>, String)> {
+    match kind {
+        BackendKind::Cpu => Ok((Box::new(CpuBackend::new(model)), "asked for (--backend cpu)".into())),
+        #[cfg(feature = "gpu")]
+        BackendKind::Gpu => Ok((Box::new(crate::gpu::GpuBackend::new(model)?), "asked for (--backend gpu)".into())),
+        #[cfg(feature = "gpu")]
+        BackendKind::Auto => match crate::gpu::GpuBackend::new_hardware(model.clone()) {
+            Ok(gpu) => Ok((Box::new(gpu), "auto: a hardware GPU adapter was found".into())),
+            Err(e) => Ok((Box::new(CpuBackend::new(model)), format!("auto: {e}"))),
+        },
+        #[cfg(not(feature = "gpu"))]
+        BackendKind::Gpu => Err(Error::Gpu("dpr-gpu was built without its `gpu` feature".into())),
+        #[cfg(not(feature = "gpu"))]
+        BackendKind::Auto => Ok((Box::new(CpuBackend::new(model)), "auto: built without the `gpu` feature".into())),
+    }
+}
+
+/// Most patch points per scan (keypoints x points per patch): bounds the memory of the patch stages.
+pub const MAX_PATCH_POINTS: usize = 1 << 25;
+
+/// Checks the settings every constructor relies on, and the memory the keypoint count implies for `config`.
+fn validate_settings(settings: &RegistrationSettings, config: &crate::model::ModelConfig) -> Result<()> {
+    settings.validate()?;
+    let patch_points = settings.keypoints.saturating_mul(config.points_per_patch);
+    if patch_points > MAX_PATCH_POINTS {
+        return Err(Error::invalid(format!(
+            "keypoints x points per patch = {} x {} exceeds the limit of {MAX_PATCH_POINTS} patch points",
+            settings.keypoints, config.points_per_patch
+        )));
+    }
+    Ok(())
+}
+
+/// Called after every stage with its name (`source.normals`, `matching`...) and its wall time in seconds.
+pub type ProgressFn = dyn Fn(&str, f64) + Send + Sync;
+
+/// Stage times, reported to the progress callback as they finish.
+struct Stopwatch<'a> {
+    start: Instant,
+    timings: Vec<StageTime>,
+    /// The callback and the prefix its stage names get (beyond `scope`).
+    progress: Option<(&'a ProgressFn, &'static str)>,
+    /// The prefix of the recorded stage names (`source.`, `target.` or none).
+    scope: &'static str,
+}
+
+impl<'a> Stopwatch<'a> {
+    fn new(progress: Option<(&'a ProgressFn, &'static str)>) -> Self {
+        Stopwatch { start: Instant::now(), timings: Vec::new(), progress, scope: "" }
+    }
+    fn lap(&mut self, stage: &str) {
+        let now = Instant::now();
+        let seconds = (now - self.start).as_secs_f64();
+        let stage = format!("{}{stage}", self.scope);
+        if let Some((report, prefix)) = self.progress {
+            report(&format!("{prefix}{stage}"), seconds);
+        }
+        self.timings.push(StageTime { stage, seconds });
+        self.start = now;
+    }
+}
+
+/// Stages a pairwise registration's first round reports to the progress callback: seven per scan (downsample,
+/// index, keypoints, patches, normals, patch features, PPF-FoldNet), then matching, PC-FoldNet on the matched
+/// keypoints, and estimation.
+pub const PAIR_STAGES: usize = 17;
+/// Stages each further round of the progressive schedule reports: four per scan, then three for the pair.
+pub const ROUND_STAGES: usize = 11;
+
+/// A configured pipeline: model and backend loaded once, reused across pairs.
+pub struct Registrar {
+    /// The settings it was built with.
+    pub settings: RegistrationSettings,
+    backend: Box<dyn Backend>,
+    /// Why this backend (see [`choose_backend`]).
+    backend_reason: String,
+    progress: Option<Box<ProgressFn>>,
+}
+
+impl Registrar {
+    /// Loads the weights and prepares the backend.
+    pub fn new(settings: &RegistrationSettings) -> Result<Registrar> {
+        let weights = load_weights(settings)?;
+        Registrar::with_weights(settings, &weights)
+    }
+
+    /// Builds the pipeline from weights already in memory.
+    pub fn with_weights(settings: &RegistrationSettings, weights: &Weights) -> Result<Registrar> {
+        validate_settings(settings, &weights.config)?;
+        let model = Model::from_weights(weights)?;
+        let (backend, reason) = choose_backend(settings.backend, model)?;
+        let mut registrar = Registrar::with_backend(settings, backend)?;
+        registrar.backend_reason = reason;
+        Ok(registrar)
+    }
+
+    /// Builds the pipeline around a backend made by the caller (e.g. one sharing a GPU device); the settings'
+    /// `weights` and `backend` fields are ignored.
+    pub fn with_backend(settings: &RegistrationSettings, backend: Box<dyn Backend>) -> Result<Registrar> {
+        validate_settings(settings, &backend.model().config)?;
+        Ok(Registrar {
+            settings: settings.clone(),
+            backend,
+            backend_reason: "given by the caller".into(),
+            progress: None,
+        })
+    }
+
+    /// Calls `progress` after every stage (for a progress display); see [`ProgressFn`].
+    pub fn with_progress(mut self, progress: Box<ProgressFn>) -> Registrar {
+        self.progress = Some(progress);
+        self
+    }
+
+    /// The progress callback with the stage-name prefix of scan `stream` (0: source, 1: target).
+    fn progress_for(&self, stream: u64) -> Option<(&ProgressFn, &'static str)> {
+        let prefix = match stream {
+            0 => "source.",
+            1 => "target.",
+            _ => "",
+        };
+        self.progress.as_deref().map(|p| (p, prefix))
+    }
+
+    /// The backend's name.
+    pub fn backend_name(&self) -> String {
+        self.backend.name()
+    }
+
+    /// Why the backend was chosen, e.g. "auto: no hardware GPU adapter (...)".
+    pub fn backend_reason(&self) -> &str {
+        &self.backend_reason
+    }
+
+    /// The backend.
+    pub fn backend(&self) -> &dyn Backend {
+        self.backend.as_ref()
+    }
+
+    /// Patch radius in use.
+    pub fn radius(&self) -> f32 {
+        self.settings.radius.unwrap_or(self.backend.model().config.radius)
+    }
+
+    /// Inlier threshold in use.
+    pub fn inlier_threshold(&self) -> f32 {
+        self.settings.inlier_threshold.unwrap_or(self.radius() / 3.0)
+    }
+
+    /// Preprocesses `cloud` and describes all its keypoints (`settings.keypoints`). `stream` separates the
+    /// random choices of different scans under one seed (0 for the source, 1 for the target in `register`).
+    /// Pose features are computed later, only for the keypoints an estimate needs.
+    pub fn describe(&self, cloud: &PointCloud, stream: u64) -> Result<ScanFeatures> {
+        self.describe_from(cloud, stream, self.settings.viewpoint)
+    }
+
+    /// [`Registrar::describe`] for a scan whose sensor sat at `viewpoint` (scan frame): estimated normals face
+    /// it. A scan moved by a rigid motion M is described as the original when `viewpoint` moves with it (M
+    /// times the original viewpoint).
+    pub fn describe_from(&self, cloud: &PointCloud, stream: u64, viewpoint: [f32; 3]) -> Result<ScanFeatures> {
+        let mut clock = Stopwatch::new(self.progress_for(stream));
+        let mut scan = self.start_description(cloud, stream, viewpoint, &mut clock)?;
+        self.extend_description(&mut scan, self.settings.keypoints, &mut clock)?;
+        self.complete_normals(&mut scan);
+        clock.lap("remaining_normals");
+        scan.features.timings = clock.timings;
+        Ok(scan.features)
+    }
+
+    /// Preprocesses `cloud` (downsampling, normals) and fixes its keypoint order; no keypoint is described yet.
+    fn start_description(
+        &self,
+        cloud: &PointCloud,
+        stream: u64,
+        viewpoint: [f32; 3],
+        clock: &mut Stopwatch<'_>,
+    ) -> Result<DescribingScan> {
+        let s = &self.settings;
+        cloud.validate("cloud")?;
+        let mut cloud = match s.voxel {
+            Some(v) => voxel_downsample(cloud, v)?,
+            None => cloud.clone(),
+        };
+        if cloud.len() < MIN_POINTS {
+            return Err(Error::invalid(format!(
+                "cloud has {} points after preprocessing; at least {MIN_POINTS} are needed",
+                cloud.len()
+            )));
+        }
+        clock.lap("downsample");
+        let index = PointIndex::new(&cloud.points)?;
+        clock.lap("index");
+        let usable_normals =
+            cloud.normals.as_ref().is_some_and(|ns| ns.iter().all(|n| n[0] * n[0] + n[1] * n[1] + n[2] * n[2] > 1e-12));
+        // Estimated normals are computed where patches need them (`extend_description`).
+        let missing_normals = if usable_normals {
+            for n in cloud.normals.as_mut().expect("checked") {
+                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                *n = n.map(|c| c / len);
+            }
+            None
+        } else {
+            cloud.normals = Some(vec![[f32::NAN; 3]; cloud.len()]);
+            Some(MissingNormals { ready: vec![false; cloud.len()], viewpoint })
+        };
+        let mut rng = Rng::derived(s.seed, 2 * stream);
+        let order = select_keypoints(&cloud.points, s.keypoints, s.keypoint_mode, &mut rng);
+        clock.lap("keypoints");
+        let features = ScanFeatures {
+            cloud,
+            keypoints: Vec::new(),
+            keypoint_normals: Vec::new(),
+            keypoint_ranks: Vec::new(),
+            candidates: 0,
+            empty_patches: 0,
+            ppf_codewords: Vec::new(),
+            timings: Vec::new(),
+            pose: Default::default(),
+        };
+        let patch_seed = Rng::derived(s.seed, 2 * stream + 1).next_u64();
+        Ok(DescribingScan { features, index, order, patch_seed, missing_normals })
+    }
+
+    /// Describes the keypoints of `scan`'s order up to the first `candidates` (patches, network inputs, PPF
+    /// codewords); PC-FoldNet's inputs are kept for [`Registrar::estimate`]. Errors when, with the whole order
+    /// described, no keypoint has a patch.
+    fn extend_description(
+        &self,
+        scan: &mut DescribingScan,
+        candidates: usize,
+        clock: &mut Stopwatch<'_>,
+    ) -> Result<()> {
+        let (from, to) = (scan.features.candidates, candidates.min(scan.order.len()));
+        if from >= to {
+            return Ok(());
+        }
+        let config = &self.backend.model().config;
+        let radius = self.radius();
+        let f = &mut scan.features;
+        let patches =
+            extract_patches(&f.cloud.points, &scan.index, &scan.order[from..to], radius, config.points_per_patch, {
+                scan.patch_seed
+            });
+        clock.lap("patches");
+        let mut needed: Vec<usize> = patches.keypoints.clone();
+        needed.extend(patches.neighbors.iter().map(|&j| j as usize));
+        self.fill_normals(&mut f.cloud, &scan.index, &mut scan.missing_normals, needed);
+        let normals = f.cloud.normals.as_ref().expect("normals set when the description started");
+        let gathered = gather(&f.cloud.points, normals, &patches);
+        clock.lap("normals");
+        let count = patches.keypoints.len();
+        let (ppf_input, pc_input) =
+            if count == 0 { (Vec::new(), Vec::new()) } else { self.backend.patch_features(&gathered, radius)? };
+        clock.lap("patch_features");
+        if count > 0 {
+            f.ppf_codewords.extend(self.backend.encode(Net::Ppf, &ppf_input, count)?);
+        }
+        clock.lap("ppf_encoder");
+        // Ranks of the kept keypoints: patches keep the order of `scan.order[from..to]`.
+        let mut kept = patches.keypoints.iter().peekable();
+        for (rank, &k) in scan.order[from..to].iter().enumerate() {
+            if kept.peek() == Some(&&k) {
+                kept.next();
+                f.keypoint_ranks.push((from + rank) as u32);
+            }
+        }
+        f.keypoints.extend(gathered.centers);
+        f.keypoint_normals.extend(gathered.center_normals);
+        f.empty_patches += patches.empty.len();
+        f.candidates = to;
+        let dim = config.codeword();
+        let mut pose = f.pose.lock();
+        pose.input.extend(pc_input);
+        pose.features.resize(f.keypoints.len() * dim, f32::NAN);
+        pose.ready.resize(f.keypoints.len(), false);
+        drop(pose);
+        if to == scan.order.len() && f.keypoints.is_empty() {
+            return Err(Error::invalid(format!(
+                "no keypoint has a neighbour within radius {radius}: is the radius right for the cloud's units?"
+            )));
+        }
+        Ok(())
+    }
+
+    /// Estimates the normals of the points `ids` of `cloud` that are still missing (`missing` is `None` when
+    /// the cloud came with normals, or once all are computed).
+    fn fill_normals(
+        &self,
+        cloud: &mut PointCloud,
+        index: &PointIndex,
+        missing: &mut Option<MissingNormals>,
+        mut ids: Vec<usize>,
+    ) {
+        let Some(m) = missing.as_mut() else { return };
+        ids.retain(|&i| !m.ready[i]);
+        ids.sort_unstable();
+        ids.dedup();
+        let computed = estimate_normals_at(&cloud.points, index, &ids, self.settings.normal_neighbors, m.viewpoint);
+        let normals = cloud.normals.as_mut().expect("placeholders set when the description started");
+        for (&i, n) in ids.iter().zip(computed) {
+            normals[i] = n;
+            m.ready[i] = true;
+        }
+        if m.ready.iter().all(|&r| r) {
+            *missing = None;
+        }
+    }
+
+    /// Computes every normal of `scan`'s cloud that is still missing.
+    fn complete_normals(&self, scan: &mut DescribingScan) {
+        let all = (0..scan.features.cloud.len()).collect();
+        self.fill_normals(&mut scan.features.cloud, &scan.index, &mut scan.missing_normals, all);
+    }
+
+    /// The pose features (PC-FoldNet codeword minus PPF-FoldNet codeword) of `rows` of `scan`, in that order,
+    /// `rows.len() x codeword`. Rows not computed before run through PC-FoldNet now, once.
+    pub fn pose_features(&self, scan: &ScanFeatures, rows: &[u32]) -> Result<Vec<f32>> {
+        let dim = self.backend.model().config.codeword();
+        let mut pose = scan.pose.lock();
+        if let Some(&bad) = rows.iter().find(|&&r| r as usize >= pose.ready.len()) {
+            return Err(Error::invalid(format!(
+                "pose features: row {bad} asked of a scan with {} keypoints",
+                pose.ready.len()
+            )));
+        }
+        let mut missing: Vec<u32> = rows.iter().copied().filter(|&r| !pose.ready[r as usize]).collect();
+        missing.sort_unstable();
+        missing.dedup();
+        if !missing.is_empty() {
+            let width = pose.input.len() / pose.ready.len().max(1);
+            let input: Vec<f32> =
+                missing.iter().flat_map(|&r| pose.input[r as usize * width..][..width].iter().copied()).collect();
+            let pc = self.backend.encode(Net::Pc, &input, missing.len())?;
+            for (slot, &r) in missing.iter().enumerate() {
+                let r = r as usize;
+                let ppf = &scan.ppf_codewords[r * dim..][..dim];
+                let feature = crate::model::pose_feature(&pc[slot * dim..][..dim], ppf);
+                pose.features[r * dim..][..dim].copy_from_slice(&feature);
+                pose.ready[r] = true;
+            }
+        }
+        Ok(rows.iter().flat_map(|&r| pose.features[r as usize * dim..][..dim].iter().copied()).collect())
+    }
+
+    /// Correspondences between two described scans (matching rule from the settings).
+    pub fn correspond(&self, source: &ScanFeatures, target: &ScanFeatures) -> Result<Vec<Correspondence>> {
+        self.correspond_rows(source, source.keypoints.len(), target, target.keypoints.len())
+    }
+
+    /// Correspondences between the first `source_rows` keypoints of `source` and the first `target_rows` of
+    /// `target`.
+    fn correspond_rows(
+        &self,
+        source: &ScanFeatures,
+        source_rows: usize,
+        target: &ScanFeatures,
+        target_rows: usize,
+    ) -> Result<Vec<Correspondence>> {
+        let dim = self.backend.model().config.codeword();
+        let (s, t) = (&source.ppf_codewords[..source_rows * dim], &target.ppf_codewords[..target_rows * dim]);
+        let matches = self.backend.match_codewords(s, t, dim, self.settings.matching)?;
+        Ok(matches
+            .into_iter()
+            .map(|m| Correspondence {
+                source_index: m.source,
+                target_index: m.target,
+                source_point: source.keypoints[m.source as usize],
+                target_point: target.keypoints[m.target as usize],
+                feature_distance: m.distance,
+            })
+            .collect())
+    }
+
+    /// Estimates target_from_source from the correspondences with `estimator`, then ICP when enabled.
+    pub fn estimate(
+        &self,
+        source: &ScanFeatures,
+        target: &ScanFeatures,
+        correspondences: &[Correspondence],
+        estimator: Estimator,
+    ) -> Result<PoseEstimate> {
+        if correspondences.len() < MIN_CORRESPONDENCES {
+            return Err(Error::invalid(format!(
+                "only {} correspondences; at least {MIN_CORRESPONDENCES} are needed to estimate a pose",
+                correspondences.len()
+            )));
+        }
+        let src: Vec<[f32; 3]> = correspondences.iter().map(|c| c.source_point).collect();
+        let tgt: Vec<[f32; 3]> = correspondences.iter().map(|c| c.target_point).collect();
+        let threshold = self.inlier_threshold();
+        let mut estimate = match estimator {
+            Estimator::RelativeNet => {
+                let source_rows: Vec<u32> = correspondences.iter().map(|c| c.source_index).collect();
+                let target_rows: Vec<u32> = correspondences.iter().map(|c| c.target_index).collect();
+                let fs = self.pose_features(source, &source_rows)?;
+                let ft = self.pose_features(target, &target_rows)?;
+                let ns: Vec<[f32; 3]> = source_rows.iter().map(|&r| source.keypoint_normals[r as usize]).collect();
+                let nt: Vec<[f32; 3]> = target_rows.iter().map(|&r| target.keypoint_normals[r as usize]).collect();
+                let pose = RotationInputs {
+                    source: &fs,
+                    target: &ft,
+                    source_normals: &ns,
+                    target_normals: &nt,
+                    rows: correspondences.len(),
+                };
+                let rotations = self.backend.predict_rotations(pose)?;
+                verify(self.backend.as_ref(), &rotations, &src, &tgt, threshold)?
+            }
+            Estimator::Ransac => ransac(&src, &tgt, threshold, &self.settings.ransac, self.settings.seed)?,
+        };
+        if let Some(icp) = &self.settings.icp {
+            let index = PointIndex::new(&target.cloud.points)?;
+            let refined = icp_point_to_plane(&source.cloud, &target.cloud, &index, estimate.target_from_source, icp)?;
+            let scored = estimate.hypotheses_scored;
+            estimate = crate::estimate::evaluate(refined, &src, &tgt, threshold, scored);
+        }
+        Ok(estimate)
+    }
+
+    /// Whether `estimate` (computed from `correspondences`) can be trusted, by the settings' verdict thresholds.
+    pub fn judge(&self, estimate: &PoseEstimate, correspondences: &[Correspondence]) -> crate::verdict::Verdict {
+        crate::verdict::judge(estimate, correspondences, self.inlier_threshold(), &self.settings.verdict)
+    }
+
+    /// The keypoint counts of the progressive schedule (see [`keypoint_stages`]).
+    pub fn keypoint_stages(&self) -> Vec<usize> {
+        keypoint_stages(self.settings.first_keypoints, self.settings.keypoints)
+    }
+
+    /// One round: correspondences among the first `keypoints` keypoints of each scan, the pose, its verdict.
+    fn round(
+        &self,
+        source: &ScanFeatures,
+        target: &ScanFeatures,
+        keypoints: usize,
+        estimator: Estimator,
+        clock: &mut Stopwatch<'_>,
+    ) -> Result<Round> {
+        clock.scope = "";
+        let (sr, tr) = (source.rows_within(keypoints), target.rows_within(keypoints));
+        let correspondences = self.correspond_rows(source, sr, target, tr)?;
+        clock.lap("matching");
+        if estimator == Estimator::RelativeNet {
+            // Computed here (and cached in the scans) to time PC-FoldNet on its own.
+            self.pose_features(source, &correspondences.iter().map(|c| c.source_index).collect::<Vec<_>>())?;
+            self.pose_features(target, &correspondences.iter().map(|c| c.target_index).collect::<Vec<_>>())?;
+        }
+        clock.lap("pc_encoder");
+        let estimate = self.estimate(source, target, &correspondences, estimator)?;
+        clock.lap("estimation");
+        let verdict = self.judge(&estimate, &correspondences);
+        Ok(Round { keypoints, correspondences, estimate, verdict })
+    }
+
+    /// Registers two described scans with the progressive schedule, over the keypoints they have: the rounds
+    /// and the result [`Registrar::register`] gives for the same clouds and settings (descriptions extend prefix
+    /// by prefix, so describing everything first changes nothing but the time).
+    pub fn register_described(
+        &self,
+        source: &ScanFeatures,
+        target: &ScanFeatures,
+        estimator: Estimator,
+    ) -> Result<Round> {
+        let mut clock = Stopwatch::new(None);
+        let mut outcome = stages::Outcome::default();
+        let mut rows = None;
+        for k in self.keypoint_stages() {
+            let now = (source.rows_within(k), target.rows_within(k));
+            if rows == Some(now) {
+                continue;
+            }
+            rows = Some(now);
+            if outcome.offer(self.round(source, target, k, estimator, &mut clock)) {
+                break;
+            }
+        }
+        outcome.finish()
+    }
+
+    /// The whole pipeline on two clouds.
+    pub fn register(&self, source: &PointCloud, target: &PointCloud) -> Result<RegistrationResult> {
+        Ok(self.register_detailed(source, target)?.result)
+    }
+
+    /// [`Registrar::register`], also returning the described scans and the correspondences the result came from
+    /// (for bindings and pictures that show keypoints and matches). Runs the progressive schedule: each round
+    /// describes more keypoints of both scans, and the first trusted round ends it.
+    pub fn register_detailed(&self, source: &PointCloud, target: &PointCloud) -> Result<Registration> {
+        let mut clock = Stopwatch::new(self.progress.as_deref().map(|p| (p, "")));
+        let viewpoint = self.settings.viewpoint;
+        clock.scope = "source.";
+        let mut src = self.start_description(source, 0, viewpoint, &mut clock).map_err(|e| prefix("source", e))?;
+        clock.scope = "target.";
+        let mut tgt = self.start_description(target, 1, viewpoint, &mut clock).map_err(|e| prefix("target", e))?;
+        if self.settings.icp.is_some() {
+            // Point-to-plane ICP reads the normals of every point.
+            for (scope, scan) in [("source.", &mut src), ("target.", &mut tgt)] {
+                clock.scope = scope;
+                self.complete_normals(scan);
+                clock.lap("remaining_normals");
+            }
+        }
+        let mut outcome = stages::Outcome::default();
+        let mut rows = None;
+        for k in self.keypoint_stages() {
+            clock.scope = "source.";
+            self.extend_description(&mut src, k, &mut clock).map_err(|e| prefix("source", e))?;
+            clock.scope = "target.";
+            self.extend_description(&mut tgt, k, &mut clock).map_err(|e| prefix("target", e))?;
+            let now = (src.features.keypoints.len(), tgt.features.keypoints.len());
+            if rows == Some(now) {
+                continue;
+            }
+            rows = Some(now);
+            let round = self.round(&src.features, &tgt.features, k, self.settings.estimator, &mut clock);
+            if outcome.offer(round) {
+                break;
+            }
+        }
+        let round = outcome.finish()?;
+        for scan in [&mut src, &mut tgt] {
+            if scan.missing_normals.is_some() {
+                // Normals were estimated only where patches needed them.
+                scan.features.cloud.normals = None;
+            }
+        }
+        let (mut described_source, mut described_target) = (src.features, tgt.features);
+        for (scope, f) in [("source.", &mut described_source), ("target.", &mut described_target)] {
+            f.timings = clock
+                .timings
+                .iter()
+                .filter_map(|t| {
+                    let stage = t.stage.strip_prefix(scope)?.to_string();
+                    Some(StageTime { stage, seconds: t.seconds })
+                })
+                .collect();
+        }
+        let Round { keypoints, correspondences, estimate, verdict } = round;
+        let result = RegistrationResult {
+            success: verdict.success,
+            reason: verdict.reason,
+            estimate,
+            correspondences: correspondences.len(),
+            keypoints,
+            empty_patches: described_source.empty_patches + described_target.empty_patches,
+            timings: clock.timings,
+            backend: self.backend.name(),
+        };
+        Ok(Registration { result, source: described_source, target: described_target, correspondences })
+    }
+}
+
+/// Everything [`Registrar::register_detailed`] computed: the result, and what it was computed from.
+#[derive(Clone, Debug)]
+pub struct Registration {
+    /// What [`Registrar::register`] returns.
+    pub result: RegistrationResult,
+    /// The described source scan (stream 0).
+    pub source: ScanFeatures,
+    /// The described target scan (stream 1).
+    pub target: ScanFeatures,
+    /// The correspondences fed to the estimator (indices into the scans' keypoints).
+    pub correspondences: Vec<Correspondence>,
+}
+
+fn prefix(what: &str, e: Error) -> Error {
+    match e {
+        Error::InvalidInput(m) => Error::InvalidInput(format!("{what}: {m}")),
+        other => other,
+    }
+}
+
+/// Registers `source` onto `target`: the returned `target_from_source` maps source points into the target frame.
+pub fn register(
+    source: &PointCloud,
+    target: &PointCloud,
+    settings: &RegistrationSettings,
+) -> Result<RegistrationResult> {
+    Registrar::new(settings)?.register(source, target)
+}

@@ -1,0 +1,106 @@
+//! The progressive keypoint schedule (`RegistrationSettings::first_keypoints`) against direct runs: a round
+//! that describes k keypoints per scan must give exactly what describing k keypoints at once gives, so the
+//! schedule changes the time a pair takes and never the pose it ends with.
+
+mod common;
+
+use dpr_gpu::model::{ModelConfig, Weights};
+use dpr_gpu::settings::Estimator;
+use dpr_gpu::verdict::VerdictSettings;
+use dpr_gpu::{Registrar, RegistrationSettings};
+
+fn tiny_weights() -> Weights {
+    let config = ModelConfig {
+        points_per_patch: 16,
+        encoder_widths: vec![8, 8, 16],
+        head_widths: vec![16, 12],
+        fold_widths: vec![8, 8],
+        grid: [3, 3],
+        relative_widths: vec![16, 8],
+        ..ModelConfig::default()
+    };
+    Weights::init(&config, 3).unwrap()
+}
+
+fn registrar(settings: &RegistrationSettings, weights: &Weights) -> Registrar {
+    Registrar::with_weights(settings, weights).unwrap()
+}
+
+#[test]
+fn a_pair_that_needs_every_round_ends_with_the_direct_result() {
+    let (source, target, _) = common::room_pair(4, 4000);
+    let weights = tiny_weights();
+    // A verdict nothing passes: every round runs.
+    let never = VerdictSettings { min_inliers: usize::MAX, ..VerdictSettings::default() };
+    for estimator in [Estimator::RelativeNet, Estimator::Ransac] {
+        let base = RegistrationSettings { keypoints: 120, estimator, verdict: never, ..Default::default() };
+        let staged = RegistrationSettings { first_keypoints: Some(25), ..base.clone() };
+        let direct = RegistrationSettings { first_keypoints: None, ..base };
+        let a = registrar(&staged, &weights).register_detailed(&source, &target).unwrap();
+        let b = registrar(&direct, &weights).register_detailed(&source, &target).unwrap();
+        assert_eq!(a.result.keypoints, 120);
+        assert_eq!(a.result.estimate.target_from_source, b.result.estimate.target_from_source, "{estimator:?}");
+        assert_eq!(a.correspondences, b.correspondences);
+        assert_eq!(a.source.ppf_codewords, b.source.ppf_codewords);
+        assert_eq!(a.target.keypoints, b.target.keypoints);
+        // Four rounds (25, 50, 100, 120): matching is timed once per round.
+        assert_eq!(a.result.timings.iter().filter(|t| t.stage == "matching").count(), 4);
+        assert_eq!(b.result.timings.iter().filter(|t| t.stage == "matching").count(), 1);
+    }
+}
+
+#[test]
+fn a_trusted_early_round_is_the_direct_result_at_its_keypoints() {
+    // A verdict that trusts any pose with a handful of inliers: the schedule stops at an early round.
+    let (source, target, _) = common::room_pair(7, 4000);
+    let weights = tiny_weights();
+    let lenient = VerdictSettings { min_inliers: 3, min_inlier_ratio: 0.0, min_spread_over_threshold: 0.0 };
+    let base = RegistrationSettings {
+        keypoints: 320,
+        first_keypoints: Some(40),
+        estimator: Estimator::Ransac,
+        verdict: lenient,
+        ..Default::default()
+    };
+    let staged = registrar(&base, &weights).register_detailed(&source, &target).unwrap();
+    assert!(staged.result.success, "{:?}", staged.result.reason);
+    let k = staged.result.keypoints;
+    assert!(k < 320, "the schedule should stop before the last round, stopped at {k}");
+    // Describing k keypoints at once gives the same pose.
+    let direct = RegistrationSettings { keypoints: k, first_keypoints: None, ..base.clone() };
+    let d = registrar(&direct, &weights).register(&source, &target).unwrap();
+    assert_eq!(d.estimate.target_from_source, staged.result.estimate.target_from_source);
+    // And the same schedule over scans described in full (what `eval` does) stops at the same round.
+    let full = registrar(&base, &weights);
+    let (s, t) = (full.describe(&source, 0).unwrap(), full.describe(&target, 1).unwrap());
+    let round = full.register_described(&s, &t, Estimator::Ransac).unwrap();
+    assert_eq!(round.keypoints, k);
+    assert_eq!(round.estimate.target_from_source, staged.result.estimate.target_from_source);
+}
+
+#[test]
+fn pose_features_computed_on_demand_do_not_depend_on_which_rows_came_first() {
+    let (source, _, _) = common::room_pair(2, 3000);
+    let weights = tiny_weights();
+    let settings = RegistrationSettings { keypoints: 60, ..Default::default() };
+    let r = registrar(&settings, &weights);
+    let a = r.describe(&source, 0).unwrap();
+    let b = a.clone();
+    let rows = a.keypoints.len() as u32;
+    let all: Vec<u32> = (0..rows).collect();
+    let everything_at_once = r.pose_features(&a, &all).unwrap();
+    // `b` computes a few rows first, then all of them in reverse order.
+    let some: Vec<u32> = (0..rows).step_by(7).collect();
+    let first = r.pose_features(&b, &some).unwrap();
+    let reversed: Vec<u32> = all.iter().rev().copied().collect();
+    let later = r.pose_features(&b, &reversed).unwrap();
+    let dim = everything_at_once.len() / rows as usize;
+    for (slot, &row) in some.iter().enumerate() {
+        assert_eq!(&first[slot * dim..][..dim], &everything_at_once[row as usize * dim..][..dim]);
+    }
+    for (slot, &row) in reversed.iter().enumerate() {
+        assert_eq!(&later[slot * dim..][..dim], &everything_at_once[row as usize * dim..][..dim]);
+    }
+    assert!(everything_at_once.iter().all(|v| v.is_finite()));
+    assert!(r.pose_features(&a, &[rows]).is_err());
+}
