@@ -3,7 +3,8 @@
 //! (normals, keypoints, patch gathering, the final rigid fit) stays on the CPU for every backend.
 
 use crate::cpu::hypotheses::{Hypothesis, hypotheses};
-use crate::cpu::mutual_knn::{Match, codeword_distance, mutual_knn};
+use crate::cpu::codeword_distance::codeword_distance;
+use crate::cpu::mutual_knn::{Match, mutual_knn};
 use crate::cpu::score_hypotheses::{HypothesisScore, score_hypotheses};
 use crate::error::Result;
 use crate::model::{Model, Net};

@@ -1,5 +1,5 @@
-//! CPU twin of `shaders/codeword_distance.wgsl` + `shaders/mutual_knn.wgsl`: squared L2 distances between
-//! two codeword sets, then mutual K-nearest-neighbour (or "closest") correspondences.
+//! CPU twin of `shaders/mutual_knn.wgsl`: mutual K-nearest-neighbour (or "closest") correspondences from the
+//! squared distances of two codeword sets (computed by [`super::codeword_distance`]).
 //!
 //! Ties break towards the lower index, so the result is deterministic. A pair (a, b) is mutual-K when b is
 //! among the K nearest targets of a and a is among the K nearest sources of b.
@@ -15,20 +15,6 @@ pub struct Match {
     pub target: u32,
     /// Euclidean distance between the codewords.
     pub distance: f32,
-}
-
-/// `ns x nt` squared distances, row-major (the `codeword_distance` kernel).
-pub fn codeword_distance(source: &[f32], target: &[f32], dim: usize) -> Vec<f32> {
-    let (ns, nt) = (source.len() / dim, target.len() / dim);
-    let mut out = vec![0.0; ns * nt];
-    for i in 0..ns {
-        let a = &source[i * dim..][..dim];
-        for j in 0..nt {
-            let b = &target[j * dim..][..dim];
-            out[i * nt + j] = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
-        }
-    }
-    out
 }
 
 /// The `k` smallest entries of `values` (index order breaks ties), ascending.
