@@ -60,7 +60,8 @@ fn run_bench(args: &Args, env: &[(&str, &str)]) -> (bool, String, String) {
 }
 
 fn parse(stdout: &str, stderr: &str) -> Value {
-    serde_json::from_str(stdout).unwrap_or_else(|e| panic!("stdout is not one JSON document ({e}):\n{stdout}\n{stderr}"))
+    serde_json::from_str(stdout)
+        .unwrap_or_else(|e| panic!("stdout is not one JSON document ({e}):\n{stdout}\n{stderr}"))
 }
 
 fn num(v: &Value, what: &str) -> f64 {
@@ -150,7 +151,8 @@ impl Backend for CountingBackend {
 
     fn predict_rotations(&self, pose: RotationInputs<'_>) -> dpr_gpu::Result<Vec<[f32; 9]>> {
         let out = self.inner.predict_rotations(pose)?;
-        let up = 4 * (pose.source.len() + pose.target.len()) + 12 * (pose.source_normals.len() + pose.target_normals.len());
+        let up =
+            4 * (pose.source.len() + pose.target.len()) + 12 * (pose.source_normals.len() + pose.target_normals.len());
         self.add(up, 36 * out.len());
         Ok(out)
     }
@@ -203,7 +205,15 @@ fn bench_json_on_the_test_adapter_is_consistent() {
     let names: Vec<&str> = stages.iter().map(|s| s["stage"].as_str().expect("name")).collect();
     assert_eq!(
         names,
-        ["patch_features", "encode ppf", "encode pc", "match_codewords", "predict_rotations", "hypotheses", "score_hypotheses"]
+        [
+            "patch_features",
+            "encode ppf",
+            "encode pc",
+            "match_codewords",
+            "predict_rotations",
+            "hypotheses",
+            "score_hypotheses"
+        ]
     );
     for s in stages {
         let name = s["stage"].as_str().unwrap();
@@ -260,10 +270,8 @@ fn bench_json_on_the_test_adapter_is_consistent() {
     let pair = &r["pair"];
     let model = bench::bench_model(&args).unwrap();
     let counted = Arc::new(Mutex::new((0u64, 0u64)));
-    let counting = CountingBackend {
-        inner: GpuBackend::with_gpu(Arc::clone(&gpu), model).unwrap(),
-        bytes: Arc::clone(&counted),
-    };
+    let counting =
+        CountingBackend { inner: GpuBackend::with_gpu(Arc::clone(&gpu), model).unwrap(), bytes: Arc::clone(&counted) };
     let (source, target) = bench::synthetic_pair(args.seed, args.pair_points);
     let registrar = dpr_gpu::Registrar::with_backend(&bench::pair_settings(&args), Box::new(counting)).unwrap();
     let before = gpu.context.transfers();
@@ -314,11 +322,14 @@ fn bench_json_without_an_adapter_says_it_is_cpu_only() {
 
 #[test]
 fn bench_rejects_a_bad_peak() {
-    let out = Command::new(env!("CARGO_BIN_EXE_dpr-gpu"))
-        .args(["bench", "--json", "--backend", "cpu", "--peak-tflops", "-1"])
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(stderr.contains("--peak-tflops"), "{stderr}");
+    for bad in ["--peak-tflops=-1", "--peak-tflops=0", "--peak-tflops=NaN"] {
+        let out = Command::new(env!("CARGO_BIN_EXE_dpr-gpu"))
+            .args(["bench", "--json", "--backend", "cpu", "--keypoints", "8", bad])
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{bad} accepted");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(stderr.contains("--peak-tflops must be a positive number"), "{bad}: {stderr}");
+        assert!(out.stdout.is_empty(), "{bad}: no report on stdout");
+    }
 }

@@ -19,7 +19,6 @@ use dpr_gpu::cpu::dense::DenseShape;
 use dpr_gpu::cpu::hypotheses::{Hypothesis, hypotheses as cpu_hypotheses};
 use dpr_gpu::cpu::score_hypotheses::{HypothesisScore, squared_residual};
 use dpr_gpu::cpu::{self, mutual_knn::Match};
-use dpr_gpu::gpu::testing::{gpu_or_skip as gpu, new_gpu_or_skip};
 use dpr_gpu::gpu::codeword_distance::CodewordDistance;
 use dpr_gpu::gpu::dense::Dense;
 use dpr_gpu::gpu::hypotheses::Hypotheses;
@@ -30,6 +29,7 @@ use dpr_gpu::gpu::patch_features::PatchFeatures;
 use dpr_gpu::gpu::registry::KERNELS;
 use dpr_gpu::gpu::rotation_head::RotationHead;
 use dpr_gpu::gpu::score_hypotheses::ScoreHypotheses;
+use dpr_gpu::gpu::testing::{gpu_or_skip as gpu, new_gpu_or_skip};
 use dpr_gpu::gpu::{self, Gpu, GpuBackend, GpuContext};
 use dpr_gpu::model::config::{PoseFrame, RotationOutput};
 use dpr_gpu::model::{Model, ModelConfig, Net, Weights};
@@ -929,31 +929,31 @@ fn main() -> std::process::ExitCode {
 
 /// Every test of this binary.
 const TESTS: &[dpr_gpu::gpu::testing::GpuTest] = &[
-        ("every_registered_kernel_has_a_parity_test", every_registered_kernel_has_a_parity_test),
-        ("patch_features_matches_cpu_ragged", patch_features_matches_cpu_ragged),
-        ("patch_features_matches_cpu_degenerate", patch_features_matches_cpu_degenerate),
-        ("dense_matches_cpu_ragged", dense_matches_cpu_ragged),
-        ("max_pool_matches_cpu_ragged", max_pool_matches_cpu_ragged),
-        ("max_pool_matches_cpu_past_65535_workgroups", max_pool_matches_cpu_past_65535_workgroups),
-        ("codeword_distance_matches_cpu_ragged", codeword_distance_matches_cpu_ragged),
-        ("mutual_knn_matches_cpu_random", mutual_knn_matches_cpu_random),
-        ("mutual_knn_matches_cpu_with_ties", mutual_knn_matches_cpu_with_ties),
-        ("rotation_head_matches_cpu", rotation_head_matches_cpu),
-        ("hypotheses_matches_cpu", hypotheses_matches_cpu),
-        ("score_hypotheses_matches_cpu", score_hypotheses_matches_cpu),
-        ("score_hypotheses_matches_cpu_past_65535_workgroups", score_hypotheses_matches_cpu_past_65535_workgroups),
-        ("inlier_mask_matches_cpu", inlier_mask_matches_cpu),
-        ("backend_patch_features_and_encode_match_cpu", backend_patch_features_and_encode_match_cpu),
-        ("networks_match_cpu_at_default_widths", networks_match_cpu_at_default_widths),
-        ("encode_and_matching_match_cpu_when_chunked", encode_and_matching_match_cpu_when_chunked),
-        ("decode_matches_cpu", decode_matches_cpu),
-        ("relativenet_hypotheses_and_scores_match_cpu", relativenet_hypotheses_and_scores_match_cpu),
-        ("invalid_calls_are_errors_not_panics", invalid_calls_are_errors_not_panics),
-        ("register_matches_cpu_on_a_generated_pair", register_matches_cpu_on_a_generated_pair),
-        ("poison_inputs_stay_in_their_patches", poison_inputs_stay_in_their_patches),
-        ("auto_backend_skips_software_adapters", auto_backend_skips_software_adapters),
-        (
-            "register_with_relativenet_matches_cpu_on_a_generated_pair",
-            register_with_relativenet_matches_cpu_on_a_generated_pair,
-        ),
+    ("every_registered_kernel_has_a_parity_test", every_registered_kernel_has_a_parity_test),
+    ("patch_features_matches_cpu_ragged", patch_features_matches_cpu_ragged),
+    ("patch_features_matches_cpu_degenerate", patch_features_matches_cpu_degenerate),
+    ("dense_matches_cpu_ragged", dense_matches_cpu_ragged),
+    ("max_pool_matches_cpu_ragged", max_pool_matches_cpu_ragged),
+    ("max_pool_matches_cpu_past_65535_workgroups", max_pool_matches_cpu_past_65535_workgroups),
+    ("codeword_distance_matches_cpu_ragged", codeword_distance_matches_cpu_ragged),
+    ("mutual_knn_matches_cpu_random", mutual_knn_matches_cpu_random),
+    ("mutual_knn_matches_cpu_with_ties", mutual_knn_matches_cpu_with_ties),
+    ("rotation_head_matches_cpu", rotation_head_matches_cpu),
+    ("hypotheses_matches_cpu", hypotheses_matches_cpu),
+    ("score_hypotheses_matches_cpu", score_hypotheses_matches_cpu),
+    ("score_hypotheses_matches_cpu_past_65535_workgroups", score_hypotheses_matches_cpu_past_65535_workgroups),
+    ("inlier_mask_matches_cpu", inlier_mask_matches_cpu),
+    ("backend_patch_features_and_encode_match_cpu", backend_patch_features_and_encode_match_cpu),
+    ("networks_match_cpu_at_default_widths", networks_match_cpu_at_default_widths),
+    ("encode_and_matching_match_cpu_when_chunked", encode_and_matching_match_cpu_when_chunked),
+    ("decode_matches_cpu", decode_matches_cpu),
+    ("relativenet_hypotheses_and_scores_match_cpu", relativenet_hypotheses_and_scores_match_cpu),
+    ("invalid_calls_are_errors_not_panics", invalid_calls_are_errors_not_panics),
+    ("register_matches_cpu_on_a_generated_pair", register_matches_cpu_on_a_generated_pair),
+    ("poison_inputs_stay_in_their_patches", poison_inputs_stay_in_their_patches),
+    ("auto_backend_skips_software_adapters", auto_backend_skips_software_adapters),
+    (
+        "register_with_relativenet_matches_cpu_on_a_generated_pair",
+        register_with_relativenet_matches_cpu_on_a_generated_pair,
+    ),
 ];

@@ -333,7 +333,6 @@ fn synthetic_patches(rng: &mut Rng, k: usize, p: usize, radius: f32) -> Gathered
     }
 }
 
-
 /// Two scans of a synthetic room corner (floor, two walls, a box, a sphere; about 4 m across), `points` each,
 /// sampled independently; the target is moved by a seeded rigid pose. For the end-to-end pair of the benchmark.
 pub fn synthetic_pair(seed: u64, points: usize) -> (PointCloud, PointCloud) {
@@ -428,7 +427,6 @@ fn check_bounds(args: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-
 /// Runs `dpr-gpu bench`: the table, or with `--json` the [`Report`] on stdout.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let report = measure_all(&args)?;
@@ -457,7 +455,10 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
     let cw = model.config.codeword();
     let radius = model.config.radius;
     let peak = args.peak_tflops;
-    eprintln!("dpr-gpu bench: {k} keypoints x {p} points per patch, codeword {cw}, best of {} runs", args.repeat.max(1));
+    eprintln!(
+        "dpr-gpu bench: {k} keypoints x {p} points per patch, codeword {cw}, best of {} runs",
+        args.repeat.max(1)
+    );
 
     let cpu = use_cpu.then(|| CpuBackend::new(model.clone()));
     let device = match (use_gpu, use_cpu) {
@@ -484,7 +485,8 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
             info.adapter = Some(backend.adapter_info());
             info.timestamps = dev.context.has_timestamps();
             info.clock = Some(if info.timestamps { Clock::GpuTimestamps } else { Clock::HostWall });
-            eprintln!("gpu: {} (device times: {:?})", backend.adapter_info(), info.clock.expect("set"));
+            let clock = if info.timestamps { "GPU timestamps" } else { "host wall time, no TIMESTAMP_QUERY" };
+            eprintln!("gpu: {} (device times: {clock})", backend.adapter_info());
             Some(backend)
         }
         Err(note) => {
@@ -493,10 +495,8 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
             None
         }
     };
-    let cpu_info = cpu.as_ref().map(|_| CpuInfo {
-        threads: rayon::current_num_threads(),
-        gemm_path: GemmPath::selected().name(),
-    });
+    let cpu_info =
+        cpu.as_ref().map(|_| CpuInfo { threads: rayon::current_num_threads(), gemm_path: GemmPath::selected().name() });
 
     let mut rng = Rng::new(args.seed);
     let patches = synthetic_patches(&mut rng, k, p, radius);
@@ -609,6 +609,9 @@ fn measure_pair(args: &Args, backend: Box<dyn Backend>, gpu: Option<&Gpu>) -> an
     })
 }
 
+/// One dense layer call on a block of rows: (shape of the block, its inputs, its outputs).
+type DenseLayer<'a> = dyn Fn(&DenseShape, &[f32], &mut [f32]) + Sync + 'a;
+
 /// The dense GEMM on its own, a 512 -> 512 layer over min(K x P, 32768) rows: the CPU backend's kernel on
 /// every micro-kernel this CPU has, the readable twin, and the WGSL kernel.
 fn gemm_variants(args: &Args, gpu: Option<&Gpu>, use_cpu: bool, rows: usize) -> anyhow::Result<Vec<GemmReport>> {
@@ -639,7 +642,7 @@ fn gemm_variants(args: &Args, gpu: Option<&Gpu>, use_cpu: bool, rows: usize) -> 
     if use_cpu {
         let mut y = vec![0.0f32; rows * out_dim];
         // Parallel over row blocks, as the CPU encoder runs it.
-        let mut time_cpu = |layer: &(dyn Fn(&DenseShape, &[f32], &mut [f32]) + Sync)| {
+        let mut time_cpu = |layer: &DenseLayer<'_>| {
             measure(args.repeat, None, || {
                 y.par_chunks_mut(2048 * out_dim).zip(x.par_chunks(2048 * in_dim)).for_each(|(o, xc)| {
                     let s = DenseShape { rows: xc.len() / in_dim, rows_per_group: xc.len() / in_dim, ..shape };
@@ -684,7 +687,10 @@ fn print_report(r: &Report) {
         c.keypoints, c.points_per_patch, c.codeword, c.repeat
     );
     match (&r.gpu.adapter, &r.gpu.note) {
-        (Some(a), _) => println!("gpu: {a} (device times: {:?})", r.gpu.clock.unwrap_or(Clock::HostWall)),
+        (Some(a), _) => {
+            let clock = if r.gpu.timestamps { "GPU timestamps" } else { "host wall time, no TIMESTAMP_QUERY" };
+            println!("gpu: {a} (device times: {clock})")
+        }
         (None, Some(note)) => println!("gpu: not measured: {note}"),
         (None, None) => {}
     }
@@ -724,7 +730,9 @@ fn print_report(r: &Report) {
     }
     if let Some(p) = &r.pair {
         let bytes = match (p.host_to_device_bytes, p.device_to_host_bytes) {
-            (Some(up), Some(down)) => format!(", {:.1} KiB up, {:.1} KiB down", up as f64 / 1024.0, down as f64 / 1024.0),
+            (Some(up), Some(down)) => {
+                format!(", {:.1} KiB up, {:.1} KiB down", up as f64 / 1024.0, down as f64 / 1024.0)
+            }
             _ => String::new(),
         };
         println!(

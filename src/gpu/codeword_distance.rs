@@ -40,7 +40,8 @@ pub struct CodewordDistance;
 impl GpuKernel for CodewordDistance {
     const NAME: &'static str = "codeword_distance";
     const SOURCE: &'static str = include_str!("../../shaders/codeword_distance.wgsl");
-    const BINDS: &'static [BindKind] = &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite];
+    const BINDS: &'static [BindKind] =
+        &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite];
     const WORKGROUP_SIZE: u32 = WG_SIZE;
     type Params = CodewordDistanceParams;
     type CpuTwin = fn(&[f32], &[f32], usize) -> Vec<f32>;

@@ -49,7 +49,8 @@ pub struct Dense;
 impl GpuKernel for Dense {
     const NAME: &'static str = "dense";
     const SOURCE: &'static str = include_str!("../../shaders/dense.wgsl");
-    const BINDS: &'static [BindKind] = &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite];
+    const BINDS: &'static [BindKind] =
+        &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite];
     const WORKGROUP_SIZE: u32 = WG_SIZE;
     type Params = DenseParams;
     type CpuTwin = fn(&DenseShape, &[f32], &[f32], &[f32], &mut [f32]);

@@ -33,7 +33,8 @@ pub struct Hypotheses;
 impl GpuKernel for Hypotheses {
     const NAME: &'static str = "hypotheses";
     const SOURCE: &'static str = include_str!("../../shaders/hypotheses.wgsl");
-    const BINDS: &'static [BindKind] = &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite];
+    const BINDS: &'static [BindKind] =
+        &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite];
     const WORKGROUP_SIZE: u32 = WG_SIZE;
     type Params = HypothesesParams;
     type CpuTwin = fn(&[[f32; 9]], &[[f32; 3]], &[[f32; 3]]) -> Vec<Hypothesis>;

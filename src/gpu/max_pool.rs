@@ -50,12 +50,7 @@ impl MaxPoolParams {
 }
 
 /// Records the pooling of `x` into `out` (`groups x channels`).
-pub fn record<'a>(
-    rec: &mut Recorder<'a>,
-    params: &MaxPoolParams,
-    x: &wgpu::Buffer,
-    out: &wgpu::Buffer,
-) -> Result<()> {
+pub fn record<'a>(rec: &mut Recorder<'a>, params: &MaxPoolParams, x: &wgpu::Buffer, out: &wgpu::Buffer) -> Result<()> {
     let n = params.groups as usize * params.channels as usize;
     rec.dispatch::<MaxPool>(params, &[x, out], workgroups(n, WG_SIZE))
 }

@@ -52,14 +52,14 @@ impl GpuKernel for MutualKnn {
     const NAME: &'static str = "mutual_knn";
     const SOURCE: &'static str = include_str!("../../shaders/mutual_knn.wgsl");
     const BINDS: &'static [BindKind] = &[
-    BindKind::Uniform,
-    BindKind::ReadOnly,
-    BindKind::ReadWrite,
-    BindKind::ReadWrite,
-    BindKind::ReadWrite,
-    BindKind::ReadWrite,
-    BindKind::ReadWrite,
-];
+        BindKind::Uniform,
+        BindKind::ReadOnly,
+        BindKind::ReadWrite,
+        BindKind::ReadWrite,
+        BindKind::ReadWrite,
+        BindKind::ReadWrite,
+        BindKind::ReadWrite,
+    ];
     const WORKGROUP_SIZE: u32 = WG_SIZE;
     type Params = MutualKnnParams;
     type CpuTwin = fn(&[f32], usize, usize, MatchMode) -> Vec<Match>;

@@ -236,12 +236,7 @@ pub fn encode(
             acts.push((out, layer.out_dim));
         }
         let global = ws.buffer(ctx, "enc_global", (cp * last.out_dim * 4) as u64)?;
-        max_pool::record(
-            &mut rec,
-            &MaxPoolParams::new(cp, points, last.out_dim)?,
-            &acts[acts.len() - 1].0,
-            &global,
-        )?;
+        max_pool::record(&mut rec, &MaxPoolParams::new(cp, points, last.out_dim)?, &acts[acts.len() - 1].0, &global)?;
         // The global slice sits after the encoder slices in head.0's input; it is the per-patch term.
         let group = ws.buffer(ctx, "enc_group", (cp * head0.out_dim * 4) as u64)?;
         dense_call(

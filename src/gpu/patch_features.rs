@@ -33,17 +33,18 @@ impl GpuKernel for PatchFeatures {
     const NAME: &'static str = "patch_features";
     const SOURCE: &'static str = include_str!("../../shaders/patch_features.wgsl");
     const BINDS: &'static [BindKind] = &[
-    BindKind::Uniform,
-    BindKind::ReadOnly,
-    BindKind::ReadOnly,
-    BindKind::ReadOnly,
-    BindKind::ReadOnly,
-    BindKind::ReadWrite,
-    BindKind::ReadWrite,
-];
+        BindKind::Uniform,
+        BindKind::ReadOnly,
+        BindKind::ReadOnly,
+        BindKind::ReadOnly,
+        BindKind::ReadOnly,
+        BindKind::ReadWrite,
+        BindKind::ReadWrite,
+    ];
     const WORKGROUP_SIZE: u32 = WG_SIZE;
     type Params = PatchFeaturesParams;
-    type CpuTwin = fn(&[[f32; 3]], &[[f32; 3]], &[[f32; 3]], &[[f32; 3]], usize, f32, PoseFrame) -> (Vec<f32>, Vec<f32>);
+    type CpuTwin =
+        fn(&[[f32; 3]], &[[f32; 3]], &[[f32; 3]], &[[f32; 3]], usize, f32, PoseFrame) -> (Vec<f32>, Vec<f32>);
     const CPU_TWIN: Self::CpuTwin = crate::cpu::patch_features::patch_features;
 }
 
@@ -65,12 +66,9 @@ pub struct PatchFeaturesBuffers<'b> {
 }
 
 /// Records one dispatch over `params.rows` points.
-pub fn record<'a>(
-    rec: &mut Recorder<'a>,
-    params: &PatchFeaturesParams,
-    b: &PatchFeaturesBuffers<'_>,
-) -> Result<()> {
-    rec.dispatch::<PatchFeatures>(params,
+pub fn record<'a>(rec: &mut Recorder<'a>, params: &PatchFeaturesParams, b: &PatchFeaturesBuffers<'_>) -> Result<()> {
+    rec.dispatch::<PatchFeatures>(
+        params,
         &[b.centers, b.center_normals, b.points, b.normals, b.ppf, b.pc],
         workgroups(params.rows as usize, WG_SIZE),
     )

@@ -47,7 +47,12 @@ impl<'a> Recorder<'a> {
 
     /// Dispatches `workgroups` workgroups of kernel `K` (folded into 2-D past the per-dimension limit) with
     /// `params` at binding 0 and `buffers` at bindings 1...
-    pub fn dispatch<K: GpuKernel>(&mut self, params: &K::Params, buffers: &[&wgpu::Buffer], workgroups: u64) -> Result<()> {
+    pub fn dispatch<K: GpuKernel>(
+        &mut self,
+        params: &K::Params,
+        buffers: &[&wgpu::Buffer],
+        workgroups: u64,
+    ) -> Result<()> {
         let kernel: &'a Kernel = self.gpu.kernels.get::<K>()?;
         if buffers.len() + 1 != kernel.spec.binds.len() {
             return Err(Error::Gpu(format!(

@@ -61,7 +61,8 @@ pub struct RotationHead;
 impl GpuKernel for RotationHead {
     const NAME: &'static str = "rotation_head";
     const SOURCE: &'static str = include_str!("../../shaders/rotation_head.wgsl");
-    const BINDS: &'static [BindKind] = &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite];
+    const BINDS: &'static [BindKind] =
+        &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite];
     const WORKGROUP_SIZE: u32 = WG_SIZE;
     type Params = RotationHeadParams;
     type CpuTwin = fn(&[f32], RotationOutput, PoseFrame, &[[f32; 3]], &[[f32; 3]]) -> Vec<[f32; 9]>;

@@ -35,14 +35,14 @@ impl GpuKernel for ScoreHypotheses {
     const NAME: &'static str = "score_hypotheses";
     const SOURCE: &'static str = include_str!("../../shaders/score_hypotheses.wgsl");
     const BINDS: &'static [BindKind] = &[
-    BindKind::Uniform,
-    BindKind::ReadOnly,
-    BindKind::ReadOnly,
-    BindKind::ReadOnly,
-    BindKind::ReadWrite,
-    BindKind::ReadWrite,
-    BindKind::ReadWrite,
-];
+        BindKind::Uniform,
+        BindKind::ReadOnly,
+        BindKind::ReadOnly,
+        BindKind::ReadOnly,
+        BindKind::ReadWrite,
+        BindKind::ReadWrite,
+        BindKind::ReadWrite,
+    ];
     const WORKGROUP_SIZE: u32 = WG_SIZE;
     type Params = ScoreHypothesesParams;
     type CpuTwin = fn(&[Hypothesis], &[[f32; 3]], &[[f32; 3]], f32) -> Vec<HypothesisScore>;
@@ -68,7 +68,8 @@ pub fn record<'a>(
     [hypotheses, source, target]: [&wgpu::Buffer; 3],
     out: &ScoreBuffers<'_>,
 ) -> Result<()> {
-    rec.dispatch::<ScoreHypotheses>(params,
+    rec.dispatch::<ScoreHypotheses>(
+        params,
         &[hypotheses, source, target, out.inliers, out.residual_sums, out.mask],
         u64::from(params.hypotheses),
     )
