@@ -2,8 +2,10 @@
 //! for lavapipe (software Vulkan, ~1 GFLOP/s) to finish in a few minutes; scale the `SIZES` up on real GPUs.
 //!
 //! What is timed: the GPU side is the slice API `gpu::k::run` (upload, one dispatch, readback, all
-//! waited for), so small kernels are dominated by transfer and submission latency; the CPU side is the twin
-//! in `cpu::k`. Inputs are built once outside the timed closure. Benchmark ids are `cpu/N` and `gpu/N` with
+//! waited for), so small kernels are dominated by transfer and submission latency; the CPU side (`cpu/N`) is
+//! the code `CpuBackend` runs: the twin `cpu::k` for every kernel but dense, where it is the vectorised
+//! `cpu::gemm::dense` (bit-identical to the twin); the readable dense twin is timed as `cpu_twin/N` for
+//! comparison. Inputs are built once outside the timed closure. Benchmark ids are `cpu/N` and `gpu/N` with
 //! N the problem size. Without a Vulkan adapter (or `DPR_GPU_BACKEND`/`WGPU_BACKEND`) only the CPU side runs.
 //! CI builds these (`cargo bench --no-run`) but does not run them.
 
@@ -79,7 +81,11 @@ fn dense(c: &mut Criterion) {
     let mut g = c.benchmark_group("dense");
     // "elements" are floating-point operations: criterion's Gelem/s is GFLOP/s here.
     g.throughput(criterion::Throughput::Elements((2 * rows * i * o) as u64));
-    g.bench_function(BenchmarkId::new("cpu", rows), |b| b.iter(|| cpu::dense::dense(&shape, &x, &w, &bias, &mut out)));
+    // What CpuBackend runs (model::foldnet calls cpu::gemm::dense), and the readable twin it reproduces.
+    g.bench_function(BenchmarkId::new("cpu", rows), |b| b.iter(|| cpu::gemm::dense(&shape, &x, &w, &bias, &mut out)));
+    g.bench_function(BenchmarkId::new("cpu_twin", rows), |b| {
+        b.iter(|| cpu::dense::dense(&shape, &x, &w, &bias, &mut out))
+    });
     if let Some(dev) = gpu() {
         g.bench_function(BenchmarkId::new("gpu", rows), |b| {
             b.iter(|| gpu::dense::run(&dev, &shape, &x, &w, &bias, &mut out).unwrap())
@@ -109,11 +115,11 @@ fn matching(c: &mut Criterion) {
     let (k, dim) = (KEYPOINTS, 512);
     let mut rng = Rng::new(4);
     let (s, t) = (normals(&mut rng, k * dim), normals(&mut rng, k * dim));
-    let d = cpu::mutual_knn::codeword_distance(&s, &t, dim);
+    let d = cpu::codeword_distance::codeword_distance(&s, &t, dim);
     let mut out = vec![0.0; k * k];
     let mut g = c.benchmark_group("codeword_distance");
     g.bench_function(BenchmarkId::new("cpu", k), |b| {
-        b.iter(|| black_box(cpu::mutual_knn::codeword_distance(&s, &t, dim)))
+        b.iter(|| black_box(cpu::codeword_distance::codeword_distance(&s, &t, dim)))
     });
     if let Some(dev) = gpu() {
         g.bench_function(BenchmarkId::new("gpu", k), |b| {

@@ -2,8 +2,9 @@
 //! reference (`CpuBackend`) and the WGSL kernels (`gpu::GpuBackend`). Geometry that is cheap or sequential
 //! (normals, keypoints, patch gathering, the final rigid fit) stays on the CPU for every backend.
 
+use crate::cpu::codeword_distance::codeword_distance;
 use crate::cpu::hypotheses::{Hypothesis, hypotheses};
-use crate::cpu::mutual_knn::{Match, codeword_distance, mutual_knn};
+use crate::cpu::mutual_knn::{Match, mutual_knn};
 use crate::cpu::score_hypotheses::{HypothesisScore, score_hypotheses};
 use crate::error::Result;
 use crate::model::{Model, Net};

@@ -17,9 +17,18 @@ use dpr_gpu::backend::RotationInputs;
 use dpr_gpu::backend::{Backend, CpuBackend};
 use dpr_gpu::cpu::dense::DenseShape;
 use dpr_gpu::cpu::hypotheses::{Hypothesis, hypotheses as cpu_hypotheses};
-use dpr_gpu::cpu::rotation_head::rotation_head as cpu_rotation_head;
-use dpr_gpu::cpu::score_hypotheses::{HypothesisScore, score_hypotheses as cpu_score, squared_residual};
+use dpr_gpu::cpu::score_hypotheses::{HypothesisScore, squared_residual};
 use dpr_gpu::cpu::{self, mutual_knn::Match};
+use dpr_gpu::gpu::codeword_distance::CodewordDistance;
+use dpr_gpu::gpu::dense::Dense;
+use dpr_gpu::gpu::hypotheses::Hypotheses;
+use dpr_gpu::gpu::kernel::GpuKernel;
+use dpr_gpu::gpu::max_pool::MaxPool;
+use dpr_gpu::gpu::mutual_knn::MutualKnn;
+use dpr_gpu::gpu::patch_features::PatchFeatures;
+use dpr_gpu::gpu::registry::KERNELS;
+use dpr_gpu::gpu::rotation_head::RotationHead;
+use dpr_gpu::gpu::score_hypotheses::ScoreHypotheses;
 use dpr_gpu::gpu::testing::{gpu_or_skip as gpu, new_gpu_or_skip};
 use dpr_gpu::gpu::{self, Gpu, GpuBackend, GpuContext};
 use dpr_gpu::model::config::{PoseFrame, RotationOutput};
@@ -222,6 +231,11 @@ fn check_patch_features(kernel: &str, seed: u64, got: (&[f32], &[f32]), want: (&
     });
 }
 
+/// The CPU twin of patch_features on `p`.
+fn twin_patch_features(p: &GatheredPatches, n: usize, radius: f32, frame: PoseFrame) -> (Vec<f32>, Vec<f32>) {
+    PatchFeatures::CPU_TWIN(&p.centers, &p.center_normals, &p.points, &p.normals, n, radius, frame)
+}
+
 /// The kernel on `p` in `frame`, outputs pre-filled with the sentinel.
 fn gpu_patch_features(g: &Gpu, p: &GatheredPatches, n: usize, radius: f32, frame: PoseFrame) -> (Vec<f32>, Vec<f32>) {
     let (mut ppf, mut pc) = (vec![SENTINEL; p.points.len() * 4], vec![SENTINEL; p.points.len() * 3]);
@@ -241,7 +255,7 @@ fn patch_features_matches_cpu_ragged() {
     p.center_normals[..4].copy_from_slice(&[[1.0, 0.0, 0.0], [0.0, 0.6, -0.8], [0.0, 0.0, -1.0], [0.0, 0.0, 1.0]]);
     p.center_normals[4] = [0.0, 1.0, -0.0];
     for frame in [PoseFrame::Fragment, PoseFrame::Normal] {
-        let (want_ppf, want_pc) = p.features(n, radius, frame);
+        let (want_ppf, want_pc) = twin_patch_features(&p, n, radius, frame);
         let (ppf, pc) = gpu_patch_features(&g, &p, n, radius, frame);
         check_patch_features("patch_features", s, (&ppf, &pc), (&want_ppf, &want_pc), frame);
     }
@@ -276,12 +290,12 @@ fn patch_features_matches_cpu_degenerate() {
     center_normals.truncate(2);
     let p = GatheredPatches { centers, center_normals, points: pts, normals: nrm };
     for frame in [PoseFrame::Normal, PoseFrame::Fragment] {
-        let (want_ppf, want_pc) = p.features(n, 0.3, frame);
+        let (want_ppf, want_pc) = twin_patch_features(&p, n, 0.3, frame);
         let (ppf, pc) = gpu_patch_features(&g, &p, n, 0.3, frame);
         assert!(want_ppf.iter().chain(&want_pc).all(|v| v.is_finite()), "finite features on degenerate input");
         check_patch_features("patch_features (degenerate)", s, (&ppf, &pc), (&want_ppf, &want_pc), frame);
     }
-    let (want_ppf, _) = p.features(n, 0.3, PoseFrame::Fragment);
+    let (want_ppf, _) = twin_patch_features(&p, n, 0.3, PoseFrame::Fragment);
     let (ppf, _) = gpu_patch_features(&g, &p, n, 0.3, PoseFrame::Fragment);
     // The zero-vector branch (atan2(0, 0) -> 0) must be taken identically: exact zeros where the twin has one
     // because a vector is exactly zero.
@@ -320,7 +334,7 @@ fn dense_matches_cpu_ragged() {
         // Without accumulation the initial contents must be ignored: use the sentinel.
         let init = if accumulate { normals(&mut rng, rows * out_dim) } else { vec![SENTINEL; rows * out_dim] };
         let mut want = init.clone();
-        cpu::dense::dense(&shape, &x, &w, &gt, &mut want);
+        Dense::CPU_TWIN(&shape, &x, &w, &gt, &mut want);
         let mut got = init.clone();
         gpu::dense::run(&g, &shape, &x, &w, &gt, &mut got).unwrap();
         let init_for_scale = if accumulate { init.clone() } else { vec![0.0; init.len()] };
@@ -340,7 +354,7 @@ fn max_pool_matches_cpu_ragged() {
         // All negative in one group: the -inf start value matters.
         let mut x = normals(&mut rng, groups * rows * channels);
         x[..rows * channels].iter_mut().for_each(|v| *v = -v.abs() - 1.0);
-        let want = cpu::max_pool::max_pool(&x, groups, rows, channels);
+        let want = MaxPool::CPU_TWIN(&x, groups, rows, channels);
         let mut got = vec![SENTINEL; groups * channels];
         gpu::max_pool::run(&g, &x, groups, rows, channels, &mut got).unwrap();
         assert_close(&format!("max_pool {groups}x{rows}x{channels}"), s, &got, &want, |_| 0.0);
@@ -354,7 +368,7 @@ fn max_pool_matches_cpu_past_65535_workgroups() {
     let groups = 65_600 * gpu::max_pool::WG_SIZE as usize + 17;
     let mut rng = Rng::new(s);
     let x: Vec<f32> = (0..groups).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
-    let want = cpu::max_pool::max_pool(&x, groups, 1, 1);
+    let want = MaxPool::CPU_TWIN(&x, groups, 1, 1);
     let mut got = vec![SENTINEL; groups];
     gpu::max_pool::run(&g, &x, groups, 1, 1, &mut got).unwrap();
     assert_close("max_pool (2-D dispatch)", s, &got, &want, |_| 0.0);
@@ -369,7 +383,7 @@ fn codeword_distance_matches_cpu_ragged() {
     for (ns, nt, dim) in [(1, 1, 1), (37, 53, 70), (17, 16, 33), (5, 300, 4)] {
         let a = normals(&mut rng, ns * dim);
         let b = normals(&mut rng, nt * dim);
-        let want = cpu::mutual_knn::codeword_distance(&a, &b, dim);
+        let want = CodewordDistance::CPU_TWIN(&a, &b, dim);
         let mut got = vec![SENTINEL; ns * nt];
         gpu::codeword_distance::run(&g, &a, &b, dim, &mut got).unwrap();
         // All terms are non-negative, so sum |terms| is the value itself.
@@ -383,7 +397,7 @@ const MODES: [MatchMode; 5] =
 
 fn check_knn(g: &Gpu, s: u64, d: &[f32], ns: usize, nt: usize, what: &str) {
     for mode in MODES {
-        let want = cpu::mutual_knn::mutual_knn(d, ns, nt, mode);
+        let want = MutualKnn::CPU_TWIN(d, ns, nt, mode);
         let got = gpu::mutual_knn::run(g, d, ns, nt, mode).unwrap();
         assert_eq!(got, want, "mutual_knn {what} {ns}x{nt} {mode:?} (seed {s})");
     }
@@ -450,7 +464,7 @@ fn rotation_head_matches_cpu() {
         let nt: Vec<[f32; 3]> = (0..n).map(|_| unit(&mut rng)).collect();
         ns[..4].copy_from_slice(&[[0.0; 3], [0.0, 0.0, -1.0], [1.0, 0.0, -0.0], [f32::NAN; 3]]);
         for frame in [PoseFrame::Fragment, PoseFrame::Normal] {
-            let want = cpu_rotation_head(&raw, output, frame, &ns, &nt);
+            let want = RotationHead::CPU_TWIN(&raw, output, frame, &ns, &nt);
             assert_eq!(want.len(), n * output.candidates());
             let mut got = vec![[SENTINEL; 9]; want.len()];
             gpu::rotation_head::run(&g, &raw, output, frame, [&ns, &nt], &mut got).unwrap();
@@ -475,7 +489,7 @@ fn hypotheses_matches_cpu() {
     let s = seed(52);
     let mut rng = Rng::new(s);
     let (q, ps, pt) = random_hypotheses(&mut rng, 131, 20.0);
-    let want = cpu_hypotheses(&q, &ps, &pt);
+    let want = Hypotheses::CPU_TWIN(&q, &ps, &pt);
     let sentinel = Hypothesis { rotation: [SENTINEL; 9], translation: [SENTINEL; 3] };
     let mut got = vec![sentinel; q.len()];
     gpu::hypotheses::run(&g, &q, &ps, &pt, &mut got).unwrap();
@@ -520,7 +534,7 @@ fn scoring_problem(rng: &mut Rng, hyps: usize, corr: usize) -> (Vec<Hypothesis>,
 }
 
 fn check_scores(s: u64, h: &[Hypothesis], src: &[[f32; 3]], tgt: &[[f32; 3]], thr: f32, got: &[HypothesisScore]) {
-    let want = cpu_score(h, src, tgt, thr);
+    let want = ScoreHypotheses::CPU_TWIN(h, src, tgt, thr);
     assert_eq!(got.len(), want.len());
     let t2 = f64::from(thr) * f64::from(thr);
     for (i, (a, e)) in got.iter().zip(&want).enumerate() {
@@ -897,33 +911,49 @@ fn auto_backend_skips_software_adapters() {
     assert_eq!(allowed.expect("allowed by the environment").info.name, g.context.info.name);
 }
 
-fn main() -> std::process::ExitCode {
-    dpr_gpu::gpu::testing::run_tests(&[
-        ("patch_features_matches_cpu_ragged", patch_features_matches_cpu_ragged),
-        ("patch_features_matches_cpu_degenerate", patch_features_matches_cpu_degenerate),
-        ("dense_matches_cpu_ragged", dense_matches_cpu_ragged),
-        ("max_pool_matches_cpu_ragged", max_pool_matches_cpu_ragged),
-        ("max_pool_matches_cpu_past_65535_workgroups", max_pool_matches_cpu_past_65535_workgroups),
-        ("codeword_distance_matches_cpu_ragged", codeword_distance_matches_cpu_ragged),
-        ("mutual_knn_matches_cpu_random", mutual_knn_matches_cpu_random),
-        ("mutual_knn_matches_cpu_with_ties", mutual_knn_matches_cpu_with_ties),
-        ("rotation_head_matches_cpu", rotation_head_matches_cpu),
-        ("hypotheses_matches_cpu", hypotheses_matches_cpu),
-        ("score_hypotheses_matches_cpu", score_hypotheses_matches_cpu),
-        ("score_hypotheses_matches_cpu_past_65535_workgroups", score_hypotheses_matches_cpu_past_65535_workgroups),
-        ("inlier_mask_matches_cpu", inlier_mask_matches_cpu),
-        ("backend_patch_features_and_encode_match_cpu", backend_patch_features_and_encode_match_cpu),
-        ("networks_match_cpu_at_default_widths", networks_match_cpu_at_default_widths),
-        ("encode_and_matching_match_cpu_when_chunked", encode_and_matching_match_cpu_when_chunked),
-        ("decode_matches_cpu", decode_matches_cpu),
-        ("relativenet_hypotheses_and_scores_match_cpu", relativenet_hypotheses_and_scores_match_cpu),
-        ("invalid_calls_are_errors_not_panics", invalid_calls_are_errors_not_panics),
-        ("register_matches_cpu_on_a_generated_pair", register_matches_cpu_on_a_generated_pair),
-        ("poison_inputs_stay_in_their_patches", poison_inputs_stay_in_their_patches),
-        ("auto_backend_skips_software_adapters", auto_backend_skips_software_adapters),
-        (
-            "register_with_relativenet_matches_cpu_on_a_generated_pair",
-            register_with_relativenet_matches_cpu_on_a_generated_pair,
-        ),
-    ])
+/// Every kernel in the registry has a parity test against its twin here: a test named `{kernel}_matches_cpu...`.
+fn every_registered_kernel_has_a_parity_test() {
+    for spec in KERNELS {
+        let prefix = format!("{}_matches_cpu", spec.name);
+        assert!(
+            TESTS.iter().any(|(name, _)| name.starts_with(&prefix)),
+            "kernel '{}' is registered in gpu::registry::KERNELS but has no parity test named {prefix}*",
+            spec.name
+        );
+    }
 }
+
+fn main() -> std::process::ExitCode {
+    dpr_gpu::gpu::testing::run_tests(TESTS)
+}
+
+/// Every test of this binary.
+const TESTS: &[dpr_gpu::gpu::testing::GpuTest] = &[
+    ("every_registered_kernel_has_a_parity_test", every_registered_kernel_has_a_parity_test),
+    ("patch_features_matches_cpu_ragged", patch_features_matches_cpu_ragged),
+    ("patch_features_matches_cpu_degenerate", patch_features_matches_cpu_degenerate),
+    ("dense_matches_cpu_ragged", dense_matches_cpu_ragged),
+    ("max_pool_matches_cpu_ragged", max_pool_matches_cpu_ragged),
+    ("max_pool_matches_cpu_past_65535_workgroups", max_pool_matches_cpu_past_65535_workgroups),
+    ("codeword_distance_matches_cpu_ragged", codeword_distance_matches_cpu_ragged),
+    ("mutual_knn_matches_cpu_random", mutual_knn_matches_cpu_random),
+    ("mutual_knn_matches_cpu_with_ties", mutual_knn_matches_cpu_with_ties),
+    ("rotation_head_matches_cpu", rotation_head_matches_cpu),
+    ("hypotheses_matches_cpu", hypotheses_matches_cpu),
+    ("score_hypotheses_matches_cpu", score_hypotheses_matches_cpu),
+    ("score_hypotheses_matches_cpu_past_65535_workgroups", score_hypotheses_matches_cpu_past_65535_workgroups),
+    ("inlier_mask_matches_cpu", inlier_mask_matches_cpu),
+    ("backend_patch_features_and_encode_match_cpu", backend_patch_features_and_encode_match_cpu),
+    ("networks_match_cpu_at_default_widths", networks_match_cpu_at_default_widths),
+    ("encode_and_matching_match_cpu_when_chunked", encode_and_matching_match_cpu_when_chunked),
+    ("decode_matches_cpu", decode_matches_cpu),
+    ("relativenet_hypotheses_and_scores_match_cpu", relativenet_hypotheses_and_scores_match_cpu),
+    ("invalid_calls_are_errors_not_panics", invalid_calls_are_errors_not_panics),
+    ("register_matches_cpu_on_a_generated_pair", register_matches_cpu_on_a_generated_pair),
+    ("poison_inputs_stay_in_their_patches", poison_inputs_stay_in_their_patches),
+    ("auto_backend_skips_software_adapters", auto_backend_skips_software_adapters),
+    (
+        "register_with_relativenet_matches_cpu_on_a_generated_pair",
+        register_with_relativenet_matches_cpu_on_a_generated_pair,
+    ),
+];

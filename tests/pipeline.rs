@@ -5,7 +5,8 @@
 mod common;
 
 use dpr_gpu::backend::CpuBackend;
-use dpr_gpu::cpu::mutual_knn::{codeword_distance, mutual_knn};
+use dpr_gpu::cpu::codeword_distance::codeword_distance;
+use dpr_gpu::cpu::mutual_knn::mutual_knn;
 use dpr_gpu::cpu::patch_features::point_features;
 use dpr_gpu::cpu::rotation_head::quaternion_rotation;
 use dpr_gpu::estimate::{ransac, verify};

@@ -1,9 +1,10 @@
-//! GPU-free checks of every WGSL kernel: each `shaders/*.wgsl` is registered in `gpu::kernel::KERNELS`,
+//! GPU-free checks of every WGSL kernel: each `shaders/*.wgsl` is registered in `gpu::registry::KERNELS`,
 //! parses and validates with naga, and its reflected interface matches the host side: binding kinds and
 //! order, `@workgroup_size`, entry point `main`, and the uniform struct's size and field offsets against
 //! the `#[repr(C)]` Pod mirror.
 
-use dpr_gpu::gpu::kernel::{BindKind, KERNELS, KernelSpec};
+use dpr_gpu::gpu::kernel::{BindKind, KernelSpec};
+use dpr_gpu::gpu::registry::KERNELS;
 use naga::valid::{Capabilities, ValidationFlags, Validator};
 use std::collections::BTreeSet;
 
@@ -30,7 +31,7 @@ fn every_shader_file_is_registered_once() {
         .collect();
     let registered: BTreeSet<String> = KERNELS.iter().map(|k| k.name.to_string()).collect();
     assert_eq!(registered.len(), KERNELS.len(), "a kernel is registered twice");
-    assert_eq!(files, registered, "shaders/*.wgsl and gpu::kernel::KERNELS differ");
+    assert_eq!(files, registered, "shaders/*.wgsl and gpu::registry::KERNELS differ");
     for spec in KERNELS {
         let on_disk = std::fs::read_to_string(dir.join(format!("{}.wgsl", spec.name))).expect("readable");
         assert_eq!(on_disk, spec.source, "{}: registered source is not shaders/{}.wgsl", spec.name, spec.name);
@@ -120,5 +121,30 @@ fn params_structs_match_the_wgsl_layout() {
             .map(|(_, v)| v.ty)
             .expect("params global");
         assert_eq!(params_ty, handle, "{}: `params` is not a {}", spec.name, p.wgsl_name);
+    }
+}
+
+#[test]
+fn every_kernel_is_declared_in_its_host_module_with_its_twin_in_cpu_named_after_it() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    for spec in KERNELS {
+        let host_path = root.join("gpu").join(format!("{}.rs", spec.name));
+        let host = std::fs::read_to_string(&host_path)
+            .unwrap_or_else(|e| panic!("{}: no host module {} ({e})", spec.name, host_path.display()));
+        let twin_path = root.join("cpu").join(format!("{}.rs", spec.name));
+        assert!(twin_path.is_file(), "{}: no CPU twin module {}", spec.name, twin_path.display());
+        assert!(
+            host.contains(&format!("const NAME: &'static str = \"{}\";", spec.name)),
+            "{}: src/gpu/{}.rs does not declare the kernel (`impl GpuKernel` with NAME = \"{}\")",
+            spec.name,
+            spec.name,
+            spec.name
+        );
+        assert!(
+            host.contains(&format!("const CPU_TWIN: Self::CpuTwin = crate::cpu::{}::", spec.name)),
+            "{}: the declared CPU twin is not in crate::cpu::{}",
+            spec.name,
+            spec.name
+        );
     }
 }

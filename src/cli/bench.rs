@@ -1,22 +1,35 @@
 //! `dpr-gpu bench`: times every learned or massively parallel stage on synthetic inputs of a realistic shape
-//! (K keypoints x P points per patch), on the GPU backend and/or the CPU reference, and reports the dense
-//! GEMM throughput in GFLOP/s.
+//! (K keypoints x P points per patch), on the GPU backend and/or the CPU reference, the dense GEMM on its own
+//! (every CPU micro-kernel, the readable twin, the WGSL kernel) in GFLOP/s, and one synthetic pair registered
+//! end to end; prints a table, or with `--json` one JSON document ([`Report`], schema [`SCHEMA`]).
 //!
-//! GPU times are the wall time of the backend call (upload, dispatches, readback) and, where the adapter
-//! supports `TIMESTAMP_QUERY`, the GPU time between the first and last dispatch of each submission. Each
-//! stage runs once untimed (pipeline and buffer warm-up), then `--repeat` times; the fastest run is reported.
+//! GPU stages report the wall time of the backend call (upload, dispatches, readback) and the device time:
+//! the GPU timestamps of the submissions' compute passes where the adapter has `TIMESTAMP_QUERY`
+//! (`clock: gpu_timestamps`), else the host wall time (`clock: host_wall`), and the bytes moved between host
+//! and device by one call (counted by the GPU context where buffers are written and read back). Each stage
+//! runs once untimed (warm-up; its traffic is what is reported), then `--repeat` times; the fastest run is
+//! reported. GFLOP/s = flops / time, with the device time on the GPU; `--peak-tflops` (the adapter does not
+//! report its peak) adds `peak_fraction = gflops / (peak_tflops * 1000)` to GPU figures.
 
 use crate::backend::{Backend, CpuBackend, RotationInputs};
-use crate::cpu::dense::{DenseShape, dense};
+use crate::cpu::dense::{DenseShape, dense as dense_twin};
+use crate::cpu::gemm::{GemmPath, dense_on};
+use crate::gpu::context::Transfers;
 use crate::gpu::{Gpu, GpuBackend, buffer::GpuBuffer, dense as gpu_dense, recorder::Recorder};
 use crate::model::{Model, ModelConfig, Net, Weights};
 use crate::preprocess::GatheredPatches;
 use crate::rng::Rng;
 use crate::settings::MatchMode;
+use crate::{PointCloud, Registrar, RegistrationSettings};
 use anyhow::{Context, bail};
 use rayon::prelude::*;
+use serde::Serialize;
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
+
+/// The `schema` field of the JSON report; bumped when a field changes meaning or goes away.
+pub const SCHEMA: &str = "dpr-gpu-bench/1";
 
 /// Arguments of `dpr-gpu bench`.
 #[derive(clap::Args, Debug, Clone)]
@@ -40,19 +53,204 @@ pub struct Args {
     /// Seed of the synthetic inputs.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Print one JSON document (schema `dpr-gpu-bench/1`, fields in the README) on stdout instead of the table.
+    #[arg(long)]
+    pub json: bool,
+    /// The GPU's peak f32 throughput in TFLOP/s, from its datasheet (adapters do not report it): GPU GFLOP/s
+    /// figures then also give the fraction of that peak.
+    #[arg(long)]
+    pub peak_tflops: Option<f64>,
+    /// Points per scan of the synthetic pair registered end to end (per-pair bytes and times); 0 skips it.
+    #[arg(long, default_value_t = 20_000)]
+    pub pair_points: usize,
 }
 
-/// Best times of one stage on one backend.
-#[derive(Clone, Copy, Debug, Default)]
-struct Timing {
+/// Which clock a device time comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Clock {
+    /// GPU timestamps around the compute passes of each submission, summed over the call's submissions.
+    GpuTimestamps,
+    /// Host wall time of the whole call (the adapter has no `TIMESTAMP_QUERY`, or the figure is a CPU one).
+    HostWall,
+}
+
+/// The whole report (`--json`).
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    /// [`SCHEMA`].
+    pub schema: &'static str,
+    /// What was measured.
+    pub config: Config,
+    /// The CPU side, when timed.
+    pub cpu: Option<CpuInfo>,
+    /// The GPU side: whether one was measured, and why not.
+    pub gpu: GpuInfo,
+    /// One entry per stage, in pipeline order.
+    pub stages: Vec<StageReport>,
+    /// The dense GEMM on its own, one entry per variant.
+    pub gemm: Vec<GemmReport>,
+    /// One synthetic pair registered end to end, unless `--pair-points 0`.
+    pub pair: Option<PairReport>,
+}
+
+/// The sizes and options of the run.
+#[derive(Clone, Debug, Serialize)]
+pub struct Config {
+    /// Keypoints per scan (K): patches, correspondences.
+    pub keypoints: usize,
+    /// Points per patch (P).
+    pub points_per_patch: usize,
+    /// Codeword length.
+    pub codeword: usize,
+    /// Rotations per correspondence (hypotheses = K x candidates).
+    pub candidates: usize,
+    /// Timed repetitions per stage.
+    pub repeat: usize,
+    /// Seed of the synthetic inputs.
+    pub seed: u64,
+    /// The weights file, or `None` for seeded random weights.
+    pub weights: Option<String>,
+    /// `--peak-tflops`.
+    pub peak_tflops: Option<f64>,
+    /// Points per scan of the synthetic pair.
+    pub pair_points: usize,
+}
+
+/// The CPU the reference ran on.
+#[derive(Clone, Debug, Serialize)]
+pub struct CpuInfo {
+    /// Rayon threads.
+    pub threads: usize,
+    /// The GEMM micro-kernel the CPU backend uses (`avx512`, `avx2`, `portable`).
+    pub gemm_path: &'static str,
+}
+
+/// The GPU the kernels ran on, or why none did.
+#[derive(Clone, Debug, Serialize)]
+pub struct GpuInfo {
+    /// Whether GPU figures were measured.
+    pub available: bool,
+    /// Adapter name, backend, type and driver.
+    pub adapter: Option<String>,
+    /// Whether the adapter has `TIMESTAMP_QUERY`.
+    pub timestamps: bool,
+    /// The clock of the GPU device times (`None` without a GPU).
+    pub clock: Option<Clock>,
+    /// Bytes uploaded once for the model's weights (not part of any stage).
+    pub weights_upload_bytes: Option<u64>,
+    /// Why no GPU was measured (`None` when one was).
+    pub note: Option<String>,
+}
+
+/// One stage on each backend.
+#[derive(Clone, Debug, Serialize)]
+pub struct StageReport {
+    /// Stage name (`patch_features`, `encode ppf`, ...).
+    pub stage: String,
+    /// Floating-point operations of one call, for the stages that are GEMM-bound.
+    pub flops: Option<f64>,
+    /// The CPU reference, when timed.
+    pub cpu: Option<CpuTiming>,
+    /// The GPU backend, when timed.
+    pub gpu: Option<GpuTiming>,
+}
+
+/// A CPU figure.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct CpuTiming {
+    /// Fastest wall time of one call, ms.
+    pub wall_ms: f64,
+    /// `flops / wall`, GFLOP/s.
+    pub gflops: Option<f64>,
+}
+
+/// A GPU figure.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct GpuTiming {
+    /// Fastest wall time of one call (upload, dispatches, readback), ms.
+    pub wall_ms: f64,
+    /// Fastest device time of one call, ms, on `clock`.
+    pub device_ms: f64,
+    /// Where `device_ms` comes from.
+    pub clock: Clock,
+    /// Bytes moved by one call.
+    #[serde(flatten)]
+    pub transfers: Transfers,
+    /// `flops / device time`, GFLOP/s.
+    pub gflops: Option<f64>,
+    /// `gflops / (peak_tflops * 1000)`.
+    pub peak_fraction: Option<f64>,
+}
+
+/// One GEMM variant.
+#[derive(Clone, Debug, Serialize)]
+pub struct GemmReport {
+    /// `cpu_gemm_<path>` (the CPU backend's kernel on each micro-kernel this CPU has), `cpu_twin` (the readable
+    /// twin), `gpu_dense_f32` (the WGSL tiled kernel).
+    pub variant: String,
+    /// `cpu` or `gpu`.
+    pub device: &'static str,
+    /// Whether this is the variant the backend runs.
+    pub used_by_backend: bool,
+    /// Rows of the layer.
+    pub rows: usize,
+    /// Input width.
+    pub in_dim: usize,
+    /// Output width.
+    pub out_dim: usize,
+    /// `2 x rows x in_dim x out_dim`.
+    pub flops: f64,
+    /// Fastest time, ms, on `clock`.
+    pub time_ms: f64,
+    /// Where `time_ms` comes from.
+    pub clock: Clock,
+    /// `flops / time`, GFLOP/s.
+    pub gflops: f64,
+    /// `gflops / (peak_tflops * 1000)` for GPU variants with `--peak-tflops`.
+    pub peak_fraction: Option<f64>,
+}
+
+/// One pair registered end to end (`Registrar::register`: preprocessing on the CPU, the stages on the backend).
+#[derive(Clone, Debug, Serialize)]
+pub struct PairReport {
+    /// The backend's name.
+    pub backend: String,
+    /// Points per scan.
+    pub points_per_scan: usize,
+    /// Keypoints per scan.
+    pub keypoints: usize,
+    /// Correspondences found.
+    pub correspondences: usize,
+    /// Fastest wall time of the whole registration, ms.
+    pub wall_ms: f64,
+    /// Device time of the GPU stages, ms (`None` on the CPU).
+    pub device_ms: Option<f64>,
+    /// Where `device_ms` comes from.
+    pub clock: Option<Clock>,
+    /// Bytes from host to device for the pair (`None` on the CPU).
+    pub host_to_device_bytes: Option<u64>,
+    /// Bytes from device to host for the pair.
+    pub device_to_host_bytes: Option<u64>,
+    /// Uniform parameter bytes for the pair.
+    pub uniform_bytes: Option<u64>,
+}
+
+/// The best times of one measured call, and the traffic of one call.
+#[derive(Clone, Copy, Debug)]
+struct Measured {
     wall: Duration,
-    kernels: Option<Duration>,
+    device: Option<Duration>,
+    transfers: Option<Transfers>,
 }
 
-/// Runs `f` once to warm up, then `repeat` times; the fastest wall and GPU times.
-fn time<T>(repeat: usize, gpu: Option<&Gpu>, mut f: impl FnMut() -> anyhow::Result<T>) -> anyhow::Result<Timing> {
+/// Runs `f` once untimed (warm-up; its GPU traffic is recorded), then `repeat` times: the fastest wall and
+/// device times.
+fn measure<T>(repeat: usize, gpu: Option<&Gpu>, mut f: impl FnMut() -> anyhow::Result<T>) -> anyhow::Result<Measured> {
+    let before = gpu.map(|g| g.context.transfers());
     f()?;
-    let mut best = Timing { wall: Duration::MAX, kernels: None };
+    let transfers = gpu.zip(before).map(|(g, b)| g.context.transfers().since(b));
+    let mut best = Measured { wall: Duration::MAX, device: None, transfers };
     for _ in 0..repeat.max(1) {
         if let Some(g) = gpu {
             g.take_gpu_time();
@@ -60,19 +258,45 @@ fn time<T>(repeat: usize, gpu: Option<&Gpu>, mut f: impl FnMut() -> anyhow::Resu
         let start = Instant::now();
         f()?;
         best.wall = best.wall.min(start.elapsed());
-        if let Some(k) = gpu.and_then(Gpu::take_gpu_time) {
-            best.kernels = Some(best.kernels.map_or(k, |b: Duration| b.min(k)));
+        if let Some(d) = gpu.and_then(Gpu::take_gpu_time) {
+            best.device = Some(best.device.map_or(d, |b| b.min(d)));
         }
     }
     Ok(best)
 }
 
-fn ms(d: Duration) -> String {
-    format!("{:10.2}", d.as_secs_f64() * 1e3)
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
 }
 
-fn gflops(flops: f64, d: Duration) -> String {
-    format!("{:8.2}", flops / d.as_secs_f64().max(1e-12) / 1e9)
+/// `flops / ms` in GFLOP/s (a zero time counts as 1 ns).
+fn gflops(flops: f64, ms: f64) -> f64 {
+    flops / (ms * 1e-3).max(1e-9) / 1e9
+}
+
+fn peak_fraction(gflops: Option<f64>, peak_tflops: Option<f64>) -> Option<f64> {
+    Some(gflops? / (peak_tflops? * 1e3))
+}
+
+fn cpu_timing(m: Measured, flops: Option<f64>) -> CpuTiming {
+    let wall_ms = ms(m.wall);
+    CpuTiming { wall_ms, gflops: flops.map(|f| gflops(f, wall_ms)) }
+}
+
+fn gpu_timing(m: Measured, flops: Option<f64>, peak_tflops: Option<f64>) -> GpuTiming {
+    let (device_ms, clock) = match m.device {
+        Some(d) => (ms(d), Clock::GpuTimestamps),
+        None => (ms(m.wall), Clock::HostWall),
+    };
+    let g = flops.map(|f| gflops(f, device_ms));
+    GpuTiming {
+        wall_ms: ms(m.wall),
+        device_ms,
+        clock,
+        transfers: m.transfers.unwrap_or_default(),
+        gflops: g,
+        peak_fraction: peak_fraction(g, peak_tflops),
+    }
 }
 
 /// Dense FLOPs of one encoder pass over `patches` patches of `points` points (the per-patch global slice of
@@ -109,16 +333,67 @@ fn synthetic_patches(rng: &mut Rng, k: usize, p: usize, radius: f32) -> Gathered
     }
 }
 
-/// One stage's row of the report.
-struct Row {
-    stage: String,
-    cpu: Option<Timing>,
-    gpu: Option<Timing>,
-    flops: Option<f64>,
+/// Two scans of a synthetic room corner (floor, two walls, a box, a sphere; about 4 m across), `points` each,
+/// sampled independently; the target is moved by a seeded rigid pose. For the end-to-end pair of the benchmark.
+pub fn synthetic_pair(seed: u64, points: usize) -> (PointCloud, PointCloud) {
+    let scan = |rng: &mut Rng| -> Vec<[f32; 3]> {
+        (0..points)
+            .map(|i| {
+                let (u, v) = (rng.unit_f64(), rng.unit_f64());
+                let p = match i % 5 {
+                    0 => [4.0 * u, 4.0 * v, 0.0],
+                    1 => [4.0 * u, 0.0, 2.5 * v],
+                    2 => [0.0, 4.0 * u, 2.5 * v],
+                    3 => [1.5 + 0.8 * u, 1.2 + 0.6 * v, 0.9],
+                    _ => {
+                        let (th, z) = (std::f64::consts::TAU * u, 2.0 * v - 1.0);
+                        let r = (1.0 - z * z).sqrt() * 0.4;
+                        [1.0 + r * th.cos(), 2.6 + r * th.sin(), 0.4 + 0.4 * z]
+                    }
+                };
+                p.map(|c| c as f32)
+            })
+            .collect()
+    };
+    let mut rng = Rng::new(seed ^ 0x5041_4952);
+    let source = scan(&mut rng);
+    let target = scan(&mut rng);
+    let q = rng.unit_quaternion();
+    let r = crate::pose::matrix_from_quaternion(q);
+    let t = [0; 3].map(|_: i32| rng.uniform(-1.0, 1.0));
+    let moved = target
+        .iter()
+        .map(|p| {
+            let p = p.map(f64::from);
+            [0, 1, 2].map(|a| (r[(a, 0)] * p[0] + r[(a, 1)] * p[1] + r[(a, 2)] * p[2] + t[a]) as f32)
+        })
+        .collect();
+    (PointCloud::from_points(source), PointCloud::from_points(moved))
+}
+
+/// The model `args` describe: the weights file or seeded random weights, with `--points` applied.
+pub fn bench_model(args: &Args) -> anyhow::Result<Model> {
+    let weights = match &args.weights {
+        Some(path) => Weights::load(path).with_context(|| format!("loading {}", path.display()))?,
+        None => Weights::init(&ModelConfig::default(), args.seed)?,
+    };
+    let mut model = Model::from_weights(&weights)?;
+    if let Some(p) = args.points {
+        model.config.points_per_patch = p;
+    }
+    Ok(model)
+}
+
+/// The settings of the end-to-end pair: the defaults with `--keypoints` and `--seed`.
+pub fn pair_settings(args: &Args) -> RegistrationSettings {
+    RegistrationSettings { keypoints: args.keypoints, seed: args.seed, ..Default::default() }
 }
 
 /// Most timed repetitions.
 pub const MAX_REPEAT: usize = 1_000;
+
+/// Most points per scan of the end-to-end pair.
+pub const MAX_PAIR_POINTS: usize = 2_000_000;
 
 /// Checks the sizes against their bounds before anything is allocated: keypoints and points per patch as for
 /// `register` (at most [`crate::settings::MAX_KEYPOINTS`], [`crate::model::config::MAX_POINTS_PER_PATCH`],
@@ -141,58 +416,87 @@ fn check_bounds(args: &Args) -> anyhow::Result<()> {
     if args.repeat > MAX_REPEAT {
         bail!("--repeat must be at most {MAX_REPEAT}, got {}", args.repeat);
     }
+    if let Some(p) = args.peak_tflops
+        && !(p.is_finite() && p > 0.0)
+    {
+        bail!("--peak-tflops must be a positive number of TFLOP/s, got {p}");
+    }
+    if args.pair_points > MAX_PAIR_POINTS {
+        bail!("--pair-points must be at most {MAX_PAIR_POINTS}, got {}", args.pair_points);
+    }
     Ok(())
 }
 
-/// Runs `dpr-gpu bench`.
+/// Runs `dpr-gpu bench`: the table, or with `--json` the [`Report`] on stdout.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let report = measure_all(&args)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print_report(&report);
+    }
+    Ok(())
+}
+
+/// Measures everything `args` ask for (what `dpr-gpu bench` prints). Progress notes go to stderr.
+pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
     let (use_cpu, use_gpu) = match args.backend.as_str() {
         "cpu" => (true, false),
         "gpu" => (false, true),
         "both" => (true, true),
         other => bail!("--backend must be cpu, gpu or both, got '{other}'"),
     };
-    check_bounds(&args)?;
-    if args.keypoints == 0 {
-        bail!("--keypoints must be at least 1");
+    check_bounds(args)?;
+    if args.points == Some(0) {
+        bail!("--points must be at least 1");
     }
-    let weights = match &args.weights {
-        Some(path) => Weights::load(path).with_context(|| format!("loading {}", path.display()))?,
-        None => Weights::init(&ModelConfig::default(), args.seed)?,
-    };
-    let mut model = Model::from_weights(&weights)?;
-    if let Some(p) = args.points {
-        if p == 0 {
-            bail!("--points must be at least 1");
-        }
-        model.config.points_per_patch = p;
-    }
+    let model = bench_model(args)?;
     let (k, p) = (args.keypoints, model.config.points_per_patch);
     let cw = model.config.codeword();
     let radius = model.config.radius;
-    println!("dpr-gpu bench: {k} keypoints x {p} points per patch, codeword {cw}, best of {} runs", args.repeat.max(1));
+    let peak = args.peak_tflops;
+    eprintln!(
+        "dpr-gpu bench: {k} keypoints x {p} points per patch, codeword {cw}, best of {} runs",
+        args.repeat.max(1)
+    );
 
     let cpu = use_cpu.then(|| CpuBackend::new(model.clone()));
-    let gpu = match (use_gpu, use_cpu) {
-        (false, _) => None,
-        (true, false) => Some(GpuBackend::new(model.clone()).context("creating the GPU backend")?),
+    let device = match (use_gpu, use_cpu) {
+        (false, _) => Err("not requested (--backend cpu)".to_string()),
+        (true, false) => Ok(Arc::new(Gpu::new().context("creating the GPU backend")?)),
         // The default (`both`): without an adapter, time what exists and say what was not measured.
-        (true, true) => match GpuBackend::new(model.clone()) {
-            Ok(g) => Some(g),
-            Err(e) => {
-                println!("gpu: not measured ({e}); timing the CPU reference only");
-                None
-            }
-        },
+        (true, true) => Gpu::new().map(Arc::new).map_err(|e| format!("no GPU adapter ({e}); CPU only")),
     };
-    if let Some(g) = &gpu {
-        g.gpu().set_profiling(true);
-        let ts = if g.gpu().context.has_timestamps() { "GPU timestamps" } else { "no TIMESTAMP_QUERY: wall time only" };
-        println!("gpu: {} ({ts})", g.adapter_info());
-    }
-    if cpu.is_some() {
-        println!("cpu: {} threads", rayon::current_num_threads());
-    }
+    let mut info = GpuInfo {
+        available: false,
+        adapter: None,
+        timestamps: false,
+        clock: None,
+        weights_upload_bytes: None,
+        note: None,
+    };
+    let gpu = match device {
+        Ok(dev) => {
+            dev.set_profiling(true);
+            let before = dev.context.transfers();
+            let backend = GpuBackend::with_gpu(Arc::clone(&dev), model.clone()).context("uploading the weights")?;
+            info.weights_upload_bytes = Some(dev.context.transfers().since(before).host_to_device_bytes);
+            info.available = true;
+            info.adapter = Some(backend.adapter_info());
+            info.timestamps = dev.context.has_timestamps();
+            info.clock = Some(if info.timestamps { Clock::GpuTimestamps } else { Clock::HostWall });
+            let clock = if info.timestamps { "GPU timestamps" } else { "host wall time, no TIMESTAMP_QUERY" };
+            eprintln!("gpu: {} (device times: {clock})", backend.adapter_info());
+            Some(backend)
+        }
+        Err(note) => {
+            eprintln!("gpu: not measured: {note}");
+            info.note = Some(note);
+            None
+        }
+    };
+    let cpu_info =
+        cpu.as_ref().map(|_| CpuInfo { threads: rayon::current_num_threads(), gemm_path: GemmPath::selected().name() });
 
     let mut rng = Rng::new(args.seed);
     let patches = synthetic_patches(&mut rng, k, p, radius);
@@ -216,7 +520,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let tgt_pts: Vec<[f32; 3]> = src_pts.iter().map(|q| q.map(|c| c + 0.05 * rng.normal() as f32)).collect();
     let hyps = reference.hypotheses(&rotations, &src_pts, &tgt_pts)?;
 
-    let stages: Vec<(&str, Option<f64>)> = vec![
+    let stage_list: Vec<(&str, Option<f64>)> = vec![
         ("patch_features", None),
         ("encode ppf", Some(encode_flops(&model, k, p))),
         ("encode pc", Some(encode_flops(&model, k, p))),
@@ -225,16 +529,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ("hypotheses", None),
         ("score_hypotheses", None),
     ];
-    let mut rows = Vec::new();
-    for (stage, flops) in stages {
-        let mut row = Row { stage: stage.to_string(), cpu: None, gpu: None, flops };
-        let backends: [(Option<&dyn Backend>, Option<&Gpu>, bool); 2] = [
-            (cpu.as_ref().map(|c| c as &dyn Backend), None, false),
-            (gpu.as_ref().map(|g| g as &dyn Backend), gpu.as_ref().map(GpuBackend::gpu), true),
+    let mut stages = Vec::new();
+    for (stage, flops) in stage_list {
+        let mut row = StageReport { stage: stage.to_string(), flops, cpu: None, gpu: None };
+        let backends: [(Option<&dyn Backend>, Option<&Gpu>); 2] = [
+            (cpu.as_ref().map(|c| c as &dyn Backend), None),
+            (gpu.as_ref().map(|g| g as &dyn Backend), gpu.as_ref().map(GpuBackend::gpu)),
         ];
-        for (backend, device, is_gpu) in backends {
+        for (backend, device) in backends {
             let Some(b) = backend else { continue };
-            let t = time(args.repeat, device, || -> anyhow::Result<()> {
+            let m = measure(args.repeat, device, || -> anyhow::Result<()> {
                 match stage {
                     "patch_features" => drop(b.patch_features(&patches, radius)?),
                     "encode ppf" => drop(b.encode(Net::Ppf, &ppf, k)?),
@@ -247,39 +551,113 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 Ok(())
             })
             .with_context(|| format!("stage {stage}"))?;
-            if is_gpu { row.gpu = Some(t) } else { row.cpu = Some(t) }
+            match device {
+                Some(_) => row.gpu = Some(gpu_timing(m, flops, peak)),
+                None => row.cpu = Some(cpu_timing(m, flops)),
+            }
         }
-        rows.push(row);
+        stages.push(row);
     }
-    rows.push(dense_row(&args, gpu.as_ref().map(GpuBackend::gpu), use_cpu, k * p)?);
-    print_report(&rows);
-    Ok(())
+    let gemm = gemm_variants(args, gpu.as_ref().map(GpuBackend::gpu), use_cpu, k * p)?;
+    let pair = if args.pair_points == 0 {
+        None
+    } else {
+        let backend: Box<dyn Backend> = match &gpu {
+            Some(g) => Box::new(GpuBackend::with_gpu(Arc::clone(g.gpu_arc()), model.clone())?),
+            None => Box::new(CpuBackend::new(model.clone())),
+        };
+        Some(measure_pair(args, backend, gpu.as_ref().map(GpuBackend::gpu))?)
+    };
+    let config = Config {
+        keypoints: k,
+        points_per_patch: p,
+        codeword: cw,
+        candidates,
+        repeat: args.repeat.max(1),
+        seed: args.seed,
+        weights: args.weights.as_ref().map(|w| w.display().to_string()),
+        peak_tflops: peak,
+        pair_points: args.pair_points,
+    };
+    Ok(Report { schema: SCHEMA, config, cpu: cpu_info, gpu: info, stages, gemm, pair })
 }
 
-/// The dense GEMM on its own: a 512 -> 512 layer over min(K x P, 32768) rows.
-fn dense_row(args: &Args, gpu: Option<&Gpu>, use_cpu: bool, rows: usize) -> anyhow::Result<Row> {
+/// Registers the synthetic pair with `backend` (on `gpu` when given): fastest wall and device times, and the
+/// traffic of one registration.
+fn measure_pair(args: &Args, backend: Box<dyn Backend>, gpu: Option<&Gpu>) -> anyhow::Result<PairReport> {
+    let (source, target) = synthetic_pair(args.seed, args.pair_points);
+    let name = backend.name();
+    let registrar = Registrar::with_backend(&pair_settings(args), backend)?;
+    let mut correspondences = 0;
+    let m = measure(args.repeat, gpu, || {
+        correspondences = registrar.register(&source, &target)?.correspondences;
+        Ok(())
+    })
+    .context("registering the synthetic pair")?;
+    let timing = gpu.map(|_| gpu_timing(m, None, None));
+    Ok(PairReport {
+        backend: name,
+        points_per_scan: args.pair_points,
+        keypoints: args.keypoints,
+        correspondences,
+        wall_ms: ms(m.wall),
+        device_ms: timing.map(|t| t.device_ms),
+        clock: timing.map(|t| t.clock),
+        host_to_device_bytes: timing.map(|t| t.transfers.host_to_device_bytes),
+        device_to_host_bytes: timing.map(|t| t.transfers.device_to_host_bytes),
+        uniform_bytes: timing.map(|t| t.transfers.uniform_bytes),
+    })
+}
+
+/// One dense layer call on a block of rows: (shape of the block, its inputs, its outputs).
+type DenseLayer<'a> = dyn Fn(&DenseShape, &[f32], &mut [f32]) + Sync + 'a;
+
+/// The dense GEMM on its own, a 512 -> 512 layer over min(K x P, 32768) rows: the CPU backend's kernel on
+/// every micro-kernel this CPU has, the readable twin, and the WGSL kernel.
+fn gemm_variants(args: &Args, gpu: Option<&Gpu>, use_cpu: bool, rows: usize) -> anyhow::Result<Vec<GemmReport>> {
     let rows = rows.clamp(1, 32_768);
     let (in_dim, out_dim) = (512, 512);
     let mut rng = Rng::new(args.seed ^ 0xD5);
     let mut v = |n: usize| (0..n).map(|_| rng.normal() as f32).collect::<Vec<f32>>();
     let (x, w, b) = (v(rows * in_dim), v(in_dim * out_dim), v(out_dim));
     let shape = DenseShape { rows, in_dim, out_dim, rows_per_group: rows, accumulate: false, relu: true };
-    let mut row = Row {
-        stage: format!("dense {in_dim}->{out_dim} x {rows} rows"),
-        cpu: None,
-        gpu: None,
-        flops: Some(2.0 * (rows * in_dim * out_dim) as f64),
+    let flops = 2.0 * (rows * in_dim * out_dim) as f64;
+    let report = |variant: String, device: &'static str, used: bool, time_ms: f64, clock: Clock| {
+        let g = gflops(flops, time_ms);
+        GemmReport {
+            variant,
+            device,
+            used_by_backend: used,
+            rows,
+            in_dim,
+            out_dim,
+            flops,
+            time_ms,
+            clock,
+            gflops: g,
+            peak_fraction: if device == "gpu" { peak_fraction(Some(g), args.peak_tflops) } else { None },
+        }
     };
+    let mut out = Vec::new();
     if use_cpu {
-        let mut out = vec![0.0f32; rows * out_dim];
-        row.cpu = Some(time(args.repeat, None, || {
-            // Parallel over row blocks, as the CPU encoder runs it.
-            out.par_chunks_mut(2048 * out_dim).zip(x.par_chunks(2048 * in_dim)).for_each(|(o, xc)| {
-                let s = DenseShape { rows: xc.len() / in_dim, rows_per_group: xc.len() / in_dim, ..shape };
-                dense(&s, xc, &w, &b, o);
-            });
-            Ok(())
-        })?);
+        let mut y = vec![0.0f32; rows * out_dim];
+        // Parallel over row blocks, as the CPU encoder runs it.
+        let mut time_cpu = |layer: &DenseLayer<'_>| {
+            measure(args.repeat, None, || {
+                y.par_chunks_mut(2048 * out_dim).zip(x.par_chunks(2048 * in_dim)).for_each(|(o, xc)| {
+                    let s = DenseShape { rows: xc.len() / in_dim, rows_per_group: xc.len() / in_dim, ..shape };
+                    layer(&s, xc, o);
+                });
+                Ok(())
+            })
+        };
+        let selected = GemmPath::selected();
+        for path in GemmPath::available() {
+            let m = time_cpu(&|s, xc, o| dense_on(path, s, xc, &w, &b, o))?;
+            out.push(report(format!("cpu_gemm_{}", path.name()), "cpu", path == selected, ms(m.wall), Clock::HostWall));
+        }
+        let m = time_cpu(&|s, xc, o| dense_twin(s, xc, &w, &b, o))?;
+        out.push(report("cpu_twin".into(), "cpu", false, ms(m.wall), Clock::HostWall));
     }
     if let Some(g) = gpu {
         let ctx = &g.context;
@@ -290,36 +668,81 @@ fn dense_row(args: &Args, gpu: Option<&Gpu>, use_cpu: bool, rows: usize) -> anyh
         );
         let ob = GpuBuffer::from_slice(ctx, "out", &vec![0.0f32; rows * out_dim])?;
         let params = gpu_dense::DenseParams::new(&shape, 0, true)?;
-        row.gpu = Some(time(args.repeat, Some(g), || {
+        let m = measure(args.repeat, Some(g), || {
             let mut rec = Recorder::new(g, "bench dense");
             gpu_dense::record(&mut rec, g, &params, xb.raw(), wb.raw(), Some(bb.raw()), ob.raw())?;
             rec.finish()?;
             Ok(())
-        })?);
+        })?;
+        let t = gpu_timing(m, Some(flops), args.peak_tflops);
+        out.push(report("gpu_dense_f32".into(), "gpu", true, t.device_ms, t.clock));
     }
-    Ok(row)
+    Ok(out)
 }
 
-fn print_report(rows: &[Row]) {
+fn print_report(r: &Report) {
+    let c = &r.config;
+    println!(
+        "dpr-gpu bench: {} keypoints x {} points per patch, codeword {}, best of {} runs",
+        c.keypoints, c.points_per_patch, c.codeword, c.repeat
+    );
+    match (&r.gpu.adapter, &r.gpu.note) {
+        (Some(a), _) => {
+            let clock = if r.gpu.timestamps { "GPU timestamps" } else { "host wall time, no TIMESTAMP_QUERY" };
+            println!("gpu: {a} (device times: {clock})")
+        }
+        (None, Some(note)) => println!("gpu: not measured: {note}"),
+        (None, None) => {}
+    }
+    if let Some(cpu) = &r.cpu {
+        println!("cpu: {} threads, GEMM micro-kernel {}", cpu.threads, cpu.gemm_path);
+    }
     println!();
     println!(
-        "{:<34} {:>10} {:>10} {:>10} {:>8} {:>8} {:>8}",
-        "stage", "cpu ms", "gpu ms", "kernel ms", "speedup", "cpu GF/s", "gpu GF/s"
+        "{:<20} {:>10} {:>10} {:>10} {:>8} {:>8} {:>8} {:>10} {:>10}",
+        "stage", "cpu ms", "gpu ms", "device ms", "speedup", "cpu GF/s", "gpu GF/s", "up KiB", "down KiB"
     );
-    let blank = format!("{:>10}", "-");
-    for r in rows {
-        let cpu = r.cpu.map_or(blank.clone(), |t| ms(t.wall));
-        let gpu = r.gpu.map_or(blank.clone(), |t| ms(t.wall));
-        let kern = r.gpu.and_then(|t| t.kernels).map_or(blank.clone(), ms);
-        let speedup = match (r.cpu, r.gpu) {
-            (Some(c), Some(g)) => format!("{:7.1}x", c.wall.as_secs_f64() / g.wall.as_secs_f64().max(1e-12)),
-            _ => format!("{:>8}", "-"),
-        };
-        let gf = |t: Option<Timing>, kernel: bool| match (r.flops, t) {
-            (Some(f), Some(t)) => gflops(f, if kernel { t.kernels.unwrap_or(t.wall) } else { t.wall }),
-            _ => format!("{:>8}", "-"),
-        };
-        println!("{:<34} {cpu} {gpu} {kern} {speedup} {} {}", r.stage, gf(r.cpu, false), gf(r.gpu, true));
+    let num = |v: Option<f64>, w: usize, prec: usize| v.map_or(format!("{:>w$}", "-"), |v| format!("{v:>w$.prec$}"));
+    for s in &r.stages {
+        let speedup = s.cpu.zip(s.gpu).map(|(c, g)| c.wall_ms / g.wall_ms.max(1e-9));
+        let kib = |b: Option<u64>| b.map(|b| b as f64 / 1024.0);
+        println!(
+            "{:<20} {} {} {} {} {} {} {} {}",
+            s.stage,
+            num(s.cpu.map(|t| t.wall_ms), 10, 2),
+            num(s.gpu.map(|t| t.wall_ms), 10, 2),
+            num(s.gpu.map(|t| t.device_ms), 10, 2),
+            speedup.map_or(format!("{:>8}", "-"), |x| format!("{x:>7.1}x")),
+            num(s.cpu.and_then(|t| t.gflops), 8, 2),
+            num(s.gpu.and_then(|t| t.gflops), 8, 2),
+            num(kib(s.gpu.map(|t| t.transfers.host_to_device_bytes)), 10, 1),
+            num(kib(s.gpu.map(|t| t.transfers.device_to_host_bytes)), 10, 1),
+        );
     }
-    println!("\n(gpu GF/s uses the kernel time where timestamps exist, else the wall time)");
+    println!();
+    for g in &r.gemm {
+        let peak = g.peak_fraction.map_or(String::new(), |f| format!(" ({:.1}% of peak)", 100.0 * f));
+        let used = if g.used_by_backend { " [backend]" } else { "" };
+        println!(
+            "gemm {:<20} {}x{}x{}: {:10.3} ms {:9.2} GFLOP/s{peak}{used}",
+            g.variant, g.rows, g.in_dim, g.out_dim, g.time_ms, g.gflops
+        );
+    }
+    if let Some(p) = &r.pair {
+        let bytes = match (p.host_to_device_bytes, p.device_to_host_bytes) {
+            (Some(up), Some(down)) => {
+                format!(", {:.1} KiB up, {:.1} KiB down", up as f64 / 1024.0, down as f64 / 1024.0)
+            }
+            _ => String::new(),
+        };
+        println!(
+            "\npair ({} points per scan, {} correspondences) on {}: {:.2} ms{}{bytes}",
+            p.points_per_scan,
+            p.correspondences,
+            p.backend,
+            p.wall_ms,
+            p.device_ms.map_or(String::new(), |d| format!(", {d:.2} ms on the device")),
+        );
+    }
+    println!("\n(gpu GF/s uses the device time: GPU timestamps where the adapter has them, else the wall time)");
 }

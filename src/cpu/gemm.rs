@@ -199,25 +199,73 @@ mod x86 {
     }
 }
 
+/// The micro-kernels the multiply can run on; [`GemmPath::selected`] is the one every public function uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GemmPath {
+    /// 8 x 32 tiles in AVX-512 registers (x86-64 with AVX-512F).
+    Avx512,
+    /// 6 x 16 tiles in AVX2 registers (x86-64 with AVX2).
+    Avx2,
+    /// The portable 4 x 64 tile loop.
+    Portable,
+}
+
+impl GemmPath {
+    /// Short name (`avx512`, `avx2`, `portable`).
+    pub fn name(self) -> &'static str {
+        match self {
+            GemmPath::Avx512 => "avx512",
+            GemmPath::Avx2 => "avx2",
+            GemmPath::Portable => "portable",
+        }
+    }
+
+    /// Whether this CPU can run the path.
+    pub fn is_available(self) -> bool {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            GemmPath::Avx512 => std::arch::is_x86_feature_detected!("avx512f"),
+            #[cfg(target_arch = "x86_64")]
+            GemmPath::Avx2 => std::arch::is_x86_feature_detected!("avx2"),
+            GemmPath::Portable => true,
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => false,
+        }
+    }
+
+    /// The paths this CPU can run, fastest first.
+    pub fn available() -> Vec<GemmPath> {
+        [GemmPath::Avx512, GemmPath::Avx2, GemmPath::Portable].into_iter().filter(|p| p.is_available()).collect()
+    }
+
+    /// The path the crate uses on this CPU (the fastest available).
+    pub fn selected() -> GemmPath {
+        [GemmPath::Avx512, GemmPath::Avx2].into_iter().find(|p| p.is_available()).unwrap_or(GemmPath::Portable)
+    }
+}
+
 fn run(op: &Operands<'_>, c: &mut [f32], ldc: usize, epi: Epilogue<'_>) {
+    run_on(GemmPath::selected(), op, c, ldc, epi)
+}
+
+/// The multiply on `path`, which the caller checked is available.
+fn run_on(path: GemmPath, op: &Operands<'_>, c: &mut [f32], ldc: usize, epi: Epilogue<'_>) {
     if op.m == 0 || op.n == 0 {
         return;
     }
     assert!(op.k == 0 || op.a.len() > (op.m - 1) * op.sa + (op.k - 1) * op.sp, "gemm: A too short");
     assert!(op.k == 0 || op.b.len() >= (op.k - 1) * op.ldb + op.n, "gemm: B too short");
     assert!(c.len() >= (op.m - 1) * ldc + op.n, "gemm: C too short");
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU supports AVX-512F (checked just above).
-            return unsafe { x86::body_avx512(op, c, ldc, epi) };
-        }
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2 (checked just above).
-            return unsafe { x86::body_avx2(op, c, ldc, epi) };
-        }
+    assert!(path.is_available(), "gemm: path {} is not available on this CPU", path.name());
+    match path {
+        // SAFETY: the CPU supports AVX-512F (checked just above).
+        #[cfg(target_arch = "x86_64")]
+        GemmPath::Avx512 => unsafe { x86::body_avx512(op, c, ldc, epi) },
+        // SAFETY: the CPU supports AVX2 (checked just above).
+        #[cfg(target_arch = "x86_64")]
+        GemmPath::Avx2 => unsafe { x86::body_avx2(op, c, ldc, epi) },
+        _ => body::<4, 64>(op, c, ldc, epi, None),
     }
-    body::<4, 64>(op, c, ldc, epi, None)
 }
 
 /// `c[i * ldc + j] += sum_p a[i * lda + p] * b[p * ldb + j]` for `i < m`, `j < n`, `p < k`.
@@ -246,10 +294,16 @@ pub fn gemm_acc_at(
 
 /// Exactly `crate::cpu::dense::dense` (same arguments, bit-identical results), vectorised for the CPU at hand.
 pub fn dense(shape: &DenseShape, x: &[f32], w_t: &[f32], group_term: &[f32], out: &mut [f32]) {
+    dense_on(GemmPath::selected(), shape, x, w_t, group_term, out)
+}
+
+/// [`dense`] on a given micro-kernel (benchmarks time each path); panics when `path` is not available on
+/// this CPU ([`GemmPath::is_available`]).
+pub fn dense_on(path: GemmPath, shape: &DenseShape, x: &[f32], w_t: &[f32], group_term: &[f32], out: &mut [f32]) {
     let DenseShape { rows, in_dim, out_dim, rows_per_group, accumulate, relu } = *shape;
     let op = Operands { m: rows, n: out_dim, k: in_dim, a: x, sa: in_dim, sp: 1, b: w_t, ldb: out_dim };
     let epi = Epilogue::Dense { group: group_term, rows_per_group: rows_per_group.max(1), accumulate, relu };
-    run(&op, out, out_dim, epi);
+    run_on(path, &op, out, out_dim, epi);
 }
 
 #[cfg(test)]
@@ -351,10 +405,18 @@ mod tests {
             let mut v = |n: usize| (0..n).map(|_| rng.normal() as f32).collect::<Vec<f32>>();
             let (x, w, g, init) =
                 (v(rows * in_dim), v(in_dim * out_dim), v(rows.div_ceil(rpg) * out_dim), v(rows * out_dim));
-            let (mut fast, mut twin) = (init.clone(), init);
+            let mut fast = init.clone();
             dense(&s, &x, &w, &g, &mut fast);
-            crate::cpu::dense::dense(&s, &x, &w, &g, &mut twin);
-            assert_eq!(fast, twin, "{s:?}");
+            let mut want = init.clone();
+            crate::cpu::dense::dense(&s, &x, &w, &g, &mut want);
+            assert_eq!(fast, want, "{s:?}");
+            // Every path the benchmarks time gives the same bits.
+            for path in GemmPath::available() {
+                let mut on_path = init.clone();
+                dense_on(path, &s, &x, &w, &g, &mut on_path);
+                assert_eq!(on_path, want, "{} {s:?}", path.name());
+            }
+            assert_eq!(GemmPath::available()[0], GemmPath::selected());
         }
     }
 }

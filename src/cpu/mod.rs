@@ -1,6 +1,9 @@
-//! The CPU twins of the WGSL kernels: readable, shaped like the shaders, f32. They are the oracle every
-//! GPU kernel is checked against, and the fallback on machines without a GPU.
+//! The CPU twins of the WGSL kernels: readable, shaped like the shaders, f32, one module per kernel named after
+//! it (`cpu/k.rs` twins `shaders/k.wgsl`; `gpu::k::K::CPU_TWIN` points at it). They are the oracle every GPU
+//! kernel is checked against, and the fallback on machines without a GPU. [`gemm`] is not a twin: it is the
+//! vectorised, bit-identical form of [`dense::dense`] that the CPU backend runs.
 
+pub mod codeword_distance;
 pub mod dense;
 pub mod gemm;
 pub mod hypotheses;

@@ -1,5 +1,6 @@
 //! Typed storage buffers: upload, sentinel fill, readback through a staging buffer, and a [`Workspace`] of
-//! named buffers that are created once and reused (grown when a call needs more).
+//! named buffers that are created once and reused (grown when a call needs more). Every host-to-device write
+//! goes through [`write`], which counts the bytes on the context ([`GpuContext::transfers`]).
 
 use super::context::GpuContext;
 use crate::error::{Error, Result};
@@ -35,6 +36,17 @@ pub fn storage_buffer(ctx: &GpuContext, label: &str, bytes: u64) -> Result<wgpu:
     }))
 }
 
+/// Writes `data` into `buffer` at `offset` (queued before the next submission) and counts the bytes in
+/// [`GpuContext::transfers`]: every host-to-device write of the crate goes through here.
+pub fn write<T: Pod>(ctx: &GpuContext, buffer: &wgpu::Buffer, offset: u64, data: &[T]) {
+    if data.is_empty() {
+        return;
+    }
+    let bytes: &[u8] = bytemuck::cast_slice(data);
+    ctx.queue.write_buffer(buffer, offset, bytes);
+    ctx.count_upload(bytes.len() as u64);
+}
+
 /// A storage buffer of `len` elements of `T`.
 #[derive(Debug)]
 pub struct GpuBuffer<T: Pod> {
@@ -47,7 +59,7 @@ impl<T: Pod> GpuBuffer<T> {
     /// Uploads `data`.
     pub fn from_slice(ctx: &GpuContext, label: &str, data: &[T]) -> Result<GpuBuffer<T>> {
         let buffer = storage_buffer(ctx, label, std::mem::size_of_val(data) as u64)?;
-        ctx.queue.write_buffer(&buffer, 0, bytemuck::cast_slice(data));
+        write(ctx, &buffer, 0, data);
         Ok(GpuBuffer { buffer, len: data.len(), _element: PhantomData })
     }
 
@@ -87,6 +99,7 @@ pub fn read_bytes(ctx: &GpuContext, buffer: &wgpu::Buffer, offset: u64, size: u6
     let mut encoder = ctx.device.create_command_encoder(&Default::default());
     encoder.copy_buffer_to_buffer(buffer, offset, &staging, 0, Some(size.next_multiple_of(4)));
     let index = ctx.queue.submit([encoder.finish()]);
+    ctx.count_readback(size.next_multiple_of(4));
     map_staging(ctx, &staging, index).map(|mut v| {
         v.truncate(size as usize);
         v
@@ -134,7 +147,7 @@ impl Workspace {
         };
         if let Some(bits) = self.poison {
             let pattern: Vec<u32> = vec![bits; (need / 4) as usize];
-            ctx.queue.write_buffer(&buffer, 0, bytemuck::cast_slice(&pattern));
+            write(ctx, &buffer, 0, &pattern);
         }
         Ok(buffer)
     }
@@ -142,9 +155,7 @@ impl Workspace {
     /// `buffer` with `data` written at offset 0.
     pub fn upload<T: Pod>(&mut self, ctx: &GpuContext, name: &'static str, data: &[T]) -> Result<wgpu::Buffer> {
         let buffer = self.buffer(ctx, name, std::mem::size_of_val(data) as u64)?;
-        if !data.is_empty() {
-            ctx.queue.write_buffer(&buffer, 0, bytemuck::cast_slice(data));
-        }
+        write(ctx, &buffer, 0, data);
         Ok(buffer)
     }
 

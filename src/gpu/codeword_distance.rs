@@ -1,7 +1,7 @@
 //! Host side of `shaders/codeword_distance.wgsl`: squared L2 distances between a chunk of source codewords
-//! and all target codewords, as a tiled kernel. CPU twin: [`crate::cpu::mutual_knn::codeword_distance`].
+//! and all target codewords, as a tiled kernel. CPU twin: [`crate::cpu::codeword_distance`].
 
-use super::kernel::{BindKind, KernelSpec, ParamsLayout, gpu_params};
+use super::kernel::{BindKind, GpuKernel, gpu_params};
 use super::recorder::Recorder;
 use super::{Gpu, to_u32};
 use crate::error::{Error, Result};
@@ -33,14 +33,20 @@ pub const WG_SIZE: u32 = 256;
 /// Output tile edge.
 pub const TILE: usize = 16;
 
-/// The kernel's registry entry.
-pub const SPEC: KernelSpec = KernelSpec {
-    name: "codeword_distance",
-    source: include_str!("../../shaders/codeword_distance.wgsl"),
-    binds: &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite],
-    workgroup_size: WG_SIZE,
-    params: ParamsLayout::of::<CodewordDistanceParams>(),
-};
+/// The `codeword_distance` kernel, declared once (registered in [`super::registry::KERNELS`]).
+#[derive(Clone, Copy, Debug)]
+pub struct CodewordDistance;
+
+impl GpuKernel for CodewordDistance {
+    const NAME: &'static str = "codeword_distance";
+    const SOURCE: &'static str = include_str!("../../shaders/codeword_distance.wgsl");
+    const BINDS: &'static [BindKind] =
+        &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite];
+    const WORKGROUP_SIZE: u32 = WG_SIZE;
+    type Params = CodewordDistanceParams;
+    type CpuTwin = fn(&[f32], &[f32], usize) -> Vec<f32>;
+    const CPU_TWIN: Self::CpuTwin = crate::cpu::codeword_distance::codeword_distance;
+}
 
 impl CodewordDistanceParams {
     /// Parameters for source rows `row_offset..row_offset + rows` against `cols` targets.
@@ -62,13 +68,12 @@ impl CodewordDistanceParams {
 /// Records the distances of one chunk into `out` (`rows x cols`).
 pub fn record<'a>(
     rec: &mut Recorder<'a>,
-    gpu: &'a Gpu,
     params: &CodewordDistanceParams,
     source: &wgpu::Buffer,
     target: &wgpu::Buffer,
     out: &wgpu::Buffer,
 ) -> Result<()> {
-    rec.dispatch(&gpu.kernels.codeword_distance, params, &[source, target, out], u64::from(params.tiles))
+    rec.dispatch::<CodewordDistance>(params, &[source, target, out], u64::from(params.tiles))
 }
 
 /// Runs the kernel on slices in one dispatch; `out` (`ns x nt`) holds the initial contents (a sentinel in
@@ -86,7 +91,7 @@ pub fn run(gpu: &Gpu, source: &[f32], target: &[f32], dim: usize, out: &mut [f32
     let tb = super::buffer::GpuBuffer::from_slice(ctx, "target", target)?;
     let ob = super::buffer::GpuBuffer::from_slice(ctx, "distances", out)?;
     let mut rec = Recorder::new(gpu, "codeword_distance");
-    record(&mut rec, gpu, &CodewordDistanceParams::new(ns, nt, dim, 0)?, sb.raw(), tb.raw(), ob.raw())?;
+    record(&mut rec, &CodewordDistanceParams::new(ns, nt, dim, 0)?, sb.raw(), tb.raw(), ob.raw())?;
     let r = rec.read(ob.raw(), 0, (out.len() * 4) as u64);
     let bytes = rec.finish()?;
     out.copy_from_slice(bytemuck::cast_slice(&bytes[r]));

@@ -49,6 +49,30 @@ const REQUIRED_LIMITS: &[(&str, LimitGetter, u64)] = &[
     ("max_storage_buffer_binding_size", |l| l.max_storage_buffer_binding_size, 1 << 20),
 ];
 
+/// Bytes moved between host and device, counted where buffers are written ([`super::buffer::write`]) and read
+/// back ([`super::recorder`], [`super::buffer::read_bytes`]); [`GpuContext::transfers`] gives the running
+/// totals and [`Transfers::since`] the traffic of a stretch of work.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Transfers {
+    /// Data written from the host into storage buffers (inputs, weights, sentinel fills), in bytes.
+    pub host_to_device_bytes: u64,
+    /// Data copied back to the host (results; timestamp resolves excluded), in bytes.
+    pub device_to_host_bytes: u64,
+    /// Uniform parameter bytes written (each submission's parameter structs at their aligned offsets).
+    pub uniform_bytes: u64,
+}
+
+impl Transfers {
+    /// The traffic between `earlier` and `self` (both totals of the same context).
+    pub fn since(self, earlier: Transfers) -> Transfers {
+        Transfers {
+            host_to_device_bytes: self.host_to_device_bytes.saturating_sub(earlier.host_to_device_bytes),
+            device_to_host_bytes: self.device_to_host_bytes.saturating_sub(earlier.device_to_host_bytes),
+            uniform_bytes: self.uniform_bytes.saturating_sub(earlier.uniform_bytes),
+        }
+    }
+}
+
 /// Instance, adapter, device and queue, plus the limits work is chunked by.
 pub struct GpuContext {
     /// The adapter the device was created on.
@@ -65,6 +89,8 @@ pub struct GpuContext {
     pub features: wgpu::Features,
     max_buffer_bytes: AtomicU64,
     uncaptured: Arc<Mutex<Vec<String>>>,
+    /// Running totals of [`Transfers`]: host to device, device to host, uniform.
+    transferred: [AtomicU64; 3],
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -162,6 +188,7 @@ impl GpuContext {
             features,
             max_buffer_bytes: AtomicU64::new(0),
             uncaptured,
+            transferred: Default::default(),
         };
         ctx.set_max_buffer_bytes(max_buffer_mib << 20);
         Ok(ctx)
@@ -197,6 +224,31 @@ impl GpuContext {
     pub fn set_max_buffer_bytes(&self, bytes: u64) {
         let device_max = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
         self.max_buffer_bytes.store((bytes.min(device_max) / 256 * 256).max(256), Ordering::Relaxed);
+    }
+
+    /// Bytes moved between host and device since the context was created.
+    pub fn transfers(&self) -> Transfers {
+        let [up, down, uniform] = &self.transferred;
+        Transfers {
+            host_to_device_bytes: up.load(Ordering::Relaxed),
+            device_to_host_bytes: down.load(Ordering::Relaxed),
+            uniform_bytes: uniform.load(Ordering::Relaxed),
+        }
+    }
+
+    /// Counts `bytes` written into a storage buffer.
+    pub(crate) fn count_upload(&self, bytes: u64) {
+        self.transferred[0].fetch_add(bytes, Ordering::Relaxed);
+    }
+
+    /// Counts `bytes` read back to the host.
+    pub(crate) fn count_readback(&self, bytes: u64) {
+        self.transferred[1].fetch_add(bytes, Ordering::Relaxed);
+    }
+
+    /// Counts `bytes` of uniform parameters written.
+    pub(crate) fn count_uniform(&self, bytes: u64) {
+        self.transferred[2].fetch_add(bytes, Ordering::Relaxed);
     }
 
     /// Whether GPU timestamps can be taken.

@@ -1,7 +1,7 @@
 //! Host side of `shaders/dense.wgsl`: one shared-MLP layer as a tiled GEMM with bias / per-group term,
 //! accumulation and ReLU. CPU twin: [`crate::cpu::dense`].
 
-use super::kernel::{BindKind, KernelSpec, ParamsLayout, gpu_params};
+use super::kernel::{BindKind, GpuKernel, gpu_params};
 use super::recorder::Recorder;
 use super::{Gpu, to_u32};
 use crate::cpu::dense::DenseShape;
@@ -42,14 +42,20 @@ pub const FLAG_RELU: u32 = 2;
 /// Add the group term.
 pub const FLAG_HAS_GROUP: u32 = 4;
 
-/// The kernel's registry entry.
-pub const SPEC: KernelSpec = KernelSpec {
-    name: "dense",
-    source: include_str!("../../shaders/dense.wgsl"),
-    binds: &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite],
-    workgroup_size: WG_SIZE,
-    params: ParamsLayout::of::<DenseParams>(),
-};
+/// The `dense` kernel, declared once (registered in [`super::registry::KERNELS`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Dense;
+
+impl GpuKernel for Dense {
+    const NAME: &'static str = "dense";
+    const SOURCE: &'static str = include_str!("../../shaders/dense.wgsl");
+    const BINDS: &'static [BindKind] =
+        &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite];
+    const WORKGROUP_SIZE: u32 = WG_SIZE;
+    type Params = DenseParams;
+    type CpuTwin = fn(&DenseShape, &[f32], &[f32], &[f32], &mut [f32]);
+    const CPU_TWIN: Self::CpuTwin = crate::cpu::dense::dense;
+}
 
 impl DenseParams {
     /// Parameters for `shape`, reading weight rows from `w_row_offset`, with or without a group term.
@@ -84,7 +90,7 @@ pub fn record<'a>(
     out: &wgpu::Buffer,
 ) -> Result<()> {
     let group = group.unwrap_or(&gpu.dummy);
-    rec.dispatch(&gpu.kernels.dense, params, &[x, w_t, group, out], u64::from(params.tiles))
+    rec.dispatch::<Dense>(params, &[x, w_t, group, out], u64::from(params.tiles))
 }
 
 /// Runs one layer on slices, like the twin: `out` holds the initial contents (read when accumulating, a

@@ -1,7 +1,7 @@
 //! Host side of `shaders/hypotheses.wgsl`: one rigid pose per correspondence from its rotation.
 //! CPU twin: [`crate::cpu::hypotheses`].
 
-use super::kernel::{BindKind, KernelSpec, ParamsLayout, gpu_params};
+use super::kernel::{BindKind, GpuKernel, gpu_params};
 use super::recorder::Recorder;
 use super::{Gpu, to_u32, workgroups};
 use crate::cpu::hypotheses::Hypothesis;
@@ -26,14 +26,20 @@ pub const WG_SIZE: u32 = 64;
 /// Floats per hypothesis on the GPU: rotation (row-major 3 x 3), then translation.
 pub const HYPOTHESIS_FLOATS: usize = 12;
 
-/// The kernel's registry entry.
-pub const SPEC: KernelSpec = KernelSpec {
-    name: "hypotheses",
-    source: include_str!("../../shaders/hypotheses.wgsl"),
-    binds: &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite],
-    workgroup_size: WG_SIZE,
-    params: ParamsLayout::of::<HypothesesParams>(),
-};
+/// The `hypotheses` kernel, declared once (registered in [`super::registry::KERNELS`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Hypotheses;
+
+impl GpuKernel for Hypotheses {
+    const NAME: &'static str = "hypotheses";
+    const SOURCE: &'static str = include_str!("../../shaders/hypotheses.wgsl");
+    const BINDS: &'static [BindKind] =
+        &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite];
+    const WORKGROUP_SIZE: u32 = WG_SIZE;
+    type Params = HypothesesParams;
+    type CpuTwin = fn(&[[f32; 9]], &[[f32; 3]], &[[f32; 3]]) -> Vec<Hypothesis>;
+    const CPU_TWIN: Self::CpuTwin = crate::cpu::hypotheses::hypotheses;
+}
 
 /// A hypothesis as its 12 GPU floats.
 pub fn to_row(h: &Hypothesis) -> [f32; HYPOTHESIS_FLOATS] {
@@ -54,13 +60,12 @@ pub fn from_row(row: &[f32]) -> Hypothesis {
 /// Records `rows` hypotheses from `rotations` (9 floats per row), `source` and `target` into `out`.
 pub fn record<'a>(
     rec: &mut Recorder<'a>,
-    gpu: &'a Gpu,
     rows: usize,
     [rotations, source, target]: [&wgpu::Buffer; 3],
     out: &wgpu::Buffer,
 ) -> Result<()> {
     let params = HypothesesParams { rows: to_u32(rows, "hypotheses")?, _pad0: 0, _pad1: 0, _pad2: 0 };
-    rec.dispatch(&gpu.kernels.hypotheses, &params, &[rotations, source, target, out], workgroups(rows, WG_SIZE))
+    rec.dispatch::<Hypotheses>(&params, &[rotations, source, target, out], workgroups(rows, WG_SIZE))
 }
 
 /// Runs the kernel on slices; `out` holds the initial contents (a sentinel in tests) and receives the result.
@@ -82,7 +87,7 @@ pub fn run(
     let t = super::buffer::GpuBuffer::from_slice(ctx, "target", target)?;
     let o = super::buffer::GpuBuffer::from_slice(ctx, "hypotheses", &init)?;
     let mut rec = Recorder::new(gpu, "hypotheses");
-    record(&mut rec, gpu, rows, [q.raw(), s.raw(), t.raw()], o.raw())?;
+    record(&mut rec, rows, [q.raw(), s.raw(), t.raw()], o.raw())?;
     let r = rec.read(o.raw(), 0, (rows * HYPOTHESIS_FLOATS * 4) as u64);
     let bytes = rec.finish()?;
     let floats: Vec<f32> = bytemuck::pod_collect_to_vec(&bytes[r]);

@@ -1,6 +1,7 @@
-//! The kernel registry: every WGSL kernel with its source, binding list, workgroup size and uniform
-//! parameter struct ([`KERNELS`]), and the compiled pipelines ([`Kernels`]), created once per device with
-//! explicit bind group layouts and reused for every dispatch.
+//! What a kernel is, independent of any particular kernel: the [`GpuKernel`] trait each kernel implements once
+//! (shader source, bindings, workgroup size, uniform parameter type, CPU twin), its type-erased [`KernelSpec`],
+//! and [`Kernel`], a pipeline compiled from a spec. This module names no kernel; the list of kernels is
+//! [`super::registry`], which depends on the kernel modules, while they depend only on this one.
 //!
 //! Binding convention (all kernels): group 0 only, binding 0 is the uniform parameter struct, then the
 //! read-only storage inputs, then the read-write outputs. Entry point `main`. Every kernel linearises its
@@ -68,10 +69,11 @@ impl ParamsLayout {
     }
 }
 
-/// Everything the host knows about one kernel; `shaders/{name}.wgsl` is its source.
+/// Everything the host knows about one kernel, type-erased ([`GpuKernel::SPEC`]); `shaders/{name}.wgsl` is
+/// its source.
 #[derive(Clone, Copy, Debug)]
 pub struct KernelSpec {
-    /// File stem, shared with the host module and the CPU twin.
+    /// File stem, shared by `shaders/{name}.wgsl`, `gpu/{name}.rs` and the CPU twin `cpu/{name}.rs`.
     pub name: &'static str,
     /// WGSL source.
     pub source: &'static str,
@@ -83,17 +85,33 @@ pub struct KernelSpec {
     pub params: ParamsLayout,
 }
 
-/// Every kernel, in pipeline order.
-pub const KERNELS: &[&KernelSpec] = &[
-    &super::patch_features::SPEC,
-    &super::dense::SPEC,
-    &super::max_pool::SPEC,
-    &super::codeword_distance::SPEC,
-    &super::mutual_knn::SPEC,
-    &super::rotation_head::SPEC,
-    &super::hypotheses::SPEC,
-    &super::score_hypotheses::SPEC,
-];
+/// One WGSL kernel, declared once: a unit type in `gpu/{NAME}.rs` implements this, and one line in
+/// [`super::registry::KERNELS`] registers it (compiled per device, validated by `tests/shaders.rs`, checked
+/// against its twin by `tests/gpu_parity.rs`).
+pub trait GpuKernel: 'static {
+    /// File stem of the shader, the host module and the CPU twin's module.
+    const NAME: &'static str;
+    /// WGSL source (`include_str!` of `shaders/{NAME}.wgsl`).
+    const SOURCE: &'static str;
+    /// Bindings 0.. of group 0: the uniform, read-only inputs, then outputs.
+    const BINDS: &'static [BindKind];
+    /// `@workgroup_size` (1-D).
+    const WORKGROUP_SIZE: u32;
+    /// The uniform parameter struct at binding 0; [`super::recorder::Recorder::dispatch`] takes only this type.
+    type Params: GpuParams;
+    /// The CPU twin's signature (a function pointer type).
+    type CpuTwin: Copy;
+    /// The CPU twin, in `crate::cpu::{NAME}`: the oracle the kernel is tested against.
+    const CPU_TWIN: Self::CpuTwin;
+    /// The type-erased registry entry.
+    const SPEC: KernelSpec = KernelSpec {
+        name: Self::NAME,
+        source: Self::SOURCE,
+        binds: Self::BINDS,
+        workgroup_size: Self::WORKGROUP_SIZE,
+        params: ParamsLayout::of::<Self::Params>(),
+    };
+}
 
 /// A compiled kernel: its pipeline and bind group layout.
 #[derive(Debug)]
@@ -152,43 +170,6 @@ impl Kernel {
                 cache: None,
             });
             Kernel { spec, pipeline, layout }
-        })
-    }
-}
-
-/// All pipelines, compiled once per device.
-#[derive(Debug)]
-pub struct Kernels {
-    /// `shaders/patch_features.wgsl`.
-    pub patch_features: Kernel,
-    /// `shaders/dense.wgsl`.
-    pub dense: Kernel,
-    /// `shaders/max_pool.wgsl`.
-    pub max_pool: Kernel,
-    /// `shaders/codeword_distance.wgsl`.
-    pub codeword_distance: Kernel,
-    /// `shaders/mutual_knn.wgsl`.
-    pub mutual_knn: Kernel,
-    /// `shaders/rotation_head.wgsl`.
-    pub rotation_head: Kernel,
-    /// `shaders/hypotheses.wgsl`.
-    pub hypotheses: Kernel,
-    /// `shaders/score_hypotheses.wgsl`.
-    pub score_hypotheses: Kernel,
-}
-
-impl Kernels {
-    /// Compiles every kernel of [`KERNELS`].
-    pub fn new(ctx: &GpuContext) -> Result<Kernels> {
-        Ok(Kernels {
-            patch_features: Kernel::new(ctx, &super::patch_features::SPEC)?,
-            dense: Kernel::new(ctx, &super::dense::SPEC)?,
-            max_pool: Kernel::new(ctx, &super::max_pool::SPEC)?,
-            codeword_distance: Kernel::new(ctx, &super::codeword_distance::SPEC)?,
-            mutual_knn: Kernel::new(ctx, &super::mutual_knn::SPEC)?,
-            rotation_head: Kernel::new(ctx, &super::rotation_head::SPEC)?,
-            hypotheses: Kernel::new(ctx, &super::hypotheses::SPEC)?,
-            score_hypotheses: Kernel::new(ctx, &super::score_hypotheses::SPEC)?,
         })
     }
 }

@@ -1,6 +1,6 @@
 //! Host side of `shaders/max_pool.wgsl`: per-group, per-channel maximum. CPU twin: [`crate::cpu::max_pool`].
 
-use super::kernel::{BindKind, KernelSpec, ParamsLayout, gpu_params};
+use super::kernel::{BindKind, GpuKernel, gpu_params};
 use super::recorder::Recorder;
 use super::{Gpu, to_u32, workgroups};
 use crate::error::{Error, Result};
@@ -22,14 +22,19 @@ gpu_params! {
 /// Invocations per workgroup (`WG_SIZE` in the shader).
 pub const WG_SIZE: u32 = 64;
 
-/// The kernel's registry entry.
-pub const SPEC: KernelSpec = KernelSpec {
-    name: "max_pool",
-    source: include_str!("../../shaders/max_pool.wgsl"),
-    binds: &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadWrite],
-    workgroup_size: WG_SIZE,
-    params: ParamsLayout::of::<MaxPoolParams>(),
-};
+/// The `max_pool` kernel, declared once (registered in [`super::registry::KERNELS`]).
+#[derive(Clone, Copy, Debug)]
+pub struct MaxPool;
+
+impl GpuKernel for MaxPool {
+    const NAME: &'static str = "max_pool";
+    const SOURCE: &'static str = include_str!("../../shaders/max_pool.wgsl");
+    const BINDS: &'static [BindKind] = &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadWrite];
+    const WORKGROUP_SIZE: u32 = WG_SIZE;
+    type Params = MaxPoolParams;
+    type CpuTwin = fn(&[f32], usize, usize, usize) -> Vec<f32>;
+    const CPU_TWIN: Self::CpuTwin = crate::cpu::max_pool::max_pool;
+}
 
 impl MaxPoolParams {
     /// Parameters for `groups x rows_per_group x channels`.
@@ -45,15 +50,9 @@ impl MaxPoolParams {
 }
 
 /// Records the pooling of `x` into `out` (`groups x channels`).
-pub fn record<'a>(
-    rec: &mut Recorder<'a>,
-    gpu: &'a Gpu,
-    params: &MaxPoolParams,
-    x: &wgpu::Buffer,
-    out: &wgpu::Buffer,
-) -> Result<()> {
+pub fn record<'a>(rec: &mut Recorder<'a>, params: &MaxPoolParams, x: &wgpu::Buffer, out: &wgpu::Buffer) -> Result<()> {
     let n = params.groups as usize * params.channels as usize;
-    rec.dispatch(&gpu.kernels.max_pool, params, &[x, out], workgroups(n, WG_SIZE))
+    rec.dispatch::<MaxPool>(params, &[x, out], workgroups(n, WG_SIZE))
 }
 
 /// Runs the kernel on slices; `out` (`groups x channels`) holds the initial contents (a sentinel in tests)
@@ -66,7 +65,7 @@ pub fn run(gpu: &Gpu, x: &[f32], groups: usize, rows_per_group: usize, channels:
     let xb = super::buffer::GpuBuffer::from_slice(ctx, "x", x)?;
     let ob = super::buffer::GpuBuffer::from_slice(ctx, "out", out)?;
     let mut rec = Recorder::new(gpu, "max_pool");
-    record(&mut rec, gpu, &MaxPoolParams::new(groups, rows_per_group, channels)?, xb.raw(), ob.raw())?;
+    record(&mut rec, &MaxPoolParams::new(groups, rows_per_group, channels)?, xb.raw(), ob.raw())?;
     let r = rec.read(ob.raw(), 0, (out.len() * 4) as u64);
     let bytes = rec.finish()?;
     out.copy_from_slice(bytemuck::cast_slice(&bytes[r]));

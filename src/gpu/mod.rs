@@ -1,8 +1,8 @@
 //! The WGSL compute path: every learned and massively parallel stage as a hand-written kernel run through
 //! wgpu on any GPU (Vulkan, Metal, DX12), checked against the CPU twins in [`crate::cpu`].
 //!
-//! Layout: one module per kernel (`shaders/k.wgsl` + `gpu/k.rs` + `cpu/k.rs`, registered in
-//! [`kernel::KERNELS`]); [`context`] (instance, adapter, device, error scopes), [`buffer`] (typed buffers,
+//! Layout: one module per kernel (`shaders/k.wgsl` + `gpu/k.rs` declaring it as a [`kernel::GpuKernel`] +
+//! its CPU twin `cpu/k.rs`, listed once in [`registry::KERNELS`]); [`context`] (instance, adapter, device, error scopes), [`buffer`] (typed buffers,
 //! reusable workspace, readback), [`recorder`] (batched dispatches, one submission per chunk), [`nets`]
 //! (the networks composed from kernels). [`Gpu`] holds the device and the compiled pipelines;
 //! [`GpuBackend`] adds the uploaded weights and implements [`Backend`].
@@ -20,6 +20,7 @@ pub mod mutual_knn;
 pub mod nets;
 pub mod patch_features;
 pub mod recorder;
+pub mod registry;
 pub mod rotation_head;
 pub mod score_hypotheses;
 pub mod testing;
@@ -34,9 +35,9 @@ use crate::preprocess::GatheredPatches;
 use crate::settings::MatchMode;
 use buffer::Workspace;
 pub use context::GpuContext;
-use kernel::Kernels;
 use nets::{GpuModel, items_per_chunk};
 use recorder::Recorder;
+use registry::Kernels;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
@@ -152,6 +153,11 @@ impl GpuBackend {
         &self.gpu
     }
 
+    /// The shared handle of the device (another backend can use the same device).
+    pub fn gpu_arc(&self) -> &Arc<Gpu> {
+        &self.gpu
+    }
+
     /// Fills every scratch buffer with `value` before use (tests: unwritten elements then show up).
     pub fn set_poison(&self, value: Option<f32>) -> Result<()> {
         self.workspace()?.poison = value.map(f32::to_bits);
@@ -244,7 +250,7 @@ impl Backend for GpuBackend {
                     ppf: &ppf,
                     pc: &pc,
                 };
-                patch_features::record(&mut rec, gpu, &params, &b)?;
+                patch_features::record(&mut rec, &params, &b)?;
                 rec.read(&ppf, 0, (rows * 16) as u64);
                 rec.read(&pc, 0, (rows * 12) as u64);
                 pending.push(rec.submit()?);
@@ -286,11 +292,11 @@ impl Backend for GpuBackend {
             for r0 in (0..ns).step_by(chunk) {
                 let rows = chunk.min(ns - r0);
                 let params = codeword_distance::CodewordDistanceParams::new(rows, nt, dim, r0)?;
-                codeword_distance::record(&mut rec, gpu, &params, &s, &t, &dist)?;
-                mutual_knn::record_chunk(&mut rec, gpu, &lists, &dist, (rows, nt, r0, ns), k, mutual)?;
+                codeword_distance::record(&mut rec, &params, &s, &t, &dist)?;
+                mutual_knn::record_chunk(&mut rec, &lists, &dist, (rows, nt, r0, ns), k, mutual)?;
             }
             if mutual {
-                mutual_knn::record_flags(&mut rec, gpu, &lists, &dist, ns, nt, k)?;
+                mutual_knn::record_flags(&mut rec, &lists, &dist, ns, nt, k)?;
             }
             let bytes = (ns * mutual_knn::K_MAX * 4) as u64;
             rec.read(&lists.row_dist, 0, bytes);
@@ -331,7 +337,7 @@ impl Backend for GpuBackend {
                 let bytes = (n * hypotheses::HYPOTHESIS_FLOATS * 4) as u64;
                 let out = ws.buffer(ctx, "hyp_out", bytes)?;
                 let mut rec = Recorder::new(gpu, "hypotheses");
-                hypotheses::record(&mut rec, gpu, n, [&q, &s, &t], &out)?;
+                hypotheses::record(&mut rec, n, [&q, &s, &t], &out)?;
                 rec.read(&out, 0, bytes);
                 pending.push(rec.submit()?);
             }
@@ -377,7 +383,7 @@ impl Backend for GpuBackend {
                 let mut rec = Recorder::new(gpu, "score_hypotheses");
                 let out =
                     score_hypotheses::ScoreBuffers { inliers: &inliers, residual_sums: &sums, mask: &gpu.dummy_rw };
-                score_hypotheses::record(&mut rec, gpu, &params, [&h, &s, &t], &out)?;
+                score_hypotheses::record(&mut rec, &params, [&h, &s, &t], &out)?;
                 rec.read(&inliers, 0, (n * 4) as u64);
                 rec.read(&sums, 0, (n * 4) as u64);
                 pending.push(rec.submit()?);

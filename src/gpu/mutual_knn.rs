@@ -2,7 +2,7 @@
 //! distance matrix (fed chunk by chunk of rows), the mutual check on the GPU, and a tiny host pass that
 //! compacts the flagged slots into matches sorted by (source, target). CPU twin: [`crate::cpu::mutual_knn`].
 
-use super::kernel::{BindKind, KernelSpec, ParamsLayout, gpu_params};
+use super::kernel::{BindKind, GpuKernel, gpu_params};
 use super::recorder::Recorder;
 use super::{Gpu, to_u32, workgroups};
 use crate::cpu::mutual_knn::Match;
@@ -44,11 +44,14 @@ pub const MODE_COLS: u32 = 1;
 /// Mutual flags per source row slot.
 pub const MODE_FLAGS: u32 = 2;
 
-/// The kernel's registry entry.
-pub const SPEC: KernelSpec = KernelSpec {
-    name: "mutual_knn",
-    source: include_str!("../../shaders/mutual_knn.wgsl"),
-    binds: &[
+/// The `mutual_knn` kernel, declared once (registered in [`super::registry::KERNELS`]).
+#[derive(Clone, Copy, Debug)]
+pub struct MutualKnn;
+
+impl GpuKernel for MutualKnn {
+    const NAME: &'static str = "mutual_knn";
+    const SOURCE: &'static str = include_str!("../../shaders/mutual_knn.wgsl");
+    const BINDS: &'static [BindKind] = &[
         BindKind::Uniform,
         BindKind::ReadOnly,
         BindKind::ReadWrite,
@@ -56,10 +59,12 @@ pub const SPEC: KernelSpec = KernelSpec {
         BindKind::ReadWrite,
         BindKind::ReadWrite,
         BindKind::ReadWrite,
-    ],
-    workgroup_size: WG_SIZE,
-    params: ParamsLayout::of::<MutualKnnParams>(),
-};
+    ];
+    const WORKGROUP_SIZE: u32 = WG_SIZE;
+    type Params = MutualKnnParams;
+    type CpuTwin = fn(&[f32], usize, usize, MatchMode) -> Vec<Match>;
+    const CPU_TWIN: Self::CpuTwin = crate::cpu::mutual_knn::mutual_knn;
+}
 
 /// K and whether the mutual check applies, for a match mode; `Error::InvalidInput` for K > 4.
 pub fn mode_k(mode: MatchMode) -> Result<(usize, bool)> {
@@ -106,7 +111,6 @@ impl KnnBuffers {
 /// global row `row_offset` of `sources`.
 pub fn record_chunk<'a>(
     rec: &mut Recorder<'a>,
-    gpu: &'a Gpu,
     b: &KnnBuffers,
     distances: &wgpu::Buffer,
     (rows, cols, row_offset, sources): (usize, usize, usize, usize),
@@ -124,10 +128,10 @@ pub fn record_chunk<'a>(
         _pad: 0,
     };
     let bufs = [distances, &b.row_dist, &b.row_index, &b.col_dist, &b.col_index, &b.flags];
-    rec.dispatch(&gpu.kernels.mutual_knn, &params, &bufs, workgroups(rows, WG_SIZE))?;
+    rec.dispatch::<MutualKnn>(&params, &bufs, workgroups(rows, WG_SIZE))?;
     if mutual {
         params.mode = MODE_COLS;
-        rec.dispatch(&gpu.kernels.mutual_knn, &params, &bufs, workgroups(cols, WG_SIZE))?;
+        rec.dispatch::<MutualKnn>(&params, &bufs, workgroups(cols, WG_SIZE))?;
     }
     Ok(())
 }
@@ -135,7 +139,6 @@ pub fn record_chunk<'a>(
 /// Records the mutual check of all `sources` rows (after every chunk).
 pub fn record_flags<'a>(
     rec: &mut Recorder<'a>,
-    gpu: &'a Gpu,
     b: &KnnBuffers,
     distances: &wgpu::Buffer,
     sources: usize,
@@ -153,7 +156,7 @@ pub fn record_flags<'a>(
         _pad: 0,
     };
     let bufs = [distances, &b.row_dist, &b.row_index, &b.col_dist, &b.col_index, &b.flags];
-    rec.dispatch(&gpu.kernels.mutual_knn, &params, &bufs, workgroups(sources, WG_SIZE))
+    rec.dispatch::<MutualKnn>(&params, &bufs, workgroups(sources, WG_SIZE))
 }
 
 /// The host compaction: flagged (or, without flags, all) filled slots of each row as matches, distances
@@ -193,9 +196,9 @@ pub fn run(gpu: &Gpu, distances: &[f32], ns: usize, nt: usize, mode: MatchMode) 
         nt,
     )?;
     let mut rec = Recorder::new(gpu, "mutual_knn");
-    record_chunk(&mut rec, gpu, &b, db.raw(), (ns, nt, 0, ns), k, mutual)?;
+    record_chunk(&mut rec, &b, db.raw(), (ns, nt, 0, ns), k, mutual)?;
     if mutual {
-        record_flags(&mut rec, gpu, &b, db.raw(), ns, nt, k)?;
+        record_flags(&mut rec, &b, db.raw(), ns, nt, k)?;
     }
     let bytes = (ns * K_MAX * 4) as u64;
     let (rd, ri, fl) =

@@ -236,13 +236,7 @@ pub fn encode(
             acts.push((out, layer.out_dim));
         }
         let global = ws.buffer(ctx, "enc_global", (cp * last.out_dim * 4) as u64)?;
-        max_pool::record(
-            &mut rec,
-            gpu,
-            &MaxPoolParams::new(cp, points, last.out_dim)?,
-            &acts[acts.len() - 1].0,
-            &global,
-        )?;
+        max_pool::record(&mut rec, &MaxPoolParams::new(cp, points, last.out_dim)?, &acts[acts.len() - 1].0, &global)?;
         // The global slice sits after the encoder slices in head.0's input; it is the per-patch term.
         let group = ws.buffer(ctx, "enc_group", (cp * head0.out_dim * 4) as u64)?;
         dense_call(
@@ -266,7 +260,7 @@ pub fn encode(
         }
         let h = tail(&mut rec, gpu, &f.head, &bufs, rows, true)?;
         let codewords = ws.buffer(ctx, "enc_codewords", (cp * cw * 4) as u64)?;
-        max_pool::record(&mut rec, gpu, &MaxPoolParams::new(cp, points, cw)?, &h, &codewords)?;
+        max_pool::record(&mut rec, &MaxPoolParams::new(cp, points, cw)?, &h, &codewords)?;
         rec.read(&codewords, 0, (cp * cw * 4) as u64);
         pending.push(rec.submit()?);
     }
@@ -373,7 +367,7 @@ pub fn relative(
         let raw = tail(&mut rec, gpu, layers, &bufs, n, false)?;
         let rotations = ws.buffer(ctx, "rel_rotations", (n * m * 36) as u64)?;
         let params = rotation_head::RotationHeadParams::new(n, config.rotation_output, config.pose_frame)?;
-        rotation_head::record(&mut rec, gpu, &params, [&raw, &ns, &nt], &rotations)?;
+        rotation_head::record(&mut rec, &params, [&raw, &ns, &nt], &rotations)?;
         rec.read(&rotations, 0, (n * m * 36) as u64);
         pending.push(rec.submit()?);
     }

@@ -1,7 +1,7 @@
 //! Host side of `shaders/patch_features.wgsl`: PPF and PC network inputs of gathered patches, one invocation
 //! per patch point. CPU twin: [`crate::cpu::patch_features`].
 
-use super::kernel::{BindKind, KernelSpec, ParamsLayout, gpu_params};
+use super::kernel::{BindKind, GpuKernel, gpu_params};
 use super::recorder::Recorder;
 use super::{Gpu, to_u32, workgroups};
 use crate::error::{Error, Result};
@@ -25,11 +25,14 @@ gpu_params! {
 /// Invocations per workgroup (`WG_SIZE` in the shader).
 pub const WG_SIZE: u32 = 64;
 
-/// The kernel's registry entry.
-pub const SPEC: KernelSpec = KernelSpec {
-    name: "patch_features",
-    source: include_str!("../../shaders/patch_features.wgsl"),
-    binds: &[
+/// The `patch_features` kernel, declared once (registered in [`super::registry::KERNELS`]).
+#[derive(Clone, Copy, Debug)]
+pub struct PatchFeatures;
+
+impl GpuKernel for PatchFeatures {
+    const NAME: &'static str = "patch_features";
+    const SOURCE: &'static str = include_str!("../../shaders/patch_features.wgsl");
+    const BINDS: &'static [BindKind] = &[
         BindKind::Uniform,
         BindKind::ReadOnly,
         BindKind::ReadOnly,
@@ -37,10 +40,13 @@ pub const SPEC: KernelSpec = KernelSpec {
         BindKind::ReadOnly,
         BindKind::ReadWrite,
         BindKind::ReadWrite,
-    ],
-    workgroup_size: WG_SIZE,
-    params: ParamsLayout::of::<PatchFeaturesParams>(),
-};
+    ];
+    const WORKGROUP_SIZE: u32 = WG_SIZE;
+    type Params = PatchFeaturesParams;
+    type CpuTwin =
+        fn(&[[f32; 3]], &[[f32; 3]], &[[f32; 3]], &[[f32; 3]], usize, f32, PoseFrame) -> (Vec<f32>, Vec<f32>);
+    const CPU_TWIN: Self::CpuTwin = crate::cpu::patch_features::patch_features;
+}
 
 /// Input and output buffers: centres and centre normals (xyz per patch), points and normals (xyz per point),
 /// ppf (4 per point) and pc (3 per point).
@@ -60,14 +66,8 @@ pub struct PatchFeaturesBuffers<'b> {
 }
 
 /// Records one dispatch over `params.rows` points.
-pub fn record<'a>(
-    rec: &mut Recorder<'a>,
-    gpu: &'a Gpu,
-    params: &PatchFeaturesParams,
-    b: &PatchFeaturesBuffers<'_>,
-) -> Result<()> {
-    rec.dispatch(
-        &gpu.kernels.patch_features,
+pub fn record<'a>(rec: &mut Recorder<'a>, params: &PatchFeaturesParams, b: &PatchFeaturesBuffers<'_>) -> Result<()> {
+    rec.dispatch::<PatchFeatures>(
         params,
         &[b.centers, b.center_normals, b.points, b.normals, b.ppf, b.pc],
         workgroups(params.rows as usize, WG_SIZE),
@@ -122,7 +122,7 @@ pub fn run(
         ppf: ppf_buf.raw(),
         pc: pc_buf.raw(),
     };
-    record(&mut rec, gpu, &params, &buffers)?;
+    record(&mut rec, &params, &buffers)?;
     let a = rec.read(ppf_buf.raw(), 0, (ppf.len() * 4) as u64);
     let b = rec.read(pc_buf.raw(), 0, (pc.len() * 4) as u64);
     let out = rec.finish()?;

@@ -4,10 +4,11 @@
 //! `min_uniform_buffer_offset_alignment`), bind groups are created at submit, dispatches share compute
 //! passes (split only around copies), and readbacks land in one staging buffer mapped after the submission.
 //! With profiling on and `TIMESTAMP_QUERY` available, the first and last pass carry timestamps and the
-//! elapsed GPU time is added to [`Gpu::take_gpu_time`](super::Gpu::take_gpu_time).
+//! elapsed GPU time is added to [`Gpu::take_gpu_time`](super::Gpu::take_gpu_time). The parameter bytes and
+//! the bytes read back are counted on the context ([`super::context::GpuContext::transfers`]).
 
 use super::Gpu;
-use super::kernel::{GpuParams, Kernel, grid};
+use super::kernel::{GpuKernel, Kernel, grid};
 use crate::error::{Error, Result};
 use wgpu::util::DeviceExt;
 
@@ -44,15 +45,15 @@ impl<'a> Recorder<'a> {
         Recorder { gpu, label, params: Vec::new(), ops: Vec::new(), reads: Vec::new() }
     }
 
-    /// Dispatches `workgroups` workgroups of `kernel` (folded into 2-D past the per-dimension limit) with
+    /// Dispatches `workgroups` workgroups of kernel `K` (folded into 2-D past the per-dimension limit) with
     /// `params` at binding 0 and `buffers` at bindings 1...
-    pub fn dispatch<P: GpuParams>(
+    pub fn dispatch<K: GpuKernel>(
         &mut self,
-        kernel: &'a Kernel,
-        params: &P,
+        params: &K::Params,
         buffers: &[&wgpu::Buffer],
         workgroups: u64,
     ) -> Result<()> {
+        let kernel: &'a Kernel = self.gpu.kernels.get::<K>()?;
         if buffers.len() + 1 != kernel.spec.binds.len() {
             return Err(Error::Gpu(format!(
                 "kernel '{}' takes {} buffers, got {}",
@@ -70,7 +71,7 @@ impl<'a> Recorder<'a> {
         let offset = self.params.len().next_multiple_of(align);
         self.params.resize(offset, 0);
         self.params.extend_from_slice(bytemuck::bytes_of(params));
-        let size = std::mem::size_of::<P>() as u64;
+        let size = std::mem::size_of::<K::Params>() as u64;
         self.ops.push(Op::Dispatch {
             kernel,
             params: (offset as u64, size),
@@ -110,6 +111,7 @@ impl<'a> Recorder<'a> {
     fn encode_and_submit(self) -> Result<Pending> {
         let ctx = &self.gpu.context;
         let device = &ctx.device;
+        ctx.count_uniform(self.params.len() as u64);
         let params = (!self.params.is_empty()).then(|| {
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("dpr-gpu params"),
@@ -192,6 +194,8 @@ impl<'a> Recorder<'a> {
         }
 
         let mut reads = self.reads;
+        // What comes back to the host: every read, as copied (rounded up to 4 bytes); not the timestamps.
+        ctx.count_readback(reads.iter().map(|(_, _, size)| size.next_multiple_of(4)).sum());
         if let Some((set, resolve)) = &query {
             encoder.resolve_query_set(set, 0..2, resolve, 0);
             reads.push((resolve.clone(), 0, 16));

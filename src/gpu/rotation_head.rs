@@ -1,7 +1,7 @@
 //! Host side of `shaders/rotation_head.wgsl`: RelativeNet's raw outputs (quaternion or 6-D) to rotations
 //! target_from_source in the fragments' frames. CPU twin: [`crate::cpu::rotation_head`].
 
-use super::kernel::{BindKind, KernelSpec, ParamsLayout, gpu_params};
+use super::kernel::{BindKind, GpuKernel, gpu_params};
 use super::recorder::Recorder;
 use super::{Gpu, to_u32, workgroups};
 use crate::cpu::rotation_head::MIN_NORM;
@@ -54,26 +54,31 @@ impl RotationHeadParams {
 /// Invocations per workgroup (`WG_SIZE` in the shader).
 pub const WG_SIZE: u32 = 64;
 
-/// The kernel's registry entry.
-pub const SPEC: KernelSpec = KernelSpec {
-    name: "rotation_head",
-    source: include_str!("../../shaders/rotation_head.wgsl"),
-    binds: &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite],
-    workgroup_size: WG_SIZE,
-    params: ParamsLayout::of::<RotationHeadParams>(),
-};
+/// The `rotation_head` kernel, declared once (registered in [`super::registry::KERNELS`]).
+#[derive(Clone, Copy, Debug)]
+pub struct RotationHead;
+
+impl GpuKernel for RotationHead {
+    const NAME: &'static str = "rotation_head";
+    const SOURCE: &'static str = include_str!("../../shaders/rotation_head.wgsl");
+    const BINDS: &'static [BindKind] =
+        &[BindKind::Uniform, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadOnly, BindKind::ReadWrite];
+    const WORKGROUP_SIZE: u32 = WG_SIZE;
+    type Params = RotationHeadParams;
+    type CpuTwin = fn(&[f32], RotationOutput, PoseFrame, &[[f32; 3]], &[[f32; 3]]) -> Vec<[f32; 9]>;
+    const CPU_TWIN: Self::CpuTwin = crate::cpu::rotation_head::rotation_head;
+}
 
 /// Records the rotations of `params.rows` rows: `raw` outputs and the rows' keypoint normals into `out`
 /// (`candidates x 9` floats per row).
 pub fn record<'a>(
     rec: &mut Recorder<'a>,
-    gpu: &'a Gpu,
     params: &RotationHeadParams,
     [raw, source_normals, target_normals]: [&wgpu::Buffer; 3],
     out: &wgpu::Buffer,
 ) -> Result<()> {
     let groups = workgroups(params.rows as usize, WG_SIZE);
-    rec.dispatch(&gpu.kernels.rotation_head, params, &[raw, source_normals, target_normals, out], groups)
+    rec.dispatch::<RotationHead>(params, &[raw, source_normals, target_normals, out], groups)
 }
 
 /// Runs the kernel on slices; `out` holds the initial contents (a sentinel in tests) and receives the result.
@@ -97,7 +102,7 @@ pub fn run(
     let tb = super::buffer::GpuBuffer::from_slice(ctx, "target_normals", target_normals)?;
     let ob = super::buffer::GpuBuffer::from_slice(ctx, "rotations", out)?;
     let mut rec = Recorder::new(gpu, "rotation_head");
-    record(&mut rec, gpu, &params, [rb.raw(), sb.raw(), tb.raw()], ob.raw())?;
+    record(&mut rec, &params, [rb.raw(), sb.raw(), tb.raw()], ob.raw())?;
     let r = rec.read(ob.raw(), 0, (out.len() * 36) as u64);
     let bytes = rec.finish()?;
     out.copy_from_slice(bytemuck::cast_slice(&bytes[r]));

@@ -3,7 +3,7 @@
 //! refinement. CPU twin: [`crate::cpu::score_hypotheses`].
 
 use super::hypotheses::{HYPOTHESIS_FLOATS, to_row};
-use super::kernel::{BindKind, KernelSpec, ParamsLayout, gpu_params};
+use super::kernel::{BindKind, GpuKernel, gpu_params};
 use super::recorder::Recorder;
 use super::{Gpu, to_u32};
 use crate::cpu::hypotheses::Hypothesis;
@@ -27,11 +27,14 @@ gpu_params! {
 /// Invocations per workgroup (`WG_SIZE` in the shader).
 pub const WG_SIZE: u32 = 64;
 
-/// The kernel's registry entry.
-pub const SPEC: KernelSpec = KernelSpec {
-    name: "score_hypotheses",
-    source: include_str!("../../shaders/score_hypotheses.wgsl"),
-    binds: &[
+/// The `score_hypotheses` kernel, declared once (registered in [`super::registry::KERNELS`]).
+#[derive(Clone, Copy, Debug)]
+pub struct ScoreHypotheses;
+
+impl GpuKernel for ScoreHypotheses {
+    const NAME: &'static str = "score_hypotheses";
+    const SOURCE: &'static str = include_str!("../../shaders/score_hypotheses.wgsl");
+    const BINDS: &'static [BindKind] = &[
         BindKind::Uniform,
         BindKind::ReadOnly,
         BindKind::ReadOnly,
@@ -39,10 +42,12 @@ pub const SPEC: KernelSpec = KernelSpec {
         BindKind::ReadWrite,
         BindKind::ReadWrite,
         BindKind::ReadWrite,
-    ],
-    workgroup_size: WG_SIZE,
-    params: ParamsLayout::of::<ScoreHypothesesParams>(),
-};
+    ];
+    const WORKGROUP_SIZE: u32 = WG_SIZE;
+    type Params = ScoreHypothesesParams;
+    type CpuTwin = fn(&[Hypothesis], &[[f32; 3]], &[[f32; 3]], f32) -> Vec<HypothesisScore>;
+    const CPU_TWIN: Self::CpuTwin = crate::cpu::score_hypotheses::score_hypotheses;
+}
 
 /// Output buffers: inlier counts (u32 per hypothesis), residual sums (f32 per hypothesis), mask (u32 per
 /// correspondence, written only with `write_mask`).
@@ -59,13 +64,11 @@ pub struct ScoreBuffers<'b> {
 /// correspondences `source[i] -> target[i]`.
 pub fn record<'a>(
     rec: &mut Recorder<'a>,
-    gpu: &'a Gpu,
     params: &ScoreHypothesesParams,
     [hypotheses, source, target]: [&wgpu::Buffer; 3],
     out: &ScoreBuffers<'_>,
 ) -> Result<()> {
-    rec.dispatch(
-        &gpu.kernels.score_hypotheses,
+    rec.dispatch::<ScoreHypotheses>(
         params,
         &[hypotheses, source, target, out.inliers, out.residual_sums, out.mask],
         u64::from(params.hypotheses),
@@ -111,7 +114,7 @@ pub fn run(
     };
     let mut rec = Recorder::new(gpu, "score_hypotheses");
     let bufs = ScoreBuffers { inliers: ib.raw(), residual_sums: rb.raw(), mask: &gpu.dummy_rw };
-    record(&mut rec, gpu, &params, [hb.raw(), sb.raw(), tb.raw()], &bufs)?;
+    record(&mut rec, &params, [hb.raw(), sb.raw(), tb.raw()], &bufs)?;
     let bytes = (out.len() * 4) as u64;
     let (a, b) = (rec.read(ib.raw(), 0, bytes), rec.read(rb.raw(), 0, bytes));
     let data = rec.finish()?;
@@ -151,7 +154,7 @@ pub fn inlier_mask(
     };
     let mut rec = Recorder::new(gpu, "inlier_mask");
     let bufs = ScoreBuffers { inliers: scratch.raw(), residual_sums: &gpu.dummy_rw, mask: mb.raw() };
-    record(&mut rec, gpu, &params, [hb.raw(), sb.raw(), tb.raw()], &bufs)?;
+    record(&mut rec, &params, [hb.raw(), sb.raw(), tb.raw()], &bufs)?;
     let r = rec.read(mb.raw(), 0, (c * 4) as u64);
     let data = rec.finish()?;
     mask.copy_from_slice(bytemuck::cast_slice(&data[r]));

@@ -1,0 +1,335 @@
+//! `dpr-gpu bench --json` on the test adapter (lavapipe in CI; its timings are meaningless, the code path is
+//! what is tested): the schema, finite non-negative times, GFLOP/s = flops / time, the peak fraction, and the
+//! bytes moved, which must equal an independent count made from the buffer sizes of each call: per stage from
+//! the sizes in the report, and per pair from a wrapper backend that adds up the sizes of every call one
+//! `register` of the same pair makes. Without an adapter the report must say it is CPU-only.
+//!
+//! GPU tests print `SKIPPED (no GPU adapter)` and return without one (they fail instead with `CI=true` or
+//! `DPR_GPU_REQUIRE_ADAPTER=1`).
+
+use dpr_gpu::backend::{Backend, RotationInputs};
+use dpr_gpu::cli::bench::{self, Args};
+use dpr_gpu::cpu::hypotheses::Hypothesis;
+use dpr_gpu::cpu::mutual_knn::Match;
+use dpr_gpu::cpu::score_hypotheses::HypothesisScore;
+use dpr_gpu::gpu::GpuBackend;
+use dpr_gpu::gpu::hypotheses::HYPOTHESIS_FLOATS;
+use dpr_gpu::gpu::mutual_knn::K_MAX;
+use dpr_gpu::gpu::testing::gpu_or_skip;
+use dpr_gpu::model::{Model, Net};
+use dpr_gpu::preprocess::GatheredPatches;
+use dpr_gpu::settings::MatchMode;
+use serde_json::Value;
+use std::process::Command;
+use std::sync::{Arc, Mutex};
+
+/// The small run every test makes: sizes lavapipe gets through in seconds.
+fn small_args() -> Args {
+    Args {
+        keypoints: 48,
+        points: Some(32),
+        backend: "both".into(),
+        weights: None,
+        repeat: 1,
+        seed: 3,
+        json: true,
+        peak_tflops: Some(2.5),
+        pair_points: 3000,
+    }
+}
+
+/// `dpr-gpu bench` with `args` as the command line would pass them, plus `env`; (status, stdout, stderr).
+fn run_bench(args: &Args, env: &[(&str, &str)]) -> (bool, String, String) {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_dpr-gpu"));
+    cmd.args(["bench", "--json", "--backend", &args.backend]);
+    for (flag, value) in [
+        ("--keypoints", args.keypoints.to_string()),
+        ("--points", args.points.expect("set").to_string()),
+        ("--repeat", args.repeat.to_string()),
+        ("--seed", args.seed.to_string()),
+        ("--peak-tflops", args.peak_tflops.expect("set").to_string()),
+        ("--pair-points", args.pair_points.to_string()),
+    ] {
+        cmd.args([flag, &value]);
+    }
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let out = cmd.output().expect("runs dpr-gpu");
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+fn parse(stdout: &str, stderr: &str) -> Value {
+    serde_json::from_str(stdout)
+        .unwrap_or_else(|e| panic!("stdout is not one JSON document ({e}):\n{stdout}\n{stderr}"))
+}
+
+fn num(v: &Value, what: &str) -> f64 {
+    v.as_f64().unwrap_or_else(|| panic!("{what} is not a number: {v}"))
+}
+
+fn uint(v: &Value, what: &str) -> u64 {
+    v.as_u64().unwrap_or_else(|| panic!("{what} is not an unsigned integer: {v}"))
+}
+
+/// A time in ms: finite and not negative.
+fn time_ms(v: &Value, what: &str) -> f64 {
+    let t = num(v, what);
+    assert!(t.is_finite() && t >= 0.0, "{what} = {t}");
+    t
+}
+
+fn assert_rel(a: f64, b: f64, what: &str) {
+    assert!((a - b).abs() <= 1e-9 * b.abs().max(1e-300), "{what}: {a} vs {b}");
+}
+
+/// (host to device, device to host) bytes each GPU stage of the report moves, counted from the sizes in
+/// `config` and the buffer layouts of the kernels' host sides: inputs are uploaded once each, results read once.
+fn expected_stage_bytes(stage: &str, config: &Value) -> (u64, u64) {
+    let c = |k: &str| uint(&config[k], k);
+    let (k, p, cw, cand) = (c("keypoints"), c("points_per_patch"), c("codeword"), c("candidates"));
+    let hf = HYPOTHESIS_FLOATS as u64;
+    match stage {
+        // centres + centre normals + points + normals; PPF (4 floats) + PC (3 floats) per point.
+        "patch_features" => (2 * 12 * k + 2 * 12 * k * p, (16 + 12) * k * p),
+        "encode ppf" => (4 * 4 * k * p, 4 * k * cw),
+        "encode pc" => (3 * 4 * k * p, 4 * k * cw),
+        // Both codeword sets; three K_MAX lists per source row (distances, indices, mutual flags).
+        "match_codewords" => (2 * 4 * k * cw, 3 * 4 * k * K_MAX as u64),
+        // Source and target pose features and normals; candidates rotation matrices per row.
+        "predict_rotations" => (2 * 4 * k * cw + 2 * 12 * k, 36 * k * cand),
+        "hypotheses" => ((36 + 12 + 12) * k * cand, 4 * hf * k * cand),
+        "score_hypotheses" => (2 * 12 * k * cand + 4 * hf * k * cand, 8 * k * cand),
+        other => panic!("unexpected stage {other}"),
+    }
+}
+
+/// Wraps the GPU backend and adds up, for every call, the bytes its inputs and result buffers take: an
+/// independent count of what one registration moves.
+struct CountingBackend {
+    inner: GpuBackend,
+    /// (host to device, device to host), shared with the test.
+    bytes: Arc<Mutex<(u64, u64)>>,
+}
+
+impl CountingBackend {
+    fn add(&self, up: usize, down: usize) {
+        let mut b = self.bytes.lock().unwrap();
+        b.0 += up as u64;
+        b.1 += down as u64;
+    }
+}
+
+impl Backend for CountingBackend {
+    fn name(&self) -> String {
+        self.inner.name()
+    }
+
+    fn model(&self) -> &Model {
+        self.inner.model()
+    }
+
+    fn patch_features(&self, patches: &GatheredPatches, radius: f32) -> dpr_gpu::Result<(Vec<f32>, Vec<f32>)> {
+        let out = self.inner.patch_features(patches, radius)?;
+        self.add(24 * patches.centers.len() + 24 * patches.points.len(), 4 * (out.0.len() + out.1.len()));
+        Ok(out)
+    }
+
+    fn encode(&self, net: Net, input: &[f32], patches: usize) -> dpr_gpu::Result<Vec<f32>> {
+        let out = self.inner.encode(net, input, patches)?;
+        self.add(4 * input.len(), 4 * out.len());
+        Ok(out)
+    }
+
+    fn match_codewords(&self, s: &[f32], t: &[f32], dim: usize, mode: MatchMode) -> dpr_gpu::Result<Vec<Match>> {
+        let out = self.inner.match_codewords(s, t, dim, mode)?;
+        if !s.is_empty() && !t.is_empty() {
+            self.add(4 * (s.len() + t.len()), 3 * 4 * K_MAX * (s.len() / dim));
+        }
+        Ok(out)
+    }
+
+    fn predict_rotations(&self, pose: RotationInputs<'_>) -> dpr_gpu::Result<Vec<[f32; 9]>> {
+        let out = self.inner.predict_rotations(pose)?;
+        let up =
+            4 * (pose.source.len() + pose.target.len()) + 12 * (pose.source_normals.len() + pose.target_normals.len());
+        self.add(up, 36 * out.len());
+        Ok(out)
+    }
+
+    fn hypotheses(&self, r: &[[f32; 9]], s: &[[f32; 3]], t: &[[f32; 3]]) -> dpr_gpu::Result<Vec<Hypothesis>> {
+        let out = self.inner.hypotheses(r, s, t)?;
+        self.add(36 * r.len() + 12 * (s.len() + t.len()), 4 * HYPOTHESIS_FLOATS * out.len());
+        Ok(out)
+    }
+
+    fn score_hypotheses(
+        &self,
+        h: &[Hypothesis],
+        s: &[[f32; 3]],
+        t: &[[f32; 3]],
+        threshold: f32,
+    ) -> dpr_gpu::Result<Vec<HypothesisScore>> {
+        let out = self.inner.score_hypotheses(h, s, t, threshold)?;
+        self.add(12 * (s.len() + t.len()) + 4 * HYPOTHESIS_FLOATS * h.len(), 8 * out.len());
+        Ok(out)
+    }
+}
+
+#[test]
+fn bench_json_on_the_test_adapter_is_consistent() {
+    let Some(gpu) = gpu_or_skip() else { return };
+    let args = small_args();
+    let backend_env = std::env::var("WGPU_BACKEND").unwrap_or_else(|_| "vulkan".into());
+    let (ok, stdout, stderr) = run_bench(&args, &[("WGPU_BACKEND", &backend_env)]);
+    assert!(ok, "bench failed:\n{stderr}");
+    let r = parse(&stdout, &stderr);
+    assert_eq!(r["schema"], bench::SCHEMA);
+    let config = &r["config"];
+    assert_eq!(uint(&config["keypoints"], "keypoints"), 48);
+    assert_eq!(uint(&config["points_per_patch"], "points"), 32);
+    assert_eq!(num(&config["peak_tflops"], "peak"), 2.5);
+    let peak_gflops = 2.5 * 1000.0;
+
+    let g = &r["gpu"];
+    assert_eq!(g["available"], true, "{g}");
+    assert!(g["note"].is_null());
+    let timestamps = g["timestamps"].as_bool().expect("bool");
+    assert_eq!(timestamps, gpu.context.has_timestamps(), "the test adapter's TIMESTAMP_QUERY");
+    let clock = if timestamps { "gpu_timestamps" } else { "host_wall" };
+    assert_eq!(g["clock"], clock);
+    assert!(uint(&g["weights_upload_bytes"], "weights bytes") > 0);
+    assert!(uint(&r["cpu"]["threads"], "threads") >= 1);
+
+    let stages = r["stages"].as_array().expect("stages");
+    let names: Vec<&str> = stages.iter().map(|s| s["stage"].as_str().expect("name")).collect();
+    assert_eq!(
+        names,
+        [
+            "patch_features",
+            "encode ppf",
+            "encode pc",
+            "match_codewords",
+            "predict_rotations",
+            "hypotheses",
+            "score_hypotheses"
+        ]
+    );
+    for s in stages {
+        let name = s["stage"].as_str().unwrap();
+        let flops = s["flops"].as_f64();
+        let cpu_t = &s["cpu"];
+        let cpu_wall = time_ms(&cpu_t["wall_ms"], &format!("{name} cpu wall_ms"));
+        match flops {
+            Some(f) => assert_rel(num(&cpu_t["gflops"], "cpu gflops"), f / (cpu_wall * 1e-3) / 1e9, name),
+            None => assert!(cpu_t["gflops"].is_null(), "{name}"),
+        }
+        let gt = &s["gpu"];
+        time_ms(&gt["wall_ms"], &format!("{name} gpu wall_ms"));
+        let device = time_ms(&gt["device_ms"], &format!("{name} device_ms"));
+        assert_eq!(gt["clock"], clock, "{name}");
+        let (up, down) = expected_stage_bytes(name, config);
+        assert_eq!(uint(&gt["host_to_device_bytes"], "up"), up, "{name}: bytes uploaded");
+        assert_eq!(uint(&gt["device_to_host_bytes"], "down"), down, "{name}: bytes read back");
+        assert!(uint(&gt["uniform_bytes"], "uniform") > 0, "{name}: every stage dispatches with parameters");
+        match flops {
+            Some(f) => {
+                let gf = num(&gt["gflops"], "gpu gflops");
+                assert_rel(gf, f / (device * 1e-3) / 1e9, &format!("{name} gpu GFLOP/s"));
+                assert_rel(num(&gt["peak_fraction"], "peak"), gf / peak_gflops, &format!("{name} peak fraction"));
+            }
+            None => assert!(gt["gflops"].is_null() && gt["peak_fraction"].is_null(), "{name}"),
+        }
+    }
+
+    let gemm = r["gemm"].as_array().expect("gemm");
+    let variants: Vec<&str> = gemm.iter().map(|v| v["variant"].as_str().unwrap()).collect();
+    let selected = format!("cpu_gemm_{}", r["cpu"]["gemm_path"].as_str().unwrap());
+    for want in [selected.as_str(), "cpu_gemm_portable", "cpu_twin", "gpu_dense_f32"] {
+        assert!(variants.contains(&want), "{want} missing from {variants:?}");
+    }
+    for v in gemm {
+        let name = v["variant"].as_str().unwrap();
+        let (rows, i, o) = (uint(&v["rows"], "rows"), uint(&v["in_dim"], "in"), uint(&v["out_dim"], "out"));
+        let flops = num(&v["flops"], "flops");
+        assert_eq!(flops, 2.0 * (rows * i * o) as f64, "{name}");
+        let t = time_ms(&v["time_ms"], name);
+        let gf = num(&v["gflops"], "gflops");
+        assert_rel(gf, flops / (t * 1e-3) / 1e9, name);
+        let on_gpu = v["device"] == "gpu";
+        assert_eq!(v["clock"], if on_gpu { clock } else { "host_wall" }, "{name}");
+        assert_eq!(v["used_by_backend"], name == selected || name == "gpu_dense_f32", "{name}");
+        if on_gpu {
+            assert_rel(num(&v["peak_fraction"], "peak"), gf / peak_gflops, name);
+        } else {
+            assert!(v["peak_fraction"].is_null(), "{name}: no CPU peak was given");
+        }
+    }
+
+    // The pair: the same registration in this process through the counting wrapper, on the test adapter.
+    let pair = &r["pair"];
+    let model = bench::bench_model(&args).unwrap();
+    let counted = Arc::new(Mutex::new((0u64, 0u64)));
+    let counting =
+        CountingBackend { inner: GpuBackend::with_gpu(Arc::clone(&gpu), model).unwrap(), bytes: Arc::clone(&counted) };
+    let (source, target) = bench::synthetic_pair(args.seed, args.pair_points);
+    let registrar = dpr_gpu::Registrar::with_backend(&bench::pair_settings(&args), Box::new(counting)).unwrap();
+    let before = gpu.context.transfers();
+    let result = registrar.register(&source, &target).unwrap();
+    let moved = gpu.context.transfers().since(before);
+    let (up, down) = *counted.lock().unwrap();
+    assert!(up > 0 && down > 0, "the registration ran on the GPU");
+    assert_eq!(moved.host_to_device_bytes, up, "bytes uploaded by one register call");
+    assert_eq!(moved.device_to_host_bytes, down, "bytes read back by one register call");
+    // The report's pair is the same registration in the bench process: the same sizes, so the same bytes.
+    assert_eq!(uint(&pair["correspondences"], "correspondences"), result.correspondences as u64);
+    assert_eq!(uint(&pair["host_to_device_bytes"], "pair up"), up, "{pair}");
+    assert_eq!(uint(&pair["device_to_host_bytes"], "pair down"), down, "{pair}");
+    assert!(uint(&pair["uniform_bytes"], "pair uniform") > 0);
+    assert_eq!(uint(&pair["points_per_scan"], "points"), args.pair_points as u64);
+    assert_eq!(pair["clock"], clock);
+    let wall = time_ms(&pair["wall_ms"], "pair wall_ms");
+    let device = time_ms(&pair["device_ms"], "pair device_ms");
+    if timestamps {
+        assert!(device <= wall, "the device time of a pair ({device} ms) fits in its wall time ({wall} ms)");
+    }
+}
+
+#[test]
+fn bench_json_without_an_adapter_says_it_is_cpu_only() {
+    let mut args = small_args();
+    args.pair_points = 600;
+    // No Metal adapter exists on Linux or Windows: the default `--backend both` then times the CPU only.
+    let (ok, stdout, stderr) = run_bench(&args, &[("DPR_GPU_BACKEND", "metal")]);
+    if cfg!(target_os = "macos") {
+        return;
+    }
+    assert!(ok, "bench failed:\n{stderr}");
+    let r = parse(&stdout, &stderr);
+    assert_eq!(r["gpu"]["available"], false);
+    assert!(r["gpu"]["note"].as_str().expect("a note").contains("CPU only"), "{}", r["gpu"]);
+    assert!(r["gpu"]["adapter"].is_null() && r["gpu"]["clock"].is_null());
+    for s in r["stages"].as_array().unwrap() {
+        assert!(s["gpu"].is_null(), "{s}");
+        time_ms(&s["cpu"]["wall_ms"], "cpu wall");
+    }
+    assert!(r["gemm"].as_array().unwrap().iter().all(|v| v["device"] == "cpu"));
+    let pair = &r["pair"];
+    assert!(pair["backend"].as_str().unwrap().starts_with("cpu"), "{pair}");
+    assert!(pair["host_to_device_bytes"].is_null() && pair["device_ms"].is_null());
+    time_ms(&pair["wall_ms"], "pair wall");
+}
+
+#[test]
+fn bench_rejects_a_bad_peak() {
+    for bad in ["--peak-tflops=-1", "--peak-tflops=0", "--peak-tflops=NaN"] {
+        let out = Command::new(env!("CARGO_BIN_EXE_dpr-gpu"))
+            .args(["bench", "--json", "--backend", "cpu", "--keypoints", "8", bad])
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{bad} accepted");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(stderr.contains("--peak-tflops must be a positive number"), "{bad}: {stderr}");
+        assert!(out.stdout.is_empty(), "{bad}: no report on stdout");
+    }
+}
