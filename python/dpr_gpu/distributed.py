@@ -394,6 +394,8 @@ def scan_paths(input: Union[str, "os.PathLike[str]"]) -> List[Path]:
     order, or the lines of a list file (paths relative to its folder; blank lines and ``#`` comments skipped).
     Raises ``ValueError`` when fewer than 2 scans are found, ``OSError`` when INPUT cannot be read."""
     path = Path(input)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such folder or scan list")
     if path.is_dir():
         found = [
             p for p in path.iterdir() if p.is_file() and p.suffix[1:].lower() in _CLOUD_EXTENSIONS

@@ -170,3 +170,25 @@ def test_without_ray_the_error_names_the_package(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` now fails as if Ray were not installed
     with pytest.raises(ImportError, match=r"pip install 'dpr-gpu\[distributed\]'"):
         distributed.run([np.zeros((10, 3))] * 2, backend="cpu")
+
+
+def test_adapter_index_picks_the_adapter_by_position(monkeypatch):
+    """What puts each GPU actor on its own GPU: DPR_GPU_ADAPTER_INDEX=k takes the k-th adapter (hardware ones
+    first; `backend="gpu"` may take a software rasteriser after them, as CI's lavapipe), and an index past the
+    last adapter is an error naming the variable. Needs a Vulkan adapter (CI installs lavapipe)."""
+    for name in ("WGPU_ADAPTER_NAME", "DPR_GPU_ADAPTER_INDEX"):
+        monkeypatch.delenv(name, raising=False)
+    try:
+        dpr_gpu.Registrar(backend="gpu", keypoints=10)
+    except RuntimeError as e:
+        if os.environ.get("CI"):
+            raise
+        pytest.skip(f"no GPU adapter here: {e}")
+    monkeypatch.setenv("DPR_GPU_ADAPTER_INDEX", "0")
+    assert not dpr_gpu.Registrar(backend="gpu", keypoints=10).backend.startswith("cpu")
+    monkeypatch.setenv("DPR_GPU_ADAPTER_INDEX", "99")
+    with pytest.raises(RuntimeError, match="DPR_GPU_ADAPTER_INDEX=99 but only"):
+        dpr_gpu.Registrar(backend="gpu", keypoints=10)
+    monkeypatch.setenv("DPR_GPU_ADAPTER_INDEX", "first")
+    with pytest.raises(RuntimeError, match="not an adapter index"):
+        dpr_gpu.Registrar(backend="gpu", keypoints=10)
