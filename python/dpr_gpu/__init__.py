@@ -15,6 +15,10 @@ Quick start::
 
 ``register`` builds a ``Registrar`` (weights, model and backend) for one pair; keep a ``Registrar`` to register
 many pairs, or to run the steps (``describe``, ``correspond``, ``estimate``) one at a time.
+
+``multiway`` registers a collection of scans into one trajectory in this process; its stages are also separate
+calls (``multiway_origin``, ``Registrar.describe_scan``, ``select_pairs``, ``Registrar.register_described``,
+``optimize_pairs``) with picklable values, which ``dpr_gpu.distributed`` schedules on a Ray cluster.
 """
 
 from __future__ import annotations
@@ -22,23 +26,35 @@ from __future__ import annotations
 from typing import Any, Optional, Sequence
 
 from ._dpr_gpu import (
+    DescribedScan,
     Features,
+    MultiwayResult,
+    PairResult,
     PoseEstimate,
     Registrar,
     RegistrationResult,
     __version__,
+    multiway_origin,
+    optimize_pairs,
     read_cloud,
+    select_pairs,
 )
 
 __all__ = [
+    "DescribedScan",
     "Features",
+    "MultiwayResult",
+    "PairResult",
     "PoseEstimate",
     "Registrar",
     "RegistrationResult",
     "__version__",
     "multiway",
+    "multiway_origin",
+    "optimize_pairs",
     "read_cloud",
     "register",
+    "select_pairs",
 ]
 
 

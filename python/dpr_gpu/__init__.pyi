@@ -8,23 +8,35 @@ from typing_extensions import Unpack
 
 import numpy.typing as npt
 
+from ._dpr_gpu import DescribedScan as DescribedScan
 from ._dpr_gpu import Features as Features
+from ._dpr_gpu import MultiwayResult as MultiwayResult
+from ._dpr_gpu import PairResult as PairResult
 from ._dpr_gpu import PoseEstimate as PoseEstimate
 from ._dpr_gpu import Registrar as Registrar
 from ._dpr_gpu import RegistrationResult as RegistrationResult
 from ._dpr_gpu import __version__ as __version__
 from ._dpr_gpu import _Settings
+from ._dpr_gpu import multiway_origin as multiway_origin
+from ._dpr_gpu import optimize_pairs as optimize_pairs
 from ._dpr_gpu import read_cloud as read_cloud
+from ._dpr_gpu import select_pairs as select_pairs
 
 __all__ = [
+    "DescribedScan",
     "Features",
+    "MultiwayResult",
+    "PairResult",
     "PoseEstimate",
     "Registrar",
     "RegistrationResult",
     "__version__",
     "multiway",
+    "multiway_origin",
+    "optimize_pairs",
     "read_cloud",
     "register",
+    "select_pairs",
 ]
 
 def register(

@@ -8,7 +8,23 @@ from typing import Any, Literal, Optional, Sequence, Tuple, TypedDict, Union, fi
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["__version__", "Features", "PoseEstimate", "RegistrationResult", "Registrar", "read_cloud", "_library_defaults"]
+__all__ = [
+    "__version__",
+    "DescribedScan",
+    "Features",
+    "MultiwayResult",
+    "PairResult",
+    "PoseEstimate",
+    "RegistrationResult",
+    "Registrar",
+    "multiway_origin",
+    "optimize_pairs",
+    "read_cloud",
+    "select_pairs",
+    "_described_scan_from_state",
+    "_library_defaults",
+    "_pair_result_from_state",
+]
 __version__: str
 
 _Points = npt.ArrayLike
@@ -60,6 +76,84 @@ class Features:
     def timings(self) -> dict[str, float]:
         """Wall time per description stage in seconds."""
     def __len__(self) -> int: ...
+
+@final
+class DescribedScan:
+    """One scan of a collection described once (``Registrar.describe_scan``); picklable, bit for bit."""
+
+    @property
+    def index(self) -> int:
+        """The scan's index in the collection (and its random stream)."""
+    @property
+    def origin(self) -> Tuple[int, int, int]:
+        """The whole-unit origin subtracted from the scan's coordinates."""
+    @property
+    def keypoints(self) -> npt.NDArray[np.float64]:
+        """Keypoint positions (scan frame, origin added back), shape (K, 3)."""
+    @property
+    def keypoint_normals(self) -> npt.NDArray[np.float64]:
+        """Unit normals at the keypoints, shape (K, 3)."""
+    @property
+    def points(self) -> int:
+        """Points left after preprocessing."""
+    @property
+    def pooled_codeword(self) -> npt.NDArray[np.float32]:
+        """Unit-length mean of the keypoints' unit codewords, shape (D,): what retrieval compares."""
+    @property
+    def timings(self) -> dict[str, float]:
+        """Wall time per description stage in seconds."""
+    def __len__(self) -> int: ...
+    def __reduce__(self) -> Tuple[Any, Tuple[bytes]]: ...
+
+@final
+class PairResult:
+    """The registration of scan ``j`` (source) onto scan ``i`` (target), i < j; picklable, bit for bit."""
+
+    @property
+    def i(self) -> int: ...
+    @property
+    def j(self) -> int: ...
+    @property
+    def i_from_j(self) -> npt.NDArray[np.float64]:
+        """4x4 estimate x_i = T x_j (the collection's shifted frame)."""
+    @property
+    def correspondences(self) -> int: ...
+    @property
+    def inliers(self) -> int: ...
+    @property
+    def fitness(self) -> float: ...
+    @property
+    def inlier_rmse(self) -> float: ...
+    @property
+    def trusted(self) -> bool: ...
+    @property
+    def reason(self) -> Optional[str]: ...
+    @property
+    def information(self) -> npt.NDArray[np.float64]:
+        """6x6 edge information matrix (translation first)."""
+    @property
+    def seconds(self) -> float:
+        """Seconds spent registering the pair."""
+    def __reduce__(self) -> Tuple[Any, Tuple[bytes]]: ...
+
+@final
+class MultiwayResult:
+    """A multiway registration's outcome (``optimize_pairs``)."""
+
+    @property
+    def world_from_scan(self) -> npt.NDArray[np.float64]:
+        """world_from_scan per scan, shape (N, 4, 4) (world = the first scan's frame)."""
+    @property
+    def edges(self) -> list[dict[str, Any]]:
+        """One dict per registered pair, with its fate in the pose graph."""
+    @property
+    def connected(self) -> list[bool]: ...
+    @property
+    def line_process_weight(self) -> float: ...
+    def to_dict(self) -> dict[str, Any]:
+        """The dict ``Registrar.multiway`` returns."""
+    def write(self, out: _PathLike, scans: Optional[Sequence[_PathLike]] = None) -> None:
+        """Writes out/trajectory.log, out/edges.json (and out/scans.txt) as ``dpr-gpu multiway`` does."""
 
 @final
 class PoseEstimate:
@@ -193,6 +287,23 @@ class Registrar:
         target_normals: Optional[_Points] = None,
     ) -> RegistrationResult:
         """Registers ``source`` onto ``target`` (the whole pipeline)."""
+    def describe_scan(
+        self,
+        points: _Points,
+        normals: Optional[_Points] = None,
+        *,
+        index: int,
+        origin: Tuple[int, int, int] = (0, 0, 0),
+    ) -> DescribedScan:
+        """Describes scan ``index`` of a collection as ``multiway`` does (picklable result)."""
+    def register_described(
+        self,
+        target: DescribedScan,
+        source: DescribedScan,
+        *,
+        information_distance: Optional[float] = None,
+    ) -> PairResult:
+        """Registers described scan j (source) onto described scan i (target), i < j, as ``multiway`` does."""
     def multiway(
         self,
         scans: Sequence[_Points],
@@ -214,4 +325,29 @@ def read_cloud(
 ) -> Tuple[npt.NDArray[np.float64], Optional[npt.NDArray[np.float64]]]:
     """Reads a .ply, .pcd or .xyz/.txt/.pts file: (points, normals or None) as (N, 3) float64 arrays."""
 
+def multiway_origin(points: _Points) -> Tuple[int, int, int]:
+    """The whole-unit origin ``multiway`` subtracts from every scan of a collection whose first scan is ``points``."""
+
+def select_pairs(
+    n: int,
+    pooled: Optional[Sequence[npt.NDArray[np.float32]]] = None,
+    *,
+    pairs: Literal["all", "consecutive+retrieval"] = "consecutive+retrieval",
+    retrieval_k: int = 5,
+    max_pairs: Optional[int] = None,
+) -> list[Tuple[int, int]]:
+    """The candidate pairs (i, j) of ``n`` scans in registration order, as ``multiway`` chooses them."""
+
+def optimize_pairs(
+    n: int,
+    pair_results: Sequence[PairResult],
+    *,
+    information_distance: float,
+    loop_preference: float = 1.0,
+    origin: Tuple[int, int, int] = (0, 0, 0),
+) -> MultiwayResult:
+    """The robust pose graph of ``multiway`` over registered pairs."""
+
+def _described_scan_from_state(state: bytes) -> DescribedScan: ...
+def _pair_result_from_state(state: bytes) -> PairResult: ...
 def _library_defaults() -> dict[str, object]: ...

@@ -3,11 +3,13 @@
 //! `python/dpr_gpu/_dpr_gpu.pyi`.
 
 mod arrays;
+mod described;
 mod errors;
 mod multiway;
 mod registrar;
 mod result;
 mod settings;
+mod state;
 
 use arrays::{positions, vectors};
 use dpr_gpu::io::{LoadOptions, OriginShift, XyzColumns};
@@ -56,7 +58,15 @@ fn _dpr_gpu(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<registrar::Features>()?;
     m.add_class::<result::RegistrationResult>()?;
     m.add_class::<result::PoseEstimate>()?;
+    m.add_class::<described::DescribedScan>()?;
+    m.add_class::<described::PairResult>()?;
+    m.add_class::<multiway::MultiwayResult>()?;
     m.add_function(wrap_pyfunction!(read_cloud, m)?)?;
+    m.add_function(wrap_pyfunction!(multiway::multiway_origin, m)?)?;
+    m.add_function(wrap_pyfunction!(multiway::select_pairs, m)?)?;
+    m.add_function(wrap_pyfunction!(multiway::optimize_pairs, m)?)?;
+    m.add_function(wrap_pyfunction!(described::_described_scan_from_state, m)?)?;
+    m.add_function(wrap_pyfunction!(described::_pair_result_from_state, m)?)?;
     m.add_function(wrap_pyfunction!(settings::_library_defaults, m)?)?;
     Ok(())
 }

@@ -1,6 +1,7 @@
 //! `Registrar`: the pipeline with its model and backend loaded once, and the scan features it describes.
 
 use crate::arrays::{cloud_from_arrays, index_pairs, positions, vectors};
+use crate::described::{DescribedScan, PairResult};
 use crate::errors::{to_py_err, value_error};
 use crate::result::{PoseEstimate, RegistrationResult, SnapshotInputs, timings_dict};
 use crate::settings::{ESTIMATORS, SettingsArgs, settings_dict};
@@ -384,6 +385,42 @@ impl Registrar {
         let args =
             crate::multiway::MultiwayArgs { pairs, retrieval_k, max_pairs, information_distance, loop_preference };
         crate::multiway::run(py, &self.inner, self.load_options(OriginShift::None), scans, normals, args)
+    }
+
+    /// Describes scan ``index`` of a collection exactly as ``Registrar.multiway`` describes it (random stream
+    /// ``index``, coordinates shifted by the collection's ``origin`` from ``multiway_origin(scans[0])``), and
+    /// returns a picklable ``DescribedScan``: the describe stage of a multiway run, for schedulers that spread it
+    /// over processes or machines (``dpr_gpu.distributed``). Raises ``ValueError`` for bad arrays or too few
+    /// points (the message names the scan).
+    #[pyo3(signature = (points, normals = None, *, index, origin = (0, 0, 0)),
+        text_signature = "($self, points, normals=None, *, index, origin=(0, 0, 0))")]
+    fn describe_scan(
+        &self,
+        py: Python<'_>,
+        points: &Bound<'_, PyAny>,
+        normals: Option<&Bound<'_, PyAny>>,
+        index: usize,
+        origin: (i64, i64, i64),
+    ) -> PyResult<DescribedScan> {
+        let load = self.load_options(OriginShift::None);
+        crate::described::describe_scan(py, &self.inner, load, (points, normals), index, [origin.0, origin.1, origin.2])
+    }
+
+    /// Registers ``source`` (scan j) onto ``target`` (scan i), i < j, as ``Registrar.multiway`` registers a
+    /// candidate pair: correspondences, the estimator, the verdict and the edge information matrix at
+    /// ``information_distance`` (None: the inlier threshold). Both scans must come from ``describe_scan`` of a
+    /// registrar with the same settings and weights (any process). Returns a picklable ``PairResult``; a pair
+    /// without enough correspondences comes back untrusted with the reason, not as an error.
+    #[pyo3(signature = (target, source, *, information_distance = None))]
+    fn register_described(
+        &self,
+        py: Python<'_>,
+        target: &Bound<'_, DescribedScan>,
+        source: &Bound<'_, DescribedScan>,
+        information_distance: Option<f64>,
+    ) -> PyResult<PairResult> {
+        let (t, s) = (crate::described::scan_of(target), crate::described::scan_of(source));
+        crate::described::register_described(py, &self.inner, t, s, information_distance)
     }
 
     fn __repr__(&self) -> String {

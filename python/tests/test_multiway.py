@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import json
+import pickle
+
 import numpy as np
 import pytest
 
 import dpr_gpu
+from dpr_gpu import _dpr_gpu
 from conftest import RECOVER, known_pose, room_corner, rotation_error_deg, transform
 
 
@@ -53,3 +57,136 @@ def test_multiway_refuses_bad_input(three_scans):
         dpr_gpu.multiway(scans, pairs="some", backend="cpu")
     with pytest.raises(ValueError, match="normal arrays"):
         dpr_gpu.multiway(scans, normals=[scans[0]], backend="cpu")
+
+
+# The stages of multiway as separate calls (what dpr_gpu.distributed schedules): the same result, bit for bit.
+
+
+def stages(scans, registrar, **options):
+    """dpr_gpu.multiway rebuilt from its stages in this process, with every described scan and pair result sent
+    through pickle on the way, as Ray sends them between processes."""
+    origin = dpr_gpu.multiway_origin(scans[0])
+    described = [
+        pickle.loads(pickle.dumps(registrar.describe_scan(s, index=k, origin=origin))) for k, s in enumerate(scans)
+    ]
+    pairs = options.get("pairs", "consecutive+retrieval")
+    pooled = [d.pooled_codeword for d in described] if pairs != "all" else None
+    selected = dpr_gpu.select_pairs(
+        len(scans), pooled, pairs=pairs, retrieval_k=options.get("retrieval_k", 5), max_pairs=options.get("max_pairs")
+    )
+    results = [
+        pickle.loads(pickle.dumps(registrar.register_described(described[i], described[j]))) for i, j in selected
+    ]
+    graph = dpr_gpu.optimize_pairs(
+        len(scans), results, information_distance=registrar.inlier_threshold, origin=origin
+    )
+    return graph, described, results
+
+
+def assert_same_multiway(a, b):
+    """Two multiway dicts agree exactly: poses, edges (every field) and the graph's verdicts."""
+    np.testing.assert_array_equal(a["world_from_scan"], b["world_from_scan"])
+    assert a["connected"] == b["connected"] and a["line_process_weight"] == b["line_process_weight"]
+    assert len(a["edges"]) == len(b["edges"])
+    for ea, eb in zip(a["edges"], b["edges"]):
+        assert ea.keys() == eb.keys()
+        for key in ea:
+            np.testing.assert_array_equal(ea[key], eb[key], err_msg=f"edge ({ea['i']}, {ea['j']}) {key}")
+
+
+@pytest.mark.parametrize("pairs", ["all", "consecutive+retrieval"])
+def test_multiway_stages_reproduce_multiway(three_scans, pairs):
+    scans, _ = three_scans
+    registrar = dpr_gpu.Registrar(**RECOVER)
+    whole = registrar.multiway(scans, pairs=pairs, retrieval_k=1)
+    graph, described, results = stages(scans, registrar, pairs=pairs, retrieval_k=1)
+    assert_same_multiway(graph.to_dict(), whole)
+    assert [(r.i, r.j) for r in results] == [(e["i"], e["j"]) for e in whole["edges"]]
+    assert [d.index for d in described] == [0, 1, 2] and all(len(d) > 0 for d in described)
+    # Pooled codewords are unit vectors; a scan is most similar to itself.
+    pooled = np.stack([d.pooled_codeword for d in described])
+    np.testing.assert_allclose(np.linalg.norm(pooled, axis=1), 1.0, atol=1e-5)
+
+
+def test_described_scans_and_pair_results_pickle_bit_for_bit(three_scans):
+    scans, _ = three_scans
+    registrar = dpr_gpu.Registrar(**RECOVER)
+    a, b = (registrar.describe_scan(s, index=k) for k, s in enumerate(scans[:2]))
+    a2, b2 = pickle.loads(pickle.dumps(a)), pickle.loads(pickle.dumps(b))
+    for x, y in ((a, a2), (b, b2)):
+        assert (y.index, y.origin, y.points, len(y)) == (x.index, x.origin, x.points, len(x))
+        np.testing.assert_array_equal(y.keypoints, x.keypoints)
+        np.testing.assert_array_equal(y.keypoint_normals, x.keypoint_normals)
+        np.testing.assert_array_equal(y.pooled_codeword, x.pooled_codeword)
+        assert y.timings == x.timings
+    # A second registrar with the same settings (as on another worker) registers the unpickled scans exactly as
+    # the first registers the originals.
+    direct = registrar.register_described(a, b)
+    elsewhere = dpr_gpu.Registrar(**RECOVER).register_described(a2, b2)
+    restored = pickle.loads(pickle.dumps(elsewhere))
+    for r in (elsewhere, restored):
+        assert (r.i, r.j, r.correspondences, r.inliers, r.trusted, r.reason) == (
+            0, 1, direct.correspondences, direct.inliers, direct.trusted, direct.reason
+        )
+        assert (r.fitness, r.inlier_rmse) == (direct.fitness, direct.inlier_rmse)
+        np.testing.assert_array_equal(r.i_from_j, direct.i_from_j)
+        np.testing.assert_array_equal(r.information, direct.information)
+    assert restored.seconds == elsewhere.seconds
+    assert direct.correspondences > 0 and direct.information[0, 0] > 0  # a registration, not a failed pair
+
+
+def test_multiway_stages_refuse_bad_input(three_scans):
+    scans, _ = three_scans
+    registrar = dpr_gpu.Registrar(**RECOVER)
+    a, b = (registrar.describe_scan(s, index=k) for k, s in enumerate(scans[:2]))
+    with pytest.raises(ValueError, match="index must be below"):
+        registrar.register_described(b, a)
+    other = dpr_gpu.Registrar(**{**RECOVER, "keypoints": 90})
+    with pytest.raises(ValueError, match="other settings"):
+        other.register_described(a, b)
+    with pytest.raises(ValueError, match="different origins"):
+        registrar.register_described(a, registrar.describe_scan(scans[1], index=1, origin=(1, 0, 0)))
+    with pytest.raises(ValueError, match="scan 4"):
+        registrar.describe_scan(np.zeros((3, 3)), index=4)
+    restore, (state,) = a.__reduce__()
+    assert restore is _dpr_gpu._described_scan_from_state
+    with pytest.raises(ValueError, match="truncated"):
+        restore(state[:-3])
+    with pytest.raises(ValueError, match="unexpected bytes"):
+        restore(state + b"x")
+    with pytest.raises(ValueError, match="not a pickled DescribedScan"):
+        restore(registrar.register_described(a, b).__reduce__()[1][0])
+    with pytest.raises(ValueError, match="pooled codeword"):
+        dpr_gpu.select_pairs(3, pairs="consecutive+retrieval")
+    with pytest.raises(ValueError, match="2 pooled codewords for 3 scans"):
+        dpr_gpu.select_pairs(3, [a.pooled_codeword, b.pooled_codeword])
+    assert dpr_gpu.select_pairs(4, pairs="all", max_pairs=4) == [(0, 1), (1, 2), (2, 3), (0, 2)]
+    pair = registrar.register_described(a, b)
+    with pytest.raises(ValueError, match="at least 2 scans"):
+        dpr_gpu.optimize_pairs(1, [pair], information_distance=0.1)
+    far_pair = registrar.register_described(a, registrar.describe_scan(scans[2], index=2))
+    with pytest.raises(ValueError, match=r"pair \(0, 2\) is not i < j < 2"):
+        dpr_gpu.optimize_pairs(2, [pair, far_pair], information_distance=0.1)
+    with pytest.raises(ValueError, match="PairResult"):
+        dpr_gpu.optimize_pairs(2, [a], information_distance=0.1)
+    with pytest.raises(ValueError, match="preference"):
+        dpr_gpu.optimize_pairs(2, [pair], information_distance=0.1, loop_preference=0.0)
+
+
+def test_multiway_origin_and_result_files(three_scans, tmp_path):
+    scans, _ = three_scans
+    assert dpr_gpu.multiway_origin(scans[0]) == (0, 0, 0)
+    far = scans[0].astype(np.float64) + [512_000.4, -7_000_000.6, 12.0]
+    assert dpr_gpu.multiway_origin(far) == tuple(int(round(c)) for c in far[0])
+    registrar = dpr_gpu.Registrar(**RECOVER)
+    graph, _, _ = stages(scans[:2], registrar, pairs="all")
+    graph.write(tmp_path / "run", ["a.ply", "b.ply"])
+    log = (tmp_path / "run" / "trajectory.log").read_text().split("\n")
+    # The .log format: a "k k n" line, then world_from_scan's four rows, per scan.
+    assert log[0].split() == ["0", "0", "2"] and log[5].split() == ["1", "1", "2"]
+    row = np.array([[float(v) for v in log[6 + r].split()] for r in range(4)])
+    np.testing.assert_allclose(row, graph.world_from_scan[1], atol=1e-9)
+    edges = json.loads((tmp_path / "run" / "edges.json").read_text())
+    assert edges["scans"] == 2 and edges["connected"] == graph.connected
+    assert [(e["i"], e["j"], e["kind"], e["survived"]) for e in edges["edges"]] == [(0, 1, "odometry", True)]
+    assert (tmp_path / "run" / "scans.txt").read_text() == "a.ply\nb.ply\n"

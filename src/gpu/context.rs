@@ -2,7 +2,8 @@
 //!
 //! The backend set comes from `DPR_GPU_BACKEND`, else `WGPU_BACKEND` (a comma list such as `vulkan` or
 //! `metal,dx12`), else the primary backends (Vulkan, Metal, DX12; never the GL fallback, whose compute
-//! support is too limited). `WGPU_ADAPTER_NAME` picks an adapter by case-insensitive substring. The device
+//! support is too limited). `WGPU_ADAPTER_NAME` picks an adapter by case-insensitive substring, else
+//! `DPR_GPU_ADAPTER_INDEX` by position (so identical GPUs of one machine can be told apart). The device
 //! gets the adapter's own limits (so large buffers and 2-D grids can be used) after a check that the few
 //! limits the kernels rely on are met; a shortfall is an [`Error::Gpu`] naming the limit. Every operation runs
 //! inside validation and out-of-memory error scopes ([`GpuContext::scoped`]), so device errors come back as
@@ -23,6 +24,12 @@ pub const MAX_BUFFER_ENV: &str = "DPR_GPU_MAX_BUFFER_MIB";
 pub const DEFAULT_MAX_BUFFER_MIB: u64 = 128;
 /// Environment variable that lets `--backend auto` take a software adapter (lavapipe, llvmpipe, WARP).
 pub const ALLOW_SOFTWARE_ENV: &str = "DPR_GPU_ALLOW_SOFTWARE";
+
+/// Environment variable that picks the adapter by position: 0 is the first hardware adapter in the driver's
+/// enumeration order, then the next; software rasterisers come after every hardware adapter. On a machine with
+/// several identical GPUs (which `WGPU_ADAPTER_NAME` cannot tell apart) it puts each process on its own GPU;
+/// `dpr_gpu.distributed` sets it to each Ray actor's GPU id.
+pub const ADAPTER_INDEX_ENV: &str = "DPR_GPU_ADAPTER_INDEX";
 
 /// Which adapters a context may take.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -291,6 +298,22 @@ fn pick_adapter(instance: &wgpu::Instance, backends: wgpu::Backends, policy: Ada
         );
     }
     let software_allowed = std::env::var(ALLOW_SOFTWARE_ENV).is_ok_and(|v| v.trim() == "1");
+    let take_software = policy == AdapterPolicy::Any || software_allowed;
+    if let Ok(text) = std::env::var(ADAPTER_INDEX_ENV) {
+        let index: usize = text.trim().parse().map_err(|_| {
+            Error::Gpu(format!("{ADAPTER_INDEX_ENV}={text} is not an adapter index (0 for the first adapter)"))
+        })?;
+        let types: Vec<wgpu::DeviceType> = adapters.iter().map(|a| a.get_info().device_type).collect();
+        let order = adapter_order(&types, take_software);
+        return order.get(index).map(|&k| adapters[k].clone()).ok_or_else(|| {
+            let all = names();
+            let usable: Vec<&String> = order.iter().map(|&k| &all[k]).collect();
+            Error::Gpu(format!(
+                "{ADAPTER_INDEX_ENV}={index} but only {} adapter(s) can be used: {usable:?}",
+                usable.len()
+            ))
+        });
+    }
     if policy == AdapterPolicy::HardwareOnly && !software_allowed {
         // The best hardware adapter: discrete, then integrated, then virtual, then other; never a CPU device.
         let rank = |t: wgpu::DeviceType| match t {
@@ -318,9 +341,29 @@ fn pick_adapter(instance: &wgpu::Instance, backends: wgpu::Backends, policy: Ada
         .map_err(|e| Error::Gpu(format!("no GPU adapter on backends {backends:?} ({e}); adapters seen: {:?}", names())))
 }
 
+/// The adapters `ADAPTER_INDEX_ENV` counts, as indices into `types` (the enumerated adapters' device types):
+/// hardware adapters in enumeration order, then software rasterisers when `take_software`.
+fn adapter_order(types: &[wgpu::DeviceType], take_software: bool) -> Vec<usize> {
+    let software = |t: &wgpu::DeviceType| *t == wgpu::DeviceType::Cpu;
+    let hardware = (0..types.len()).filter(|&k| !software(&types[k]));
+    let rasterisers = (0..types.len()).filter(|&k| take_software && software(&types[k]));
+    hardware.chain(rasterisers).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn adapter_indices_count_hardware_first_in_enumeration_order() {
+        use wgpu::DeviceType::{Cpu, DiscreteGpu, IntegratedGpu};
+        // Two identical discrete GPUs with lavapipe enumerated between them, then an integrated GPU.
+        let types = [DiscreteGpu, Cpu, DiscreteGpu, IntegratedGpu];
+        assert_eq!(adapter_order(&types, false), [0, 2, 3]);
+        assert_eq!(adapter_order(&types, true), [0, 2, 3, 1]);
+        assert_eq!(adapter_order(&[Cpu], false), Vec::<usize>::new());
+        assert_eq!(adapter_order(&[Cpu], true), [0]);
+    }
 
     #[test]
     fn backend_lists_parse_and_reject_unknown_names() {
