@@ -37,6 +37,7 @@ class _Settings(TypedDict, total=False):
     radius: Optional[float]
     voxel: Optional[float]
     keypoints: int
+    first_keypoints: Optional[int]
     keypoint_mode: Literal["random", "uniform"]
     normal_neighbors: int
     viewpoint: Sequence[float]
@@ -234,6 +235,7 @@ class Registrar:
         radius: Optional[float] = None,
         voxel: Optional[float] = None,
         keypoints: int = 2500,
+        first_keypoints: Optional[int] = 500,
         keypoint_mode: Literal["random", "uniform"] = "random",
         normal_neighbors: int = 30,
         viewpoint: Sequence[float] = (0.0, 0.0, 0.0),

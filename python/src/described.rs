@@ -12,7 +12,7 @@ use dpr_gpu::io::{LoadOptions, OriginShift};
 use dpr_gpu::multiway::pair::{InformationSettings, prepare_for_information, register_pair};
 use dpr_gpu::multiway::pairs::pooled_codeword;
 use dpr_gpu::multiway::{MultiwaySettings, PairResult as RustPairResult};
-use dpr_gpu::pipeline::{ScanFeatures, weights_file};
+use dpr_gpu::pipeline::{PoseFeatures, PoseRows, ScanFeatures, weights_file};
 use dpr_gpu::{Error, PointCloud, RegistrationSettings, StageTime};
 use numpy::{IntoPyArray, PyArray1, PyArray2};
 use pyo3::prelude::*;
@@ -20,7 +20,7 @@ use pyo3::types::{PyBytes, PyDict, PyTuple};
 use std::sync::{Arc, OnceLock};
 
 /// Magic tags of the pickled states.
-const SCAN_MAGIC: &[u8] = b"dpr-gpu/DescribedScan/1\0";
+const SCAN_MAGIC: &[u8] = b"dpr-gpu/DescribedScan/2\0";
 const PAIR_MAGIC: &[u8] = b"dpr-gpu/PairResult/1\0";
 
 /// A fingerprint of the settings and weights a scan was described with: only a registrar with the same key may
@@ -76,8 +76,13 @@ impl DescribedScan {
         w.f32s(&flat(&f.keypoints));
         w.f32s(&flat(&f.keypoint_normals));
         w.u64(f.empty_patches as u64);
+        w.u32s(&f.keypoint_ranks);
+        w.u64(f.candidates as u64);
         w.f32s(&f.ppf_codewords);
-        w.f32s(&f.pose_features);
+        let pose = f.pose.rows();
+        w.f32s(&pose.input);
+        w.f32s(&pose.features);
+        w.u32s(&pose.ready.iter().map(|&r| u32::from(r)).collect::<Vec<u32>>());
         w.f32s(&self.pooled);
         w.u64(f.timings.len() as u64);
         for t in &f.timings {
@@ -99,8 +104,12 @@ impl DescribedScan {
         let keypoints = triples(r.f32s()?, WHAT)?;
         let keypoint_normals = triples(r.f32s()?, WHAT)?;
         let empty_patches = r.usize()?;
+        let keypoint_ranks = r.u32s()?;
+        let candidates = r.usize()?;
         let ppf_codewords = r.f32s()?;
-        let pose_features = r.f32s()?;
+        let pose_input = r.f32s()?;
+        let pose_values = r.f32s()?;
+        let ready = r.u32s()?;
         let pooled = r.f32s()?;
         let stages = r.usize()?;
         let mut timings = Vec::new();
@@ -110,19 +119,28 @@ impl DescribedScan {
         r.finish()?;
         let consistent = (!has_normals || normals.len() == points.len())
             && keypoint_normals.len() == keypoints.len()
-            && ppf_codewords.len() == pose_features.len()
+            && keypoint_ranks.len() == keypoints.len()
+            && keypoint_ranks.windows(2).all(|w| w[0] < w[1])
+            && keypoint_ranks.last().is_none_or(|&r| (r as usize) < candidates)
             && (keypoints.is_empty() || ppf_codewords.len() % keypoints.len() == 0);
         if !consistent {
             return Err(value_error("DescribedScan: the pickled arrays do not fit together"));
         }
+        let codeword = ppf_codewords.len() / keypoints.len().max(1);
+        let pose_rows =
+            PoseRows { input: pose_input, features: pose_values, ready: ready.iter().map(|&r| r != 0).collect() };
+        let pose = PoseFeatures::from_rows(pose_rows, keypoints.len(), codeword)
+            .map_err(|e| value_error(format!("DescribedScan: {e}")))?;
         let features = ScanFeatures {
             cloud: PointCloud { points, normals: has_normals.then_some(normals) },
             keypoints,
             keypoint_normals,
+            keypoint_ranks,
+            candidates,
             empty_patches,
             ppf_codewords,
-            pose_features,
             timings,
+            pose,
         };
         Ok(DescribedScan { features: Arc::new(features), index, origin, key, pooled, prepared: OnceLock::new() })
     }

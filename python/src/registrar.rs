@@ -90,6 +90,9 @@ impl Features {
 /// - ``radius``: patch radius; None takes the radius the weights were trained with (0.30 m).
 /// - ``voxel``: voxel size for downsampling before normals and keypoints; None keeps every point.
 /// - ``keypoints``: keypoints per scan. ``keypoint_mode``: ``"random"`` or ``"uniform"`` (farthest-point).
+/// - ``first_keypoints``: the progressive schedule: ``register`` describes this many keypoints per scan first
+///   and doubles them, up to ``keypoints``, only while the result is not trusted; None describes ``keypoints``
+///   at once. A pair that needs every round ends with exactly the result of None.
 /// - ``normal_neighbors``: neighbours for PCA normals (scans without normals). ``viewpoint``: normals are
 ///   flipped to face this point (each scan's own frame).
 /// - ``matching``: ``"mutual"`` (mutual ``mutual_k`` nearest neighbours, 1..4) or ``"closest"``.
@@ -137,6 +140,7 @@ impl Registrar {
         radius = None,
         voxel = None,
         keypoints = 2500,
+        first_keypoints = Some(500),
         keypoint_mode = "random".to_string(),
         normal_neighbors = 30,
         viewpoint = [0.0, 0.0, 0.0],
@@ -156,7 +160,8 @@ impl Registrar {
         min_inlier_ratio = 0.055,
         min_spread_over_threshold = 2.0,
     ),
-    text_signature = "(*, weights=None, radius=None, voxel=None, keypoints=2500, keypoint_mode='random', \
+    text_signature = "(*, weights=None, radius=None, voxel=None, keypoints=2500, first_keypoints=500, \
+        keypoint_mode='random', \
         normal_neighbors=30, viewpoint=(0.0, 0.0, 0.0), matching='mutual', mutual_k=1, estimator='relativenet', \
         inlier_threshold=None, ransac_iterations=100000, ransac_confidence=0.999, icp=False, \
         icp_max_correspondence_distance=None, icp_max_iterations=30, drop_zero_points=False, seed=0, \
@@ -168,6 +173,7 @@ impl Registrar {
         radius: Option<f32>,
         voxel: Option<f32>,
         keypoints: i64,
+        first_keypoints: Option<i64>,
         keypoint_mode: String,
         normal_neighbors: i64,
         viewpoint: [f32; 3],
@@ -192,6 +198,7 @@ impl Registrar {
             radius,
             voxel,
             keypoints,
+            first_keypoints,
             keypoint_mode,
             normal_neighbors,
             viewpoint,

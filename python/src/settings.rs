@@ -15,6 +15,7 @@ pub(crate) struct SettingsArgs {
     pub radius: Option<f32>,
     pub voxel: Option<f32>,
     pub keypoints: i64,
+    pub first_keypoints: Option<i64>,
     pub keypoint_mode: String,
     pub normal_neighbors: i64,
     pub viewpoint: [f32; 3],
@@ -84,6 +85,7 @@ impl SettingsArgs {
             radius: self.radius,
             voxel: self.voxel,
             keypoints: count("keypoints", self.keypoints)?,
+            first_keypoints: self.first_keypoints.map(|k| count("first_keypoints", k)).transpose()?,
             keypoint_mode: choose("keypoint_mode", &self.keypoint_mode, KEYPOINT_MODES)?,
             normal_neighbors: count("normal_neighbors", self.normal_neighbors)?,
             viewpoint: self.viewpoint,
@@ -115,6 +117,7 @@ pub(crate) fn settings_dict<'py>(py: Python<'py>, s: &RegistrationSettings) -> P
     d.set_item("radius", s.radius)?;
     d.set_item("voxel", s.voxel)?;
     d.set_item("keypoints", s.keypoints)?;
+    d.set_item("first_keypoints", s.first_keypoints)?;
     d.set_item("keypoint_mode", name_of(s.keypoint_mode, KEYPOINT_MODES))?;
     d.set_item("normal_neighbors", s.normal_neighbors)?;
     d.set_item("viewpoint", (s.viewpoint[0], s.viewpoint[1], s.viewpoint[2]))?;

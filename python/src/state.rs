@@ -40,6 +40,14 @@ impl Writer {
         }
     }
 
+    /// A length, then the integers.
+    pub fn u32s(&mut self, values: &[u32]) {
+        self.u64(values.len() as u64);
+        for v in values {
+            self.bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+
     /// A length, then the floats.
     pub fn f64s(&mut self, values: &[f64]) {
         self.u64(values.len() as u64);
@@ -117,6 +125,13 @@ impl<'a> Reader<'a> {
         let n = self.usize()?;
         let raw = self.take(n.checked_mul(4).ok_or_else(|| value_error(format!("{}: bad length", self.what)))?)?;
         Ok(raw.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes"))).collect())
+    }
+
+    /// A length-prefixed integer array.
+    pub fn u32s(&mut self) -> PyResult<Vec<u32>> {
+        let n = self.usize()?;
+        let raw = self.take(n.checked_mul(4).ok_or_else(|| value_error(format!("{}: bad length", self.what)))?)?;
+        Ok(raw.chunks_exact(4).map(|c| u32::from_le_bytes(c.try_into().expect("4 bytes"))).collect())
     }
 
     /// A length-prefixed float array.

@@ -17,8 +17,8 @@ use std::time::Instant;
 mod scan;
 mod stages;
 
-pub use scan::ScanFeatures;
 use scan::{DescribingScan, MissingNormals};
+pub use scan::{PoseFeatures, PoseRows, ScanFeatures};
 pub use stages::{Round, keypoint_stages};
 
 /// Fewest points a scan may have after preprocessing.
@@ -546,12 +546,10 @@ impl Registrar {
         clock.scope = "target.";
         let mut tgt = self.start_description(target, 1, viewpoint, &mut clock).map_err(|e| prefix("target", e))?;
         if self.settings.icp.is_some() {
-            // Point-to-plane ICP reads the normals of every point.
-            for (scope, scan) in [("source.", &mut src), ("target.", &mut tgt)] {
-                clock.scope = scope;
-                self.complete_normals(scan);
-                clock.lap("remaining_normals");
-            }
+            // Point-to-plane ICP reads the target's normals at every point (and no source normal).
+            clock.scope = "target.";
+            self.complete_normals(&mut tgt);
+            clock.lap("remaining_normals");
         }
         let mut outcome = stages::Outcome::default();
         let mut rows = None;

@@ -34,7 +34,7 @@ pub struct ScanFeatures {
     /// Stage times spent describing this scan.
     pub timings: Vec<StageTime>,
     /// PC-FoldNet's inputs and the pose features computed from them so far.
-    pub(crate) pose: PoseFeatures,
+    pub pose: PoseFeatures,
 }
 
 impl ScanFeatures {
@@ -48,12 +48,13 @@ impl ScanFeatures {
 /// feature (`codeword` wide). Behind a lock so that estimates reading one scan from several pairs compute each
 /// row once.
 #[derive(Debug, Default)]
-pub(crate) struct PoseFeatures {
+pub struct PoseFeatures {
     rows: Mutex<PoseRows>,
 }
 
-#[derive(Clone, Debug, Default)]
-pub(crate) struct PoseRows {
+/// The content of [`PoseFeatures`] (e.g. to serialise a described scan).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PoseRows {
     /// PC-FoldNet input, `rows x input_width`.
     pub input: Vec<f32>,
     /// Pose features, `rows x codeword`; meaningful where `ready`.
@@ -69,6 +70,28 @@ impl Clone for PoseFeatures {
 }
 
 impl PoseFeatures {
+    /// Pose features from their content; errors when the lengths do not fit `keypoints` rows of `codeword`.
+    pub fn from_rows(rows: PoseRows, keypoints: usize, codeword: usize) -> crate::Result<PoseFeatures> {
+        let fits = rows.ready.len() == keypoints
+            && rows.features.len() == keypoints * codeword
+            && rows.input.len().is_multiple_of(keypoints.max(1));
+        if !fits {
+            return Err(crate::Error::invalid(format!(
+                "pose features: {} input values, {} features and {} flags do not fit {keypoints} keypoints of \
+                 {codeword} values",
+                rows.input.len(),
+                rows.features.len(),
+                rows.ready.len()
+            )));
+        }
+        Ok(PoseFeatures { rows: Mutex::new(rows) })
+    }
+
+    /// A copy of the content.
+    pub fn rows(&self) -> PoseRows {
+        self.lock().clone()
+    }
+
     /// The rows, also after a panic elsewhere poisoned the lock (every update leaves them consistent).
     pub(crate) fn lock(&self) -> std::sync::MutexGuard<'_, PoseRows> {
         self.rows.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
