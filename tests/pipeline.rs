@@ -10,7 +10,7 @@ use dpr_gpu::cpu::mutual_knn::mutual_knn;
 use dpr_gpu::cpu::patch_features::point_features;
 use dpr_gpu::cpu::rotation_head::quaternion_rotation;
 use dpr_gpu::estimate::{ransac, verify};
-use dpr_gpu::model::{Model, ModelConfig, Weights};
+use dpr_gpu::model::{Model, Weights};
 use dpr_gpu::pose::{
     matrix_from_parts, matrix_from_quaternion, quaternion_from_matrix, rotation_error_deg, transform_point,
     translation_error,
@@ -22,18 +22,6 @@ use proptest::prelude::*;
 
 /// f32 features after a rigid motion agree to this (angles near 0 or pi lose a few bits through atan2).
 const FEATURE_TOLERANCE: f32 = 2e-4;
-
-fn tiny_config() -> ModelConfig {
-    ModelConfig {
-        points_per_patch: 12,
-        encoder_widths: vec![8, 8, 16],
-        head_widths: vec![16, 12],
-        fold_widths: vec![8, 8],
-        grid: [3, 3],
-        relative_widths: vec![16, 8],
-        ..ModelConfig::default()
-    }
-}
 
 fn random_pose(rng: &mut Rng) -> Matrix4<f64> {
     let r = matrix_from_quaternion(rng.unit_quaternion());
@@ -87,7 +75,7 @@ fn ppf_of_degenerate_geometry_is_finite() {
 
 #[test]
 fn encoders_are_invariant_to_the_order_of_patch_points() {
-    let config = tiny_config();
+    let config = common::tiny_config();
     let model = Model::from_weights(&Weights::init(&config, 3).unwrap()).unwrap();
     let mut rng = Rng::new(8);
     let (patches, n) = (5, config.points_per_patch);
@@ -184,7 +172,7 @@ fn problem(seed: u64, n: usize, inlier_ratio: f64) -> Problem {
 
 #[test]
 fn verifier_and_ransac_recover_a_known_transform_with_80_percent_outliers() {
-    let model = Model::from_weights(&Weights::init(&tiny_config(), 0).unwrap()).unwrap();
+    let model = Model::from_weights(&Weights::init(&common::tiny_config(), 0).unwrap()).unwrap();
     let backend = CpuBackend::new(model);
     for seed in 0..5 {
         let p = problem(seed, 200, 0.2);
@@ -220,7 +208,7 @@ fn a_moved_scan_described_from_its_moved_sensor_gets_the_moved_normals() {
     let cloud = common::room_corner(3, 3000);
     let settings =
         dpr_gpu::RegistrationSettings { keypoints: 50, voxel: None, viewpoint: [1.5, 1.5, 1.0], ..Default::default() };
-    let weights = Weights::init(&tiny_config(), 0).unwrap();
+    let weights = Weights::init(&common::tiny_config(), 0).unwrap();
     let registrar = dpr_gpu::Registrar::with_weights(&settings, &weights).unwrap();
     let original = registrar.describe(&cloud, 0).unwrap();
     let m = dpr_gpu::pose::matrix_from_parts(

@@ -4,22 +4,13 @@
 
 mod common;
 
-use dpr_gpu::model::{ModelConfig, Weights};
+use dpr_gpu::model::Weights;
 use dpr_gpu::settings::Estimator;
 use dpr_gpu::verdict::VerdictSettings;
 use dpr_gpu::{Registrar, RegistrationSettings};
 
 fn tiny_weights() -> Weights {
-    let config = ModelConfig {
-        points_per_patch: 16,
-        encoder_widths: vec![8, 8, 16],
-        head_widths: vec![16, 12],
-        fold_widths: vec![8, 8],
-        grid: [3, 3],
-        relative_widths: vec![16, 8],
-        ..ModelConfig::default()
-    };
-    Weights::init(&config, 3).unwrap()
+    Weights::init(&common::tiny_config(), 3).unwrap()
 }
 
 fn registrar(settings: &RegistrationSettings, weights: &Weights) -> Registrar {

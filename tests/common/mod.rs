@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 use dpr_gpu::PointCloud;
+use dpr_gpu::model::ModelConfig;
 use dpr_gpu::pose::{matrix_from_parts, matrix_from_quaternion, transform_point};
 use dpr_gpu::rng::Rng;
 use nalgebra::{Matrix4, Vector3};
@@ -69,4 +70,17 @@ pub fn room_pair(seed: u64, n: usize) -> (PointCloud, PointCloud, Matrix4<f64>) 
     let target = room_corner(seed * 2 + 2, n);
     let target = PointCloud::from_points(target.points.iter().map(|&p| transform_point(&truth, p)).collect());
     (source, target, truth)
+}
+
+/// A tiny model configuration (12 points per patch, narrow layers) for tests that need a network, not a good one.
+pub fn tiny_config() -> ModelConfig {
+    ModelConfig {
+        points_per_patch: 12,
+        encoder_widths: vec![8, 8, 16],
+        head_widths: vec![16, 12],
+        fold_widths: vec![8, 8],
+        grid: [3, 3],
+        relative_widths: vec![16, 8],
+        ..ModelConfig::default()
+    }
 }
