@@ -187,10 +187,18 @@ fn bench_without_a_gpu_times_the_cpu_and_says_what_it_did_not_measure() {
     let (stdout, stderr) = text(&o);
     assert!(o.status.success(), "{stderr}");
     assert!(stdout.contains("gpu: not measured"), "{stdout}");
-    for stage in ["encode ppf", "predict_rotations", "hypotheses", "score_hypotheses", "dense 512->512"] {
-        let row = stdout.lines().find(|l| l.starts_with(stage)).unwrap_or_else(|| panic!("no {stage} row: {stdout}"));
-        let cpu_ms: f64 = row[34..].split_whitespace().next().unwrap().parse().expect("a CPU time");
+    for stage in ["encode ppf", "predict_rotations", "hypotheses", "score_hypotheses"] {
+        let row = stdout
+            .lines()
+            .find(|l| l.starts_with(&format!("{stage} ")))
+            .unwrap_or_else(|| panic!("no {stage}: {stdout}"));
+        let cpu_ms: f64 = row[stage.len()..].split_whitespace().next().unwrap().parse().expect("a CPU time");
         assert!(cpu_ms >= 0.0 && row.split_whitespace().any(|c| c == "-"), "{row}");
     }
+    // The GEMM the CPU backend runs is timed, and marked.
+    let gemm = stdout.lines().find(|l| l.starts_with("gemm cpu_gemm_") && l.ends_with("[backend]"));
+    let gemm = gemm.unwrap_or_else(|| panic!("no CPU GEMM row: {stdout}"));
+    let gflops: f64 = gemm.split_whitespace().rev().nth(2).unwrap().parse().expect("GFLOP/s");
+    assert!(gflops > 0.0, "{gemm}");
     assert_clean_failure(&bench("gpu"), "GPU");
 }

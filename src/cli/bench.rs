@@ -438,8 +438,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Measures everything `args` ask for (what `dpr-gpu bench` prints). Progress notes go to stderr.
+/// Measures everything `args` ask for (what `dpr-gpu bench` prints). With `--json`, progress notes go to
+/// stderr (the table repeats them otherwise).
 pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
+    let note = |text: String| {
+        if args.json {
+            eprintln!("{text}");
+        }
+    };
     let (use_cpu, use_gpu) = match args.backend.as_str() {
         "cpu" => (true, false),
         "gpu" => (false, true),
@@ -455,10 +461,10 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
     let cw = model.config.codeword();
     let radius = model.config.radius;
     let peak = args.peak_tflops;
-    eprintln!(
+    note(format!(
         "dpr-gpu bench: {k} keypoints x {p} points per patch, codeword {cw}, best of {} runs",
         args.repeat.max(1)
-    );
+    ));
 
     let cpu = use_cpu.then(|| CpuBackend::new(model.clone()));
     let device = match (use_gpu, use_cpu) {
@@ -486,12 +492,12 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
             info.timestamps = dev.context.has_timestamps();
             info.clock = Some(if info.timestamps { Clock::GpuTimestamps } else { Clock::HostWall });
             let clock = if info.timestamps { "GPU timestamps" } else { "host wall time, no TIMESTAMP_QUERY" };
-            eprintln!("gpu: {} (device times: {clock})", backend.adapter_info());
+            note(format!("gpu: {} (device times: {clock})", backend.adapter_info()));
             Some(backend)
         }
-        Err(note) => {
-            eprintln!("gpu: not measured: {note}");
-            info.note = Some(note);
+        Err(reason) => {
+            note(format!("gpu: not measured: {reason}"));
+            info.note = Some(reason);
             None
         }
     };

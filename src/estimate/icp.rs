@@ -1,4 +1,5 @@
-//! Point-to-plane ICP: optional refinement of a final pose on the full clouds.
+//! Point-to-plane ICP: optional refinement of a final pose (the pipeline runs it against a voxel-downsampled
+//! copy of the target, see `Registrar::estimate`).
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};

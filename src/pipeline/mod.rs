@@ -462,12 +462,30 @@ impl Registrar {
             Estimator::Ransac => ransac(&src, &tgt, threshold, &self.settings.ransac, self.settings.seed)?,
         };
         if let Some(icp) = &self.settings.icp {
-            let index = PointIndex::new(&target.cloud.points)?;
-            let refined = icp_point_to_plane(&source.cloud, &target.cloud, &index, estimate.target_from_source, icp)?;
+            let refined = self.refine_by_icp(source, target, estimate.target_from_source, icp)?;
             let scored = estimate.hypotheses_scored;
             estimate = crate::estimate::evaluate(refined, &src, &tgt, threshold, scored);
         }
         Ok(estimate)
+    }
+
+    /// Point-to-plane ICP from `initial` on a voxel-downsampled copy of the target (voxel: half the largest
+    /// point-pair distance; normals estimated on the copy), so it needs no normal of the full clouds and costs
+    /// little next to description.
+    fn refine_by_icp(
+        &self,
+        source: &ScanFeatures,
+        target: &ScanFeatures,
+        initial: nalgebra::Matrix4<f64>,
+        icp: &IcpSettings,
+    ) -> Result<nalgebra::Matrix4<f64>> {
+        let voxel = icp.max_correspondence_distance / 2.0;
+        let mut small = voxel_downsample(&PointCloud::from_points(target.cloud.points.clone()), voxel)?;
+        let index = PointIndex::new(&small.points)?;
+        let ids: Vec<usize> = (0..small.len()).collect();
+        small.normals =
+            Some(estimate_normals_at(&small.points, &index, &ids, self.settings.normal_neighbors, [0.0; 3]));
+        icp_point_to_plane(&source.cloud, &small, &index, initial, icp)
     }
 
     /// Whether `estimate` (computed from `correspondences`) can be trusted, by the settings' verdict thresholds.
@@ -545,12 +563,6 @@ impl Registrar {
         let mut src = self.start_description(source, 0, viewpoint, &mut clock).map_err(|e| prefix("source", e))?;
         clock.scope = "target.";
         let mut tgt = self.start_description(target, 1, viewpoint, &mut clock).map_err(|e| prefix("target", e))?;
-        if self.settings.icp.is_some() {
-            // Point-to-plane ICP reads the target's normals at every point (and no source normal).
-            clock.scope = "target.";
-            self.complete_normals(&mut tgt);
-            clock.lap("remaining_normals");
-        }
         let mut outcome = stages::Outcome::default();
         let mut rows = None;
         for k in self.keypoint_stages() {

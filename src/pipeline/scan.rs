@@ -15,8 +15,8 @@ use std::sync::Mutex;
 #[derive(Clone, Debug)]
 pub struct ScanFeatures {
     /// The scan after preprocessing (downsampled, with unit normals). From `Registrar::register_detailed`, a
-    /// cloud without normals in its file has `normals: None` unless ICP ran: normals are estimated only where
-    /// patches need them.
+    /// cloud without normals in its file has `normals: None`: normals are estimated only where patches need
+    /// them.
     pub cloud: PointCloud,
     /// Keypoint positions (scan frame), only keypoints with a non-empty patch.
     pub keypoints: Vec<[f32; 3]>,
