@@ -211,7 +211,8 @@ class RegistrationResult:
         """Input rows dropped (both scans): non-finite values, or zeros with ``drop_zero_points``."""
     @property
     def timings(self) -> dict[str, float]:
-        """Wall time per pipeline stage in seconds, in pipeline order."""
+        """Wall time per pipeline stage in seconds, in pipeline order; stages repeated by the progressive
+        keypoint rounds are summed."""
     @property
     def backend(self) -> str:
         """The backend (and adapter) that ran the learned stages."""

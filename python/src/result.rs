@@ -8,11 +8,16 @@ use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-/// Stage name -> seconds, in pipeline order.
+/// Stage name -> seconds, in pipeline order (first occurrence); a stage that ran several times (the rounds of
+/// the progressive keypoint schedule) gets the sum of its times.
 pub(crate) fn timings_dict<'py>(py: Python<'py>, timings: &[StageTime]) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     for t in timings {
-        d.set_item(&t.stage, t.seconds)?;
+        let before = match d.get_item(&t.stage)? {
+            Some(v) => v.extract::<f64>()?,
+            None => 0.0,
+        };
+        d.set_item(&t.stage, before + t.seconds)?;
     }
     Ok(d)
 }
@@ -126,8 +131,9 @@ impl RegistrationResult {
         self.dropped_points
     }
 
-    /// Wall time per pipeline stage in seconds, a dict in pipeline order (``"source.normals"``,
-    /// ``"target.ppf_encoder"``, ``"matching"``, ``"estimation"``...).
+    /// Wall time per pipeline stage in seconds, a dict in pipeline order (``"source.patches"``,
+    /// ``"target.ppf_encoder"``, ``"matching"``, ``"pc_encoder"``, ``"estimation"``...); a stage that ran in
+    /// several rounds of the progressive keypoint schedule has the sum of its times.
     #[getter]
     fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         timings_dict(py, &self.result.timings)

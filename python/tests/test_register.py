@@ -51,8 +51,8 @@ def test_the_result_fields_agree_with_each_other(room_pair):
     assert result.inlier_rmse == pytest.approx(np.sqrt(np.mean(residuals[inlier] ** 2)), rel=1e-4)
     # The verdict: success exactly when there is no reason.
     assert (result.reason is None) == result.success
-    assert list(result.timings)[:2] == ["source.downsample", "source.normals"]
-    assert {"matching", "estimation", "target.ppf_encoder"} <= set(result.timings)
+    assert list(result.timings)[:3] == ["source.downsample", "source.index", "source.keypoints"]
+    assert {"matching", "pc_encoder", "estimation", "target.ppf_encoder"} <= set(result.timings)
     assert all(s >= 0 for s in result.timings.values())
     assert result.dropped_points == 0
     assert "RegistrationResult(success=" in repr(result)
