@@ -36,7 +36,7 @@
 //!     weights: Some(weights),
 //!     keypoints: 200,
 //!     estimator: Estimator::Ransac,
-//!     icp: Some(IcpSettings { max_correspondence_distance: 0.05, max_iterations: 30 }),
+//!     icp: Some(IcpSettings { max_correspondence_distance: Some(0.05), max_iterations: 30 }),
 //!     ..RegistrationSettings::default()
 //! };
 //! let result = register(&source, &target, &settings)?;

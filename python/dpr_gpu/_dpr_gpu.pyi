@@ -246,7 +246,7 @@ class Registrar:
         inlier_threshold: Optional[float] = None,
         ransac_iterations: int = 100_000,
         ransac_confidence: float = 0.999,
-        icp: bool = False,
+        icp: bool = True,
         icp_max_correspondence_distance: Optional[float] = None,
         icp_max_iterations: int = 30,
         drop_zero_points: bool = False,

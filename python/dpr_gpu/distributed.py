@@ -449,7 +449,8 @@ def _arguments() -> argparse.ArgumentParser:
     reg.add_argument("--inlier-threshold", type=float, default=None)
     reg.add_argument("--ransac-iterations", type=int, default=100_000)
     reg.add_argument("--seed", type=int, default=0)
-    reg.add_argument("--icp", action="store_true")
+    reg.add_argument("--no-icp", action="store_true", help="skip the ICP refinement (on by default)")
+    reg.add_argument("--icp", action="store_true", help="ICP refinement (the default)")
     reg.add_argument("--icp-distance", type=float, default=None)
     reg.add_argument("--icp-iterations", type=int, default=None)
     reg.add_argument("--drop-zero", action="store_true")
@@ -462,7 +463,9 @@ def _arguments() -> argparse.ArgumentParser:
 
 def _settings_of(a: argparse.Namespace) -> Dict[str, Any]:
     """The Registrar keyword arguments of the command-line flags (named as `dpr-gpu multiway` names them)."""
-    icp = a.icp or a.icp_distance is not None or a.icp_iterations is not None
+    if a.no_icp and (a.icp or a.icp_distance is not None or a.icp_iterations is not None):
+        raise SystemExit("--no-icp cannot be combined with --icp, --icp-distance or --icp-iterations")
+    icp = not a.no_icp
     return {
         "weights": a.weights,
         "keypoints": a.keypoints,

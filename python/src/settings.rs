@@ -76,7 +76,7 @@ impl SettingsArgs {
         let radius = self.radius.unwrap_or(model_radius);
         let icp = self.icp.then(|| -> PyResult<IcpSettings> {
             Ok(IcpSettings {
-                max_correspondence_distance: self.icp_max_correspondence_distance.unwrap_or(radius / 6.0),
+                max_correspondence_distance: Some(self.icp_max_correspondence_distance.unwrap_or(radius / 6.0)),
                 max_iterations: count("icp_max_iterations", self.icp_max_iterations)?,
             })
         });
@@ -132,7 +132,7 @@ pub(crate) fn settings_dict<'py>(py: Python<'py>, s: &RegistrationSettings) -> P
     d.set_item("ransac_iterations", s.ransac.max_iterations)?;
     d.set_item("ransac_confidence", s.ransac.confidence)?;
     d.set_item("icp", s.icp.is_some())?;
-    d.set_item("icp_max_correspondence_distance", s.icp.map(|i| i.max_correspondence_distance))?;
+    d.set_item("icp_max_correspondence_distance", s.icp.and_then(|i| i.max_correspondence_distance))?;
     d.set_item("icp_max_iterations", s.icp.map(|i| i.max_iterations))?;
     d.set_item("drop_zero_points", s.drop_zero_points)?;
     d.set_item("seed", s.seed)?;

@@ -145,13 +145,16 @@ def test_settings_defaults_follow_the_library():
         if name == "backend":
             continue  # Python defaults to "auto" (a GPU when there is one); the library to "cpu".
         if name in ("icp_max_correspondence_distance", "icp_max_iterations"):
-            continue  # ICP is off by default; checked below.
+            continue  # resolved against the radius; checked below.
         assert effective[name] == value, name
         if sys.version_info >= (3, 10):
             default = parameters[name].default
             assert (tuple(default) if name == "viewpoint" else default) == value, name
     assert sys.version_info < (3, 10) or parameters["backend"].default == "auto"
-    icp = dpr_gpu.Registrar(icp=True, backend="cpu")
+    assert effective["icp"] is True  # on by default
+    no_icp = dpr_gpu.Registrar(icp=False, backend="cpu").settings
+    assert no_icp["icp_max_iterations"] is None and no_icp["icp_max_correspondence_distance"] is None
+    icp = dpr_gpu.Registrar(backend="cpu")
     assert icp.settings["icp_max_iterations"] == 30
     assert icp.settings["icp_max_correspondence_distance"] == pytest.approx(icp.radius / 6)
     assert icp.radius == pytest.approx(0.30) and icp.inlier_threshold == pytest.approx(0.10)

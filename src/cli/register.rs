@@ -50,15 +50,18 @@ pub struct RegisterOptions {
     /// Seed for every random choice.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Refine the final pose with point-to-plane ICP.
+    /// Skip the point-to-plane ICP that refines the final pose (on by default, about 0.2 s a pair).
+    #[arg(long, conflicts_with_all = ["icp", "icp_distance", "icp_iterations"])]
+    pub no_icp: bool,
+    /// Refine the final pose with point-to-plane ICP (the default; kept for scripts that ask for it).
     #[arg(long)]
     pub icp: bool,
-    /// ICP's largest point-pair distance in cloud units (default: radius / 6); implies --icp.
+    /// ICP's largest point-pair distance in cloud units (default: radius / 6).
     #[arg(long)]
     pub icp_distance: Option<f32>,
-    /// ICP's iteration limit (default: 30); implies --icp.
-    #[arg(long)]
-    pub icp_iterations: Option<usize>,
+    /// ICP's iteration limit.
+    #[arg(long, default_value_t = DEFAULT_ICP_ITERATIONS)]
+    pub icp_iterations: usize,
     /// Drop exact (0,0,0) points when loading.
     #[arg(long)]
     pub drop_zero: bool,
@@ -131,13 +134,10 @@ impl RegisterOptions {
             min_inlier_ratio: self.min_inlier_ratio,
             min_spread_over_threshold: self.min_inlier_spread,
         };
-        if self.icp || self.icp_distance.is_some() || self.icp_iterations.is_some() {
-            let radius = self.radius.unwrap_or(0.30);
-            s.icp = Some(IcpSettings {
-                max_correspondence_distance: self.icp_distance.unwrap_or(radius / 6.0),
-                max_iterations: self.icp_iterations.unwrap_or(30),
-            });
-        }
+        s.icp = (!self.no_icp).then_some(IcpSettings {
+            max_correspondence_distance: self.icp_distance,
+            max_iterations: self.icp_iterations,
+        });
         s.validate()?;
         Ok(s)
     }

@@ -4,7 +4,6 @@
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::pose::{matrix_from_parts, transform_point, v3};
-use crate::settings::IcpSettings;
 use crate::spatial::PointIndex;
 use nalgebra::{Matrix4, Matrix6, Rotation3, Vector3, Vector6};
 
@@ -15,19 +14,21 @@ pub const CONVERGED_ROTATION: f64 = 1e-6;
 /// See [`CONVERGED_ROTATION`].
 pub const CONVERGED_TRANSLATION: f64 = 1e-6;
 
-/// Refines `target_from_source` by minimising point-to-plane distances to the target's normals.
+/// Refines `target_from_source` by minimising point-to-plane distances to the target's normals, ignoring
+/// pairs further apart than `max_distance` (cloud units), for at most `max_iterations` iterations.
 pub fn icp_point_to_plane(
     source: &PointCloud,
     target: &PointCloud,
     target_index: &PointIndex,
     initial: Matrix4<f64>,
-    settings: &IcpSettings,
+    max_distance: f32,
+    max_iterations: usize,
 ) -> Result<Matrix4<f64>> {
     let normals = target.normals.as_ref().ok_or_else(|| Error::invalid("point-to-plane ICP needs target normals"))?;
     let stride = source.len().div_ceil(MAX_ICP_POINTS).max(1);
-    let max_d2 = settings.max_correspondence_distance * settings.max_correspondence_distance;
+    let max_d2 = max_distance * max_distance;
     let mut pose = initial;
-    for _ in 0..settings.max_iterations {
+    for _ in 0..max_iterations {
         let mut ata = Matrix6::<f64>::zeros();
         let mut atb = Vector6::<f64>::zeros();
         let mut used = 0;
@@ -85,8 +86,7 @@ mod tests {
         let inv = truth.try_inverse().unwrap();
         let source = PointCloud::from_points(pts.iter().map(|&p| transform_point(&inv, p)).collect());
         let index = PointIndex::new(&target.points).unwrap();
-        let settings = IcpSettings { max_correspondence_distance: 0.1, max_iterations: 50 };
-        let est = icp_point_to_plane(&source, &target, &index, Matrix4::identity(), &settings).unwrap();
+        let est = icp_point_to_plane(&source, &target, &index, Matrix4::identity(), 0.1, 50).unwrap();
         assert!(rotation_error_deg(&est, &truth) < 0.05, "{}", rotation_error_deg(&est, &truth));
         assert!(translation_error(&est, &truth) < 1e-3);
     }

@@ -470,8 +470,8 @@ impl Registrar {
     }
 
     /// Point-to-plane ICP from `initial` on a voxel-downsampled copy of the target (voxel: half the largest
-    /// point-pair distance; normals estimated on the copy), so it needs no normal of the full clouds and costs
-    /// little next to description.
+    /// point-pair distance, by default radius / 6; normals estimated on the copy), so it needs no normal of the
+    /// full clouds and costs little next to description.
     fn refine_by_icp(
         &self,
         source: &ScanFeatures,
@@ -479,13 +479,14 @@ impl Registrar {
         initial: nalgebra::Matrix4<f64>,
         icp: &IcpSettings,
     ) -> Result<nalgebra::Matrix4<f64>> {
-        let voxel = icp.max_correspondence_distance / 2.0;
+        let distance = icp.max_correspondence_distance.unwrap_or(self.radius() / 6.0);
+        let voxel = distance / 2.0;
         let mut small = voxel_downsample(&PointCloud::from_points(target.cloud.points.clone()), voxel)?;
         let index = PointIndex::new(&small.points)?;
         let ids: Vec<usize> = (0..small.len()).collect();
         small.normals =
             Some(estimate_normals_at(&small.points, &index, &ids, self.settings.normal_neighbors, [0.0; 3]));
-        icp_point_to_plane(&source.cloud, &small, &index, initial, icp)
+        icp_point_to_plane(&source.cloud, &small, &index, initial, distance, icp.max_iterations)
     }
 
     /// Whether `estimate` (computed from `correspondences`) can be trusted, by the settings' verdict thresholds.
