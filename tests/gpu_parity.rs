@@ -369,7 +369,7 @@ fn check_dense_variant(
     variant: GemmVariant,
     seed: u64,
     cases: &[DenseCase],
-    twin: fn(&DenseShape, &[f32], &[f32], &[f32], &mut [f32]),
+    twin: <Dense as GpuKernel>::CpuTwin,
     tol: impl Fn(&DenseShape, &[f32], &[f32], &[f32], &[f32]) -> Vec<f32>,
 ) {
     use dpr_gpu::gpu::{buffer::GpuBuffer, recorder::Recorder};
