@@ -13,6 +13,7 @@ use dpr_gpu::cpu::hypotheses::Hypothesis;
 use dpr_gpu::cpu::mutual_knn::Match;
 use dpr_gpu::cpu::score_hypotheses::HypothesisScore;
 use dpr_gpu::gpu::GpuBackend;
+use dpr_gpu::gpu::gemm::GemmVariant;
 use dpr_gpu::gpu::hypotheses::HYPOTHESIS_FLOATS;
 use dpr_gpu::gpu::mutual_knn::K_MAX;
 use dpr_gpu::gpu::testing::gpu_or_skip;
@@ -245,8 +246,25 @@ fn bench_json_on_the_test_adapter_is_consistent() {
     let gemm = r["gemm"].as_array().expect("gemm");
     let variants: Vec<&str> = gemm.iter().map(|v| v["variant"].as_str().unwrap()).collect();
     let selected = format!("cpu_gemm_{}", r["cpu"]["gemm_path"].as_str().unwrap());
-    for want in [selected.as_str(), "cpu_gemm_portable", "cpu_twin", "gpu_dense_f32"] {
+    // The GPU GEMM the backend runs is the device's (the same selection in this process and the bench's).
+    assert_eq!(g["gemm_variant"], gpu.gemm_variant().name());
+    let gpu_selected = format!("gpu_dense_{}", gpu.gemm_variant());
+    for want in [selected.as_str(), "cpu_gemm_portable", "cpu_twin", "gpu_dense_portable", gpu_selected.as_str()] {
         assert!(variants.contains(&want), "{want} missing from {variants:?}");
+    }
+    // Every GPU variant is either measured or listed as unavailable with the adapter's reason, never both.
+    let unavailable = r["gemm_unavailable"].as_array().expect("gemm_unavailable");
+    for v in GemmVariant::ALL {
+        let name = format!("gpu_dense_{v}");
+        let listed: Vec<&Value> = unavailable.iter().filter(|u| u["variant"] == name.as_str()).collect();
+        match v.unavailable_reason(&gpu.context) {
+            None => assert!(variants.contains(&name.as_str()) && listed.is_empty(), "{name} runs here: {variants:?}"),
+            Some(reason) => {
+                assert!(!variants.contains(&name.as_str()), "{name} cannot run here but was measured");
+                assert_eq!(listed.len(), 1, "{name} listed once as unavailable");
+                assert_eq!(listed[0]["reason"], reason.as_str(), "{name}");
+            }
+        }
     }
     for v in gemm {
         let name = v["variant"].as_str().unwrap();
@@ -258,7 +276,9 @@ fn bench_json_on_the_test_adapter_is_consistent() {
         assert_rel(gf, flops / (t * 1e-3) / 1e9, name);
         let on_gpu = v["device"] == "gpu";
         assert_eq!(v["clock"], if on_gpu { clock } else { "host_wall" }, "{name}");
-        assert_eq!(v["used_by_backend"], name == selected || name == "gpu_dense_f32", "{name}");
+        assert_eq!(v["used_by_backend"], name == selected || name == gpu_selected, "{name}");
+        let precision = if name == "gpu_dense_coop_f16" { "f16" } else { "f32" };
+        assert_eq!(v["precision"], precision, "{name}");
         if on_gpu {
             assert_rel(num(&v["peak_fraction"], "peak"), gf / peak_gflops, name);
         } else {
@@ -314,6 +334,10 @@ fn bench_json_without_an_adapter_says_it_is_cpu_only() {
         time_ms(&s["cpu"]["wall_ms"], "cpu wall");
     }
     assert!(r["gemm"].as_array().unwrap().iter().all(|v| v["device"] == "cpu"));
+    assert!(r["gpu"]["gemm_variant"].is_null());
+    let unavailable: Vec<&str> =
+        r["gemm_unavailable"].as_array().unwrap().iter().map(|u| u["variant"].as_str().unwrap()).collect();
+    assert_eq!(unavailable, ["gpu_dense_portable", "gpu_dense_fast", "gpu_dense_coop_f16"]);
     let pair = &r["pair"];
     assert!(pair["backend"].as_str().unwrap().starts_with("cpu"), "{pair}");
     assert!(pair["host_to_device_bytes"].is_null() && pair["device_ms"].is_null());

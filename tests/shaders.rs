@@ -8,11 +8,24 @@ use dpr_gpu::gpu::registry::KERNELS;
 use naga::valid::{Capabilities, ValidationFlags, Validator};
 use std::collections::BTreeSet;
 
-/// Parses and validates `spec`'s source, panicking with naga's rendered diagnostic.
+/// The naga capabilities the device features of a kernel grant its shader (what wgpu enables for them).
+fn capabilities(features: wgpu::Features) -> Capabilities {
+    let grants = [
+        (wgpu::Features::SHADER_F16, Capabilities::SHADER_FLOAT16),
+        (wgpu::Features::SUBGROUP, Capabilities::SUBGROUP),
+        (wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX, Capabilities::COOPERATIVE_MATRIX),
+    ];
+    let known = grants.iter().fold(wgpu::Features::empty(), |acc, (f, _)| acc | *f);
+    assert!(known.contains(features), "a kernel needs features this test does not map: {:?}", features - known);
+    grants.iter().filter(|(f, _)| features.contains(*f)).fold(Capabilities::empty(), |acc, (_, c)| acc | *c)
+}
+
+/// Parses and validates `spec`'s source with the capabilities of its declared features (none for a portable
+/// kernel), panicking with naga's rendered diagnostic.
 fn module(spec: &KernelSpec) -> naga::Module {
     let module = naga::front::wgsl::parse_str(spec.source)
         .unwrap_or_else(|e| panic!("shaders/{}.wgsl does not parse:\n{}", spec.name, e.emit_to_string(spec.source)));
-    Validator::new(ValidationFlags::all(), Capabilities::empty())
+    Validator::new(ValidationFlags::all(), capabilities(spec.features))
         .validate(&module)
         .unwrap_or_else(|e| panic!("shaders/{}.wgsl does not validate:\n{}", spec.name, e.emit_to_string(spec.source)));
     module
@@ -43,6 +56,22 @@ fn every_shader_parses_and_validates() {
     for spec in KERNELS {
         module(spec);
     }
+}
+
+/// A kernel that declares no feature validates with no capability, and one that declares features needs each
+/// of them: without any one of its capabilities it does not validate (so the declaration is what gates it).
+#[test]
+fn declared_features_are_exactly_what_each_shader_needs() {
+    for spec in KERNELS {
+        let module = naga::front::wgsl::parse_str(spec.source).expect("parses");
+        for feature in spec.features.iter() {
+            let without = capabilities(spec.features) - capabilities(feature);
+            let result = Validator::new(ValidationFlags::all(), without).validate(&module);
+            assert!(result.is_err(), "{}: validates without {feature:?}, which it declares", spec.name);
+        }
+    }
+    let coop = KERNELS.iter().find(|k| k.name == "dense_coop_f16").expect("registered");
+    assert!(coop.features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX | wgpu::Features::SHADER_F16));
 }
 
 #[test]

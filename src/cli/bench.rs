@@ -1,6 +1,6 @@
 //! `dpr-gpu bench`: times every learned or massively parallel stage on synthetic inputs of a realistic shape
 //! (K keypoints x P points per patch), on the GPU backend and/or the CPU reference, the dense GEMM on its own
-//! (every CPU micro-kernel, the readable twin, the WGSL kernel) in GFLOP/s, and one synthetic pair registered
+//! (every CPU micro-kernel, the readable twin, each WGSL GEMM variant) in GFLOP/s, and one synthetic pair registered
 //! end to end; prints a table, or with `--json` one JSON document ([`Report`], schema [`SCHEMA`]).
 //!
 //! GPU stages report the wall time of the backend call (upload, dispatches, readback) and the device time:
@@ -15,7 +15,7 @@ use crate::backend::{Backend, CpuBackend, RotationInputs};
 use crate::cpu::dense::{DenseShape, dense as dense_twin};
 use crate::cpu::gemm::{GemmPath, dense_on};
 use crate::gpu::context::Transfers;
-use crate::gpu::{Gpu, GpuBackend, buffer::GpuBuffer, dense as gpu_dense, recorder::Recorder};
+use crate::gpu::{Gpu, GpuBackend, buffer::GpuBuffer, dense as gpu_dense, gemm::GemmVariant, recorder::Recorder};
 use crate::model::{Model, ModelConfig, Net, Weights};
 use crate::preprocess::GatheredPatches;
 use crate::rng::Rng;
@@ -29,7 +29,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// The `schema` field of the JSON report; bumped when a field changes meaning or goes away.
-pub const SCHEMA: &str = "dpr-gpu-bench/1";
+pub const SCHEMA: &str = "dpr-gpu-bench/2";
 
 /// Arguments of `dpr-gpu bench`.
 #[derive(clap::Args, Debug, Clone)]
@@ -53,7 +53,7 @@ pub struct Args {
     /// Seed of the synthetic inputs.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Print one JSON document (schema `dpr-gpu-bench/1`, fields in the README) on stdout instead of the table.
+    /// Print one JSON document (schema `dpr-gpu-bench/2`, fields in the README) on stdout instead of the table.
     #[arg(long)]
     pub json: bool,
     /// The GPU's peak f32 throughput in TFLOP/s, from its datasheet (adapters do not report it): GPU GFLOP/s
@@ -88,8 +88,10 @@ pub struct Report {
     pub gpu: GpuInfo,
     /// One entry per stage, in pipeline order.
     pub stages: Vec<StageReport>,
-    /// The dense GEMM on its own, one entry per variant.
+    /// The dense GEMM on its own, one entry per variant measured.
     pub gemm: Vec<GemmReport>,
+    /// GPU GEMM variants not measured, with the reason (the adapter cannot run them, or no GPU).
+    pub gemm_unavailable: Vec<GemmUnavailable>,
     /// One synthetic pair registered end to end, unless `--pair-points 0`.
     pub pair: Option<PairReport>,
 }
@@ -135,6 +137,8 @@ pub struct GpuInfo {
     pub adapter: Option<String>,
     /// Whether the adapter has `TIMESTAMP_QUERY`.
     pub timestamps: bool,
+    /// The GPU GEMM variant the backend's dense layers run (`portable`, `fast`, `coop_f16`).
+    pub gemm_variant: Option<&'static str>,
     /// The clock of the GPU device times (`None` without a GPU).
     pub clock: Option<Clock>,
     /// Bytes uploaded once for the model's weights (not part of any stage).
@@ -187,8 +191,10 @@ pub struct GpuTiming {
 #[derive(Clone, Debug, Serialize)]
 pub struct GemmReport {
     /// `cpu_gemm_<path>` (the CPU backend's kernel on each micro-kernel this CPU has), `cpu_twin` (the readable
-    /// twin), `gpu_dense_f32` (the WGSL tiled kernel).
+    /// twin), `gpu_dense_<variant>` (each WGSL GEMM variant the adapter runs: `portable`, `fast`, `coop_f16`).
     pub variant: String,
+    /// Input precision of the products: `f32`, or `f16` (f32 accumulation).
+    pub precision: &'static str,
     /// `cpu` or `gpu`.
     pub device: &'static str,
     /// Whether this is the variant the backend runs.
@@ -209,6 +215,15 @@ pub struct GemmReport {
     pub gflops: f64,
     /// `gflops / (peak_tflops * 1000)` for GPU variants with `--peak-tflops`.
     pub peak_fraction: Option<f64>,
+}
+
+/// A GPU GEMM variant that was not measured.
+#[derive(Clone, Debug, Serialize)]
+pub struct GemmUnavailable {
+    /// `gpu_dense_<variant>`.
+    pub variant: String,
+    /// Why it was not measured.
+    pub reason: String,
 }
 
 /// One pair registered end to end (`Registrar::register`: preprocessing on the CPU, the stages on the backend).
@@ -477,6 +492,7 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
         available: false,
         adapter: None,
         timestamps: false,
+        gemm_variant: None,
         clock: None,
         weights_upload_bytes: None,
         note: None,
@@ -490,6 +506,7 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
             info.available = true;
             info.adapter = Some(backend.adapter_info());
             info.timestamps = dev.context.has_timestamps();
+            info.gemm_variant = Some(dev.gemm_variant().name());
             info.clock = Some(if info.timestamps { Clock::GpuTimestamps } else { Clock::HostWall });
             let clock = if info.timestamps { "GPU timestamps" } else { "host wall time, no TIMESTAMP_QUERY" };
             note(format!("gpu: {} (device times: {clock})", backend.adapter_info()));
@@ -564,7 +581,7 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
         }
         stages.push(row);
     }
-    let gemm = gemm_variants(args, gpu.as_ref().map(GpuBackend::gpu), use_cpu, k * p)?;
+    let (gemm, gemm_unavailable) = gemm_variants(args, gpu.as_ref().map(GpuBackend::gpu), use_cpu, k * p)?;
     let pair = if args.pair_points == 0 {
         None
     } else {
@@ -585,7 +602,7 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
         peak_tflops: peak,
         pair_points: args.pair_points,
     };
-    Ok(Report { schema: SCHEMA, config, cpu: cpu_info, gpu: info, stages, gemm, pair })
+    Ok(Report { schema: SCHEMA, config, cpu: cpu_info, gpu: info, stages, gemm, gemm_unavailable, pair })
 }
 
 /// Registers the synthetic pair with `backend` (on `gpu` when given): fastest wall and device times, and the
@@ -619,8 +636,14 @@ fn measure_pair(args: &Args, backend: Box<dyn Backend>, gpu: Option<&Gpu>) -> an
 type DenseLayer<'a> = dyn Fn(&DenseShape, &[f32], &mut [f32]) + Sync + 'a;
 
 /// The dense GEMM on its own, a 512 -> 512 layer over min(K x P, 32768) rows: the CPU backend's kernel on
-/// every micro-kernel this CPU has, the readable twin, and the WGSL kernel.
-fn gemm_variants(args: &Args, gpu: Option<&Gpu>, use_cpu: bool, rows: usize) -> anyhow::Result<Vec<GemmReport>> {
+/// every micro-kernel this CPU has, the readable twin, and every WGSL GEMM variant the adapter runs; the
+/// variants it cannot run (or all of them, without a GPU) are listed with the reason.
+fn gemm_variants(
+    args: &Args,
+    gpu: Option<&Gpu>,
+    use_cpu: bool,
+    rows: usize,
+) -> anyhow::Result<(Vec<GemmReport>, Vec<GemmUnavailable>)> {
     let rows = rows.clamp(1, 32_768);
     let (in_dim, out_dim) = (512, 512);
     let mut rng = Rng::new(args.seed ^ 0xD5);
@@ -631,6 +654,7 @@ fn gemm_variants(args: &Args, gpu: Option<&Gpu>, use_cpu: bool, rows: usize) -> 
     let report = |variant: String, device: &'static str, used: bool, time_ms: f64, clock: Clock| {
         let g = gflops(flops, time_ms);
         GemmReport {
+            precision: if variant == "gpu_dense_coop_f16" { "f16" } else { "f32" },
             variant,
             device,
             used_by_backend: used,
@@ -644,7 +668,7 @@ fn gemm_variants(args: &Args, gpu: Option<&Gpu>, use_cpu: bool, rows: usize) -> 
             peak_fraction: if device == "gpu" { peak_fraction(Some(g), args.peak_tflops) } else { None },
         }
     };
-    let mut out = Vec::new();
+    let (mut out, mut unavailable) = (Vec::new(), Vec::new());
     if use_cpu {
         let mut y = vec![0.0f32; rows * out_dim];
         // Parallel over row blocks, as the CPU encoder runs it.
@@ -674,16 +698,27 @@ fn gemm_variants(args: &Args, gpu: Option<&Gpu>, use_cpu: bool, rows: usize) -> 
         );
         let ob = GpuBuffer::from_slice(ctx, "out", &vec![0.0f32; rows * out_dim])?;
         let params = gpu_dense::DenseParams::new(&shape, 0, true)?;
-        let m = measure(args.repeat, Some(g), || {
-            let mut rec = Recorder::new(g, "bench dense");
-            gpu_dense::record(&mut rec, g, &params, xb.raw(), wb.raw(), Some(bb.raw()), ob.raw())?;
-            rec.finish()?;
-            Ok(())
-        })?;
-        let t = gpu_timing(m, Some(flops), args.peak_tflops);
-        out.push(report("gpu_dense_f32".into(), "gpu", true, t.device_ms, t.clock));
+        for variant in GemmVariant::ALL {
+            let name = format!("gpu_dense_{variant}");
+            if let Some(reason) = variant.unavailable_reason(ctx) {
+                unavailable.push(GemmUnavailable { variant: name, reason });
+                continue;
+            }
+            let m = measure(args.repeat, Some(g), || {
+                let mut rec = Recorder::new(g, "bench dense");
+                gpu_dense::record_with(&mut rec, g, variant, &params, [xb.raw(), wb.raw()], Some(bb.raw()), ob.raw())?;
+                rec.finish()?;
+                Ok(())
+            })?;
+            let t = gpu_timing(m, Some(flops), args.peak_tflops);
+            out.push(report(name, "gpu", variant == g.gemm_variant(), t.device_ms, t.clock));
+        }
+    } else {
+        for variant in GemmVariant::ALL {
+            unavailable.push(GemmUnavailable { variant: format!("gpu_dense_{variant}"), reason: "no GPU".into() });
+        }
     }
-    Ok(out)
+    Ok((out, unavailable))
 }
 
 fn print_report(r: &Report) {
@@ -695,7 +730,8 @@ fn print_report(r: &Report) {
     match (&r.gpu.adapter, &r.gpu.note) {
         (Some(a), _) => {
             let clock = if r.gpu.timestamps { "GPU timestamps" } else { "host wall time, no TIMESTAMP_QUERY" };
-            println!("gpu: {a} (device times: {clock})")
+            let gemm = r.gpu.gemm_variant.unwrap_or("-");
+            println!("gpu: {a} (device times: {clock}; GEMM {gemm})")
         }
         (None, Some(note)) => println!("gpu: not measured: {note}"),
         (None, None) => {}
@@ -733,6 +769,9 @@ fn print_report(r: &Report) {
             "gemm {:<20} {}x{}x{}: {:10.3} ms {:9.2} GFLOP/s{peak}{used}",
             g.variant, g.rows, g.in_dim, g.out_dim, g.time_ms, g.gflops
         );
+    }
+    for u in &r.gemm_unavailable {
+        println!("gemm {:<20} not available: {}", u.variant, u.reason);
     }
     if let Some(p) = &r.pair {
         let bytes = match (p.host_to_device_bytes, p.device_to_host_bytes) {

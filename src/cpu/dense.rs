@@ -24,6 +24,15 @@ pub struct DenseShape {
     pub relu: bool,
 }
 
+/// `gamma_n = n u / (1 - n u)` with the f32 unit roundoff `u = 2^-24`: a sum of `n` f32 terms (products
+/// included, each rounded) computed in any order with every operation rounded, fused multiply-adds included,
+/// is within `gamma_n * sum |terms|` of the exact sum (Higham, *Accuracy and Stability of Numerical
+/// Algorithms*, 2nd ed., section 3.1 and eq. 4.4). The GEMM parity tolerances are built from it.
+pub fn gamma_f32(n: usize) -> f64 {
+    let nu = n as f64 * f64::from(f32::EPSILON) / 2.0;
+    nu / (1.0 - nu)
+}
+
 const ROW_BLOCK: usize = 4;
 const COL_BLOCK: usize = 64;
 

@@ -5,6 +5,8 @@
 
 pub mod codeword_distance;
 pub mod dense;
+pub mod dense_coop_f16;
+pub mod dense_fast;
 pub mod gemm;
 pub mod hypotheses;
 pub mod max_pool;

@@ -92,7 +92,9 @@ pub struct GpuContext {
     pub info: wgpu::AdapterInfo,
     /// The device's limits (the adapter's).
     pub limits: wgpu::Limits,
-    /// Optional features enabled on the device (`TIMESTAMP_QUERY` when the adapter has it).
+    /// Optional features enabled on the device (`TIMESTAMP_QUERY` when the adapter has it; the cooperative-matrix
+    /// GEMM's `SHADER_F16 | SUBGROUP | EXPERIMENTAL_COOPERATIVE_MATRIX` when [`super::gemm::device_features`]
+    /// asks for them).
     pub features: wgpu::Features,
     max_buffer_bytes: AtomicU64,
     uncaptured: Arc<Mutex<Vec<String>>>,
@@ -166,11 +168,20 @@ impl GpuContext {
                 return Err(Error::Gpu(format!("adapter {name} has {limit} = {have}; dpr-gpu needs at least {min}")));
             }
         }
-        let features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
+        let features = (adapter.features() & wgpu::Features::TIMESTAMP_QUERY) | super::gemm::device_features(&adapter);
+        let experimental = if features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX) {
+            // SAFETY: wgpu marks cooperative matrices experimental (its implementation may have bugs). The feature
+            // is requested only for the `dense_coop_f16` kernel, on an adapter that reports the configuration the
+            // kernel uses (`gemm::coop_f16_support`), and `DPR_GPU_GEMM=fast|portable` keeps it off.
+            unsafe { wgpu::ExperimentalFeatures::enabled() }
+        } else {
+            wgpu::ExperimentalFeatures::disabled()
+        };
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("dpr-gpu"),
             required_features: features,
             required_limits: limits.clone(),
+            experimental_features: experimental,
             ..Default::default()
         }))
         .map_err(|e| Error::Gpu(format!("requesting a device on {name}: {e}")))?;

@@ -1,6 +1,11 @@
 //! Host side of `shaders/dense.wgsl`: one shared-MLP layer as a tiled GEMM with bias / per-group term,
-//! accumulation and ReLU. CPU twin: [`crate::cpu::dense`].
+//! accumulation and ReLU. CPU twin: [`crate::cpu::dense`]. This is the portable reference GEMM; [`record`]
+//! dispatches whichever [`GemmVariant`] the device runs (`dense`, `dense_fast` or `dense_coop_f16`, all with
+//! these parameters and bindings).
 
+use super::dense_coop_f16::DenseCoopF16;
+use super::dense_fast::DenseFast;
+use super::gemm::GemmVariant;
 use super::kernel::{BindKind, GpuKernel, gpu_params};
 use super::recorder::Recorder;
 use super::{Gpu, to_u32};
@@ -22,9 +27,10 @@ gpu_params! {
         pub w_row_offset: u32,
         /// [`FLAG_ACCUMULATE`] | [`FLAG_RELU`] | [`FLAG_HAS_GROUP`].
         pub flags: u32,
-        /// Output column tiles (`ceil(out_dim / TILE_N)`).
+        /// Output column tiles (`ceil(out_dim / tile columns)`, for the variant that runs: [`record_with`]
+        /// sets it).
         pub col_tiles: u32,
-        /// Output tiles in all.
+        /// Output tiles in all (for the variant that runs).
         pub tiles: u32,
     }
 }
@@ -58,7 +64,8 @@ impl GpuKernel for Dense {
 }
 
 impl DenseParams {
-    /// Parameters for `shape`, reading weight rows from `w_row_offset`, with or without a group term.
+    /// Parameters for `shape`, reading weight rows from `w_row_offset`, with or without a group term (tiled for
+    /// the reference kernel; [`record_with`] retiles them for the variant it dispatches).
     pub fn new(shape: &DenseShape, w_row_offset: usize, has_group: bool) -> Result<DenseParams> {
         let col_tiles = shape.out_dim.div_ceil(TILE_N);
         let tiles = col_tiles * shape.rows.div_ceil(TILE_M);
@@ -76,10 +83,21 @@ impl DenseParams {
             tiles: to_u32(tiles, "dense tiles")?,
         })
     }
+
+    /// These parameters with the tile counts of `(tile rows, tile columns)` output tiles.
+    pub fn tiled(&self, (tile_m, tile_n): (usize, usize)) -> Result<DenseParams> {
+        let col_tiles = (self.out_dim as usize).div_ceil(tile_n);
+        let tiles = col_tiles * (self.rows as usize).div_ceil(tile_m);
+        Ok(DenseParams {
+            col_tiles: to_u32(col_tiles, "dense column tiles")?,
+            tiles: to_u32(tiles, "dense tiles")?,
+            ..*self
+        })
+    }
 }
 
-/// Records one layer call: `out = act((acc ? out : 0) + group + x * w_t[w_row_offset..])`. `group` is `None`
-/// for no group term.
+/// Records one layer call with the device's GEMM variant ([`Gpu::gemm_variant`]):
+/// `out = act((acc ? out : 0) + group + x * w_t[w_row_offset..])`. `group` is `None` for no group term.
 pub fn record<'a>(
     rec: &mut Recorder<'a>,
     gpu: &'a Gpu,
@@ -89,13 +107,47 @@ pub fn record<'a>(
     group: Option<&wgpu::Buffer>,
     out: &wgpu::Buffer,
 ) -> Result<()> {
-    let group = group.unwrap_or(&gpu.dummy);
-    rec.dispatch::<Dense>(params, &[x, w_t, group, out], u64::from(params.tiles))
+    record_with(rec, gpu, gpu.gemm_variant(), params, [x, w_t], group, out)
 }
 
-/// Runs one layer on slices, like the twin: `out` holds the initial contents (read when accumulating, a
-/// sentinel in tests) and receives the result. `group_term` is empty or `ceil(rows / rows_per_group) x out_dim`.
+/// [`record`] with an explicit variant (an error when the device cannot run it).
+pub fn record_with<'a>(
+    rec: &mut Recorder<'a>,
+    gpu: &'a Gpu,
+    variant: GemmVariant,
+    params: &DenseParams,
+    [x, w_t]: [&wgpu::Buffer; 2],
+    group: Option<&wgpu::Buffer>,
+    out: &wgpu::Buffer,
+) -> Result<()> {
+    let group = group.unwrap_or(&gpu.dummy);
+    let params = params.tiled(variant.tile())?;
+    let buffers = [x, w_t, group, out];
+    let workgroups = u64::from(params.tiles);
+    match variant {
+        GemmVariant::Portable => rec.dispatch::<Dense>(&params, &buffers, workgroups),
+        GemmVariant::Fast => rec.dispatch::<DenseFast>(&params, &buffers, workgroups),
+        GemmVariant::CoopF16 => rec.dispatch::<DenseCoopF16>(&params, &buffers, workgroups),
+    }
+}
+
+/// Runs one layer on slices with the device's GEMM variant, like the twin: `out` holds the initial contents
+/// (read when accumulating, a sentinel in tests) and receives the result. `group_term` is empty or
+/// `ceil(rows / rows_per_group) x out_dim`.
 pub fn run(gpu: &Gpu, shape: &DenseShape, x: &[f32], w_t: &[f32], group_term: &[f32], out: &mut [f32]) -> Result<()> {
+    run_with(gpu, gpu.gemm_variant(), shape, x, w_t, group_term, out)
+}
+
+/// [`run`] with an explicit variant (an error when the device cannot run it).
+pub fn run_with(
+    gpu: &Gpu,
+    variant: GemmVariant,
+    shape: &DenseShape,
+    x: &[f32],
+    w_t: &[f32],
+    group_term: &[f32],
+    out: &mut [f32],
+) -> Result<()> {
     let groups = shape.rows.div_ceil(shape.rows_per_group.max(1));
     if x.len() != shape.rows * shape.in_dim
         || w_t.len() != shape.in_dim * shape.out_dim
@@ -111,7 +163,8 @@ pub fn run(gpu: &Gpu, shape: &DenseShape, x: &[f32], w_t: &[f32], group_term: &[
     let ob = super::buffer::GpuBuffer::from_slice(ctx, "out", out)?;
     let params = DenseParams::new(shape, 0, !group_term.is_empty())?;
     let mut rec = Recorder::new(gpu, "dense");
-    record(&mut rec, gpu, &params, xb.raw(), wb.raw(), (!group_term.is_empty()).then_some(gb.raw()), ob.raw())?;
+    let group = (!group_term.is_empty()).then_some(gb.raw());
+    record_with(&mut rec, gpu, variant, &params, [xb.raw(), wb.raw()], group, ob.raw())?;
     let r = rec.read(ob.raw(), 0, (out.len() * 4) as u64);
     let bytes = rec.finish()?;
     out.copy_from_slice(bytemuck::cast_slice(&bytes[r]));

@@ -83,6 +83,9 @@ pub struct KernelSpec {
     pub workgroup_size: u32,
     /// The uniform struct at binding 0.
     pub params: ParamsLayout,
+    /// Device features the shader needs (`enable f16;` and the like); empty for the portable kernels. A kernel
+    /// is compiled only on devices that have them ([`super::registry::Kernels`]).
+    pub features: wgpu::Features,
 }
 
 /// One WGSL kernel, declared once: a unit type in `gpu/{NAME}.rs` implements this, and one line in
@@ -103,6 +106,8 @@ pub trait GpuKernel: 'static {
     type CpuTwin: Copy;
     /// The CPU twin, in `crate::cpu::{NAME}`: the oracle the kernel is tested against.
     const CPU_TWIN: Self::CpuTwin;
+    /// Device features the shader needs (none for a portable kernel).
+    const FEATURES: wgpu::Features = wgpu::Features::empty();
     /// The type-erased registry entry.
     const SPEC: KernelSpec = KernelSpec {
         name: Self::NAME,
@@ -110,6 +115,7 @@ pub trait GpuKernel: 'static {
         binds: Self::BINDS,
         workgroup_size: Self::WORKGROUP_SIZE,
         params: ParamsLayout::of::<Self::Params>(),
+        features: Self::FEATURES,
     };
 }
 

@@ -7,12 +7,17 @@
 //! (the networks composed from kernels). [`Gpu`] holds the device and the compiled pipelines;
 //! [`GpuBackend`] adds the uploaded weights and implements [`Backend`].
 //!
-//! Subgroup and f16 variants are not implemented: every kernel is the portable f32 version.
+//! The dense layers' GEMM has variants ([`gemm::GemmVariant`]: the portable reference, a faster portable
+//! kernel, and a cooperative-matrix f16 kernel where the adapter has one), chosen per device; every other
+//! kernel is its portable f32 version.
 
 pub mod buffer;
 pub mod codeword_distance;
 pub mod context;
 pub mod dense;
+pub mod dense_coop_f16;
+pub mod dense_fast;
+pub mod gemm;
 pub mod hypotheses;
 pub mod kernel;
 pub mod max_pool;
@@ -64,6 +69,7 @@ pub struct Gpu {
     pub(crate) dummy_rw: wgpu::Buffer,
     profiling: AtomicBool,
     gpu_time_ns: AtomicU64,
+    gemm: gemm::GemmVariant,
 }
 
 impl std::fmt::Debug for Gpu {
@@ -88,7 +94,33 @@ impl Gpu {
         let kernels = Kernels::new(&context)?;
         let dummy = buffer::storage_buffer(&context, "dummy", 16)?;
         let dummy_rw = buffer::storage_buffer(&context, "dummy_rw", 16)?;
-        Ok(Gpu { context, kernels, dummy, dummy_rw, profiling: AtomicBool::new(false), gpu_time_ns: AtomicU64::new(0) })
+        let gemm = gemm::select(&context)?;
+        Ok(Gpu {
+            context,
+            kernels,
+            dummy,
+            dummy_rw,
+            profiling: AtomicBool::new(false),
+            gpu_time_ns: AtomicU64::new(0),
+            gemm,
+        })
+    }
+
+    /// The GEMM kernel the dense layers run on ([`gemm::select`] at creation).
+    pub fn gemm_variant(&self) -> gemm::GemmVariant {
+        self.gemm
+    }
+
+    /// Runs the dense layers on `variant` from now on (tests and benchmarks); an error saying why when the
+    /// device cannot run it.
+    pub fn set_gemm_variant(&mut self, variant: gemm::GemmVariant) -> Result<()> {
+        match variant.unavailable_reason(&self.context) {
+            None => {
+                self.gemm = variant;
+                Ok(())
+            }
+            Some(why) => Err(Error::Gpu(format!("GEMM variant {variant} cannot run on this device: {why}"))),
+        }
     }
 
     /// One line describing the adapter.
@@ -207,7 +239,7 @@ impl GpuBackend {
 
 impl Backend for GpuBackend {
     fn name(&self) -> String {
-        format!("gpu ({})", self.adapter_info())
+        format!("gpu ({}; gemm {})", self.adapter_info(), self.gpu.gemm_variant())
     }
 
     fn model(&self) -> &Model {

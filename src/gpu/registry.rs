@@ -9,6 +9,8 @@
 use super::codeword_distance::CodewordDistance;
 use super::context::GpuContext;
 use super::dense::Dense;
+use super::dense_coop_f16::DenseCoopF16;
+use super::dense_fast::DenseFast;
 use super::hypotheses::Hypotheses;
 use super::kernel::{GpuKernel, Kernel, KernelSpec};
 use super::max_pool::MaxPool;
@@ -22,6 +24,8 @@ use crate::error::{Error, Result};
 pub const KERNELS: &[KernelSpec] = &[
     PatchFeatures::SPEC,
     Dense::SPEC,
+    DenseFast::SPEC,
+    DenseCoopF16::SPEC,
     MaxPool::SPEC,
     CodewordDistance::SPEC,
     MutualKnn::SPEC,
@@ -30,16 +34,24 @@ pub const KERNELS: &[KernelSpec] = &[
     ScoreHypotheses::SPEC,
 ];
 
-/// Every pipeline of [`KERNELS`], compiled once per device.
+/// Every pipeline of [`KERNELS`] the device can run, compiled once per device.
 #[derive(Debug)]
 pub struct Kernels {
     compiled: Vec<Kernel>,
+    /// Kernels not compiled because the device lacks features they need, with those features.
+    skipped: Vec<(&'static str, wgpu::Features)>,
 }
 
 impl Kernels {
-    /// Compiles every kernel of [`KERNELS`].
+    /// Compiles every kernel of [`KERNELS`] whose [`KernelSpec::features`] the device has (the others are
+    /// optional variants: see [`super::gemm`]).
     pub fn new(ctx: &GpuContext) -> Result<Kernels> {
-        Ok(Kernels { compiled: KERNELS.iter().map(|spec| Kernel::new(ctx, spec)).collect::<Result<_>>()? })
+        let (usable, skipped): (Vec<&'static KernelSpec>, Vec<&'static KernelSpec>) =
+            KERNELS.iter().partition(|spec| ctx.features.contains(spec.features));
+        Ok(Kernels {
+            compiled: usable.into_iter().map(|spec| Kernel::new(ctx, spec)).collect::<Result<_>>()?,
+            skipped: skipped.into_iter().map(|spec| (spec.name, spec.features - ctx.features)).collect(),
+        })
     }
 
     /// The compiled pipeline of `K`, or an error when `K` is not in [`KERNELS`].
@@ -49,10 +61,13 @@ impl Kernels {
 
     /// The compiled pipeline named `name`.
     pub fn by_name(&self, name: &str) -> Result<&Kernel> {
-        self.compiled
-            .iter()
-            .find(|k| k.spec.name == name)
-            .ok_or_else(|| Error::Gpu(format!("kernel '{name}' is not registered in gpu::registry::KERNELS")))
+        if let Some(k) = self.compiled.iter().find(|k| k.spec.name == name) {
+            return Ok(k);
+        }
+        Err(Error::Gpu(match self.skipped.iter().find(|(n, _)| *n == name) {
+            Some((_, missing)) => format!("kernel '{name}' needs device features this device lacks: {missing}"),
+            None => format!("kernel '{name}' is not registered in gpu::registry::KERNELS"),
+        }))
     }
 
     /// The compiled kernels, in [`KERNELS`] order.

@@ -1,6 +1,7 @@
 //! Device acquisition for GPU tests and benchmarks, with the missing-adapter policy in one place, and
 //! [`run_tests`], a small test harness for GPU test binaries (`harness = false`) that reports tests run
-//! without an adapter as SKIPPED, with a count, instead of as passed.
+//! without an adapter as SKIPPED, with a count, instead of as passed; a test whose adapter lacks a feature it
+//! needs (cooperative matrices) calls [`skip_test`] and is reported SKIPPED with its reason the same way.
 //!
 //! Without a usable adapter: when `CI=true` or `DPR_GPU_REQUIRE_ADAPTER=1`, [`gpu_or_skip`] panics with
 //! the reason (CI never skips silently); otherwise it prints a loud `SKIPPED (no GPU adapter)` line to the
@@ -76,6 +77,21 @@ pub fn adapter_status() -> Result<(), String> {
 /// One test of a GPU test binary: its name and body (a panic is a failure).
 pub type GpuTest = (&'static str, fn());
 
+thread_local! {
+    /// Set by [`skip_test`] while a test body runs.
+    static SKIP_REASON: std::cell::RefCell<Option<String>> = const { std::cell::RefCell::new(None) };
+}
+
+/// Marks the running test of [`run_tests`] as not run because the adapter lacks what it needs (a feature such
+/// as cooperative matrices): the body should return right after. The harness reports the test `SKIPPED` with
+/// `reason` and counts it as skipped, never as passed. (Outside [`run_tests`] it only prints the reason.)
+pub fn skip_test(reason: impl Into<String>) {
+    let reason = reason.into();
+    let mut err = std::io::stderr().lock();
+    let _ = writeln!(err, "=== SKIPPED: {reason} ===");
+    SKIP_REASON.with(|r| *r.borrow_mut() = Some(reason));
+}
+
 /// Runs `tests` as a `harness = false` test binary would: `cargo test --test NAME [FILTER] [--exact]
 /// [--list] [--ignored]` are understood. Without a usable adapter every selected test is reported as
 /// `SKIPPED` and counted (never as passed); when an adapter is required (`CI=true` or
@@ -114,7 +130,7 @@ pub fn run_tests(tests: &[GpuTest]) -> std::process::ExitCode {
     }
     println!("\nrunning {} tests", selected.len());
     let status = adapter_status();
-    let (mut passed, mut failed, mut skipped) = (Vec::new(), Vec::new(), 0usize);
+    let (mut passed, mut failed, mut skipped, mut unsupported) = (Vec::new(), Vec::new(), 0usize, 0usize);
     for (name, body) in selected {
         let outcome = match &status {
             Err(reason) if !adapter_required() => {
@@ -123,14 +139,22 @@ pub fn run_tests(tests: &[GpuTest]) -> std::process::ExitCode {
                 continue;
             }
             Err(reason) => Err(format!("no usable GPU adapter, and CI=true or {REQUIRE_ENV}=1 requires one: {reason}")),
-            Ok(()) => std::panic::catch_unwind(body).map_err(|e| {
-                e.downcast_ref::<String>()
-                    .cloned()
-                    .or_else(|| e.downcast_ref::<&str>().map(|s| s.to_string()))
-                    .unwrap_or_else(|| "panicked".into())
-            }),
+            Ok(()) => {
+                SKIP_REASON.with(|r| r.borrow_mut().take());
+                std::panic::catch_unwind(body).map_err(|e| {
+                    e.downcast_ref::<String>()
+                        .cloned()
+                        .or_else(|| e.downcast_ref::<&str>().map(|s| s.to_string()))
+                        .unwrap_or_else(|| "panicked".into())
+                })
+            }
         };
+        let skip_reason = SKIP_REASON.with(|r| r.borrow_mut().take());
         match outcome {
+            Ok(()) if skip_reason.is_some() => {
+                println!("test {name} ... SKIPPED ({})", skip_reason.unwrap_or_default());
+                unsupported += 1;
+            }
             Ok(()) => {
                 println!("test {name} ... ok");
                 passed.push(name);
@@ -149,7 +173,8 @@ pub fn run_tests(tests: &[GpuTest]) -> std::process::ExitCode {
     }
     let verdict = if failed.is_empty() { "ok" } else { "FAILED" };
     println!(
-        "\ntest result: {verdict}. {} passed; {} failed; {skipped} skipped (no GPU adapter)\n",
+        "\ntest result: {verdict}. {} passed; {} failed; {skipped} skipped (no GPU adapter); {unsupported} skipped \
+         (the adapter lacks a feature the test needs)\n",
         passed.len(),
         failed.len()
     );
