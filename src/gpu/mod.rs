@@ -9,21 +9,30 @@
 //!
 //! Subgroup and f16 variants are not implemented: every kernel is the portable f32 version.
 
+pub mod bitonic_sort;
 pub mod buffer;
+pub mod cell_bounds;
+pub mod cell_keys;
 pub mod codeword_distance;
 pub mod context;
 pub mod dense;
+pub mod grid_knn;
 pub mod hypotheses;
 pub mod kernel;
 pub mod max_pool;
 pub mod mutual_knn;
 pub mod nets;
 pub mod patch_features;
+pub mod pca_normals;
+pub mod prefix_scan;
+pub mod preprocess;
 pub mod recorder;
 pub mod registry;
 pub mod rotation_head;
 pub mod score_hypotheses;
+pub mod segments;
 pub mod testing;
+pub mod voxel_average;
 
 use crate::backend::{Backend, RotationInputs};
 use crate::cpu::hypotheses::Hypothesis;
