@@ -42,6 +42,7 @@ use dpr_gpu::settings::MatchMode;
 use std::sync::Arc;
 
 mod common;
+mod gpu_preprocess;
 
 const EPS: f32 = f32::EPSILON;
 
@@ -1054,7 +1055,7 @@ fn every_registered_kernel_has_a_parity_test() {
     for spec in KERNELS {
         let prefix = format!("{}_matches_cpu", spec.name);
         assert!(
-            TESTS.iter().any(|(name, _)| name.starts_with(&prefix)),
+            TESTS.iter().chain(gpu_preprocess::TESTS).any(|(name, _)| name.starts_with(&prefix)),
             "kernel '{}' is registered in gpu::registry::KERNELS but has no parity test named {prefix}*",
             spec.name
         );
@@ -1062,7 +1063,7 @@ fn every_registered_kernel_has_a_parity_test() {
 }
 
 fn main() -> std::process::ExitCode {
-    dpr_gpu::gpu::testing::run_tests(TESTS)
+    dpr_gpu::gpu::testing::run_tests(&[TESTS, gpu_preprocess::TESTS].concat())
 }
 
 /// Every test of this binary.

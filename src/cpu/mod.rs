@@ -3,14 +3,22 @@
 //! kernel is checked against, and the fallback on machines without a GPU. [`gemm`] is not a twin: it is the
 //! vectorised, bit-identical form of [`dense::dense`] that the CPU backend runs.
 
+pub mod bitonic_sort;
+pub mod cell_bounds;
+pub mod cell_keys;
 pub mod codeword_distance;
 pub mod dense;
 pub mod dense_coop_f16;
 pub mod dense_fast;
 pub mod gemm;
+pub mod grid_knn;
 pub mod hypotheses;
 pub mod max_pool;
 pub mod mutual_knn;
 pub mod patch_features;
+pub mod pca_normals;
+pub mod prefix_scan;
 pub mod rotation_head;
 pub mod score_hypotheses;
+pub mod segments;
+pub mod voxel_average;

@@ -11,24 +11,33 @@
 //! kernel, and a cooperative-matrix f16 kernel where the adapter has one), chosen per device; every other
 //! kernel is its portable f32 version.
 
+pub mod bitonic_sort;
 pub mod buffer;
+pub mod cell_bounds;
+pub mod cell_keys;
 pub mod codeword_distance;
 pub mod context;
 pub mod dense;
 pub mod dense_coop_f16;
 pub mod dense_fast;
 pub mod gemm;
+pub mod grid_knn;
 pub mod hypotheses;
 pub mod kernel;
 pub mod max_pool;
 pub mod mutual_knn;
 pub mod nets;
 pub mod patch_features;
+pub mod pca_normals;
+pub mod prefix_scan;
+pub mod preprocess;
 pub mod recorder;
 pub mod registry;
 pub mod rotation_head;
 pub mod score_hypotheses;
+pub mod segments;
 pub mod testing;
+pub mod voxel_average;
 
 use crate::backend::{Backend, RotationInputs};
 use crate::cpu::hypotheses::Hypothesis;

@@ -6,22 +6,38 @@
 //! `tests/shaders.rs` then validates it and `tests/gpu_parity.rs` insists on a parity test for it. Host code
 //! dispatches through the type (`Recorder::dispatch::<K>`), which looks the compiled pipeline up by name.
 
+use super::bitonic_sort::BitonicSort;
+use super::cell_bounds::CellBounds;
+use super::cell_keys::CellKeys;
 use super::codeword_distance::CodewordDistance;
 use super::context::GpuContext;
 use super::dense::Dense;
 use super::dense_coop_f16::DenseCoopF16;
 use super::dense_fast::DenseFast;
+use super::grid_knn::GridKnn;
 use super::hypotheses::Hypotheses;
 use super::kernel::{GpuKernel, Kernel, KernelSpec};
 use super::max_pool::MaxPool;
 use super::mutual_knn::MutualKnn;
 use super::patch_features::PatchFeatures;
+use super::pca_normals::PcaNormals;
+use super::prefix_scan::PrefixScan;
 use super::rotation_head::RotationHead;
 use super::score_hypotheses::ScoreHypotheses;
+use super::segments::SegmentsKernel;
+use super::voxel_average::VoxelAverage;
 use crate::error::{Error, Result};
 
 /// Every kernel, in pipeline order.
 pub const KERNELS: &[KernelSpec] = &[
+    CellBounds::SPEC,
+    CellKeys::SPEC,
+    BitonicSort::SPEC,
+    PrefixScan::SPEC,
+    SegmentsKernel::SPEC,
+    VoxelAverage::SPEC,
+    GridKnn::SPEC,
+    PcaNormals::SPEC,
     PatchFeatures::SPEC,
     Dense::SPEC,
     DenseFast::SPEC,
