@@ -1,10 +1,12 @@
 //! GPU-free checks of every WGSL kernel: each `shaders/*.wgsl` is registered in `gpu::registry::KERNELS`,
 //! parses and validates with naga, and its reflected interface matches the host side: binding kinds and
 //! order, `@workgroup_size`, entry point `main`, and the uniform struct's size and field offsets against
-//! the `#[repr(C)]` Pod mirror.
+//! the `#[repr(C)]` Pod mirror; and each translates to a well-formed SPIR-V module under the options wgpu's
+//! Vulkan backend uses (so the cooperative-matrix kernel, which no local adapter can compile, is translated).
 
 use dpr_gpu::gpu::kernel::{BindKind, KernelSpec};
 use dpr_gpu::gpu::registry::KERNELS;
+use naga::back::spv::{self, Capability};
 use naga::valid::{Capabilities, ValidationFlags, Validator};
 use std::collections::BTreeSet;
 
@@ -18,6 +20,213 @@ fn capabilities(features: wgpu::Features) -> Capabilities {
     let known = grants.iter().fold(wgpu::Features::empty(), |acc, (f, _)| acc | *f);
     assert!(known.contains(features), "a kernel needs features this test does not map: {:?}", features - known);
     grants.iter().filter(|(f, _)| features.contains(*f)).fold(Capabilities::empty(), |acc, (_, c)| acc | *c)
+}
+
+/// The SPIR-V capabilities wgpu's Vulkan backend (wgpu-hal `naga_options`) lets naga emit on a device with
+/// `features`: those every Vulkan device has, plus the ones it adds for each feature a kernel may declare.
+/// `SHADER_F16` also grants the two 16-bit storage capabilities: wgpu exposes the feature only on devices with
+/// `storageBuffer16BitAccess` and `uniformAndStorageBuffer16BitAccess`, and naga declares both with any f16
+/// type (`StorageInputOutput16` is optional there, so the translation below turns it off as wgpu does without it).
+fn spirv_capabilities(features: wgpu::Features) -> naga::FastHashSet<Capability> {
+    use Capability as C;
+    let mut allowed = vec![
+        C::Shader,
+        C::Matrix,
+        C::Sampled1D,
+        C::Image1D,
+        C::ImageQuery,
+        C::DerivativeControl,
+        C::StorageImageExtendedFormats,
+    ];
+    if features.contains(wgpu::Features::SHADER_F16) {
+        allowed.extend([C::Float16, C::StorageBuffer16BitAccess, C::UniformAndStorageBuffer16BitAccess]);
+    }
+    if features.contains(wgpu::Features::SUBGROUP) {
+        allowed.extend([
+            C::GroupNonUniform,
+            C::GroupNonUniformVote,
+            C::GroupNonUniformArithmetic,
+            C::GroupNonUniformBallot,
+            C::GroupNonUniformShuffle,
+            C::GroupNonUniformShuffleRelative,
+            C::GroupNonUniformQuad,
+        ]);
+    }
+    if features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX) {
+        allowed.extend([C::CooperativeMatrixKHR, C::VulkanMemoryModel]);
+    }
+    allowed.into_iter().collect()
+}
+
+/// The SPIR-V versions wgpu's Vulkan backend targets for a kernel needing `features`: by device API version
+/// 1.0, 1.1, 1.2, 1.3+ it targets 1.0, 1.3, 1.5, 1.6, and it offers `SUBGROUP` only on Vulkan 1.1+ devices.
+fn spirv_versions(features: wgpu::Features) -> impl Iterator<Item = (u8, u8)> {
+    let lowest = if features.contains(wgpu::Features::SUBGROUP) { (1, 3) } else { (1, 0) };
+    [(1, 0), (1, 3), (1, 5), (1, 6)].into_iter().filter(move |&v| v >= lowest)
+}
+
+/// SPIR-V opcodes (SPIR-V specification, section 3.52) that the module checks look for.
+mod op {
+    pub const EXTENSION: u16 = 10;
+    pub const ENTRY_POINT: u16 = 15;
+    pub const EXECUTION_MODE: u16 = 16;
+    pub const CAPABILITY: u16 = 17;
+    pub const TYPE_COOPERATIVE_MATRIX_KHR: u16 = 4456;
+    pub const COOPERATIVE_MATRIX_LOAD_KHR: u16 = 4457;
+    pub const COOPERATIVE_MATRIX_STORE_KHR: u16 = 4458;
+    pub const COOPERATIVE_MATRIX_MUL_ADD_KHR: u16 = 4459;
+}
+/// `ExecutionModel GLCompute` and `ExecutionMode LocalSize` (SPIR-V specification, sections 3.4 and 3.6).
+const GL_COMPUTE: u32 = 5;
+const LOCAL_SIZE: u32 = 17;
+
+/// What a walk over a SPIR-V word stream found: its header version, capabilities, extensions, the opcodes it
+/// uses, and its entry points as (execution model, id, name) with their `LocalSize` execution modes by id.
+#[derive(Default)]
+struct SpirvSummary {
+    version: (u8, u8),
+    capabilities: BTreeSet<u32>,
+    extensions: BTreeSet<String>,
+    opcodes: BTreeSet<u16>,
+    entry_points: Vec<(u32, u32, String)>,
+    local_sizes: Vec<(u32, [u32; 3])>,
+}
+
+/// Decodes a SPIR-V literal string (UTF-8, nul-terminated, packed little-end first into words).
+fn literal_string(words: &[u32]) -> String {
+    let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).take_while(|&b| b != 0).collect();
+    String::from_utf8(bytes).expect("SPIR-V literal string is UTF-8")
+}
+
+/// Checks the physical layout of a SPIR-V module (specification section 2.3: the five-word header with magic
+/// number 0x07230203, a nonzero id bound and schema 0, then instructions whose word counts tile the rest of the
+/// stream exactly) and summarises it; `what` names the module in failure messages.
+fn walk_spirv(words: &[u32], what: &str) -> SpirvSummary {
+    assert!(words.len() > 5, "{what}: {} words is no SPIR-V module", words.len());
+    assert_eq!(words[0], 0x0723_0203, "{what}: magic number");
+    let version = words[1];
+    assert_eq!(version & 0xff00_00ff, 0, "{what}: malformed version word {version:#010x}");
+    assert!(words[3] > 1, "{what}: id bound {} declares no ids", words[3]);
+    assert_eq!(words[4], 0, "{what}: schema");
+    let mut summary = SpirvSummary { version: ((version >> 16) as u8, (version >> 8) as u8), ..Default::default() };
+    let mut at = 5;
+    while at < words.len() {
+        let (count, opcode) = ((words[at] >> 16) as usize, (words[at] & 0xffff) as u16);
+        assert!(count > 0, "{what}: instruction at word {at} has word count 0");
+        assert!(at + count <= words.len(), "{what}: instruction at word {at} runs past the end");
+        let operands = &words[at + 1..at + count];
+        summary.opcodes.insert(opcode);
+        match opcode {
+            op::CAPABILITY => {
+                summary.capabilities.insert(operands[0]);
+            }
+            op::EXTENSION => {
+                summary.extensions.insert(literal_string(operands));
+            }
+            op::ENTRY_POINT => summary.entry_points.push((operands[0], operands[1], literal_string(&operands[2..]))),
+            op::EXECUTION_MODE if operands[1] == LOCAL_SIZE => {
+                summary.local_sizes.push((operands[0], [operands[2], operands[3], operands[4]]))
+            }
+            _ => {}
+        }
+        at += count;
+    }
+    summary
+}
+
+/// Every kernel translates with naga's SPIR-V backend, for every SPIR-V version wgpu's Vulkan backend may target
+/// for it and with only the capabilities wgpu grants for the kernel's declared features, to a well-formed module:
+/// one GLCompute entry point `main` with the registry's `LocalSize`, no capability beyond those granted, and
+/// the capability each declared feature stands for, each capability at a version or with the extension it needs
+/// (group operations from SPIR-V 1.3, the Vulkan memory model from 1.5 or by extension). The cooperative-matrix kernel emits the
+/// `CooperativeMatrixKHR` capability, the `SPV_KHR_cooperative_matrix` extension and its type, load, store
+/// and multiply-add instructions; a kernel declaring no feature emits none of the feature capabilities.
+#[test]
+fn every_shader_translates_to_well_formed_spirv() {
+    for spec in KERNELS {
+        let module = module(spec);
+        let info = Validator::new(ValidationFlags::all(), capabilities(spec.features))
+            .validate(&module)
+            .expect("validated by `module`");
+        let allowed = spirv_capabilities(spec.features);
+        // The bindings wgpu maps one to one into descriptor set 0; anything else is a translation error.
+        let binding_map: spv::BindingMap = (0..spec.binds.len() as u32)
+            .map(|binding| {
+                let info = spv::BindingInfo { descriptor_set: 0, binding, binding_array_size: None };
+                (naga::ResourceBinding { group: 0, binding }, info)
+            })
+            .collect();
+        for lang_version in spirv_versions(spec.features) {
+            let what = format!("{} as SPIR-V {}.{}", spec.name, lang_version.0, lang_version.1);
+            let options = spv::Options {
+                lang_version,
+                flags: spv::WriterFlags::empty(),
+                fake_missing_bindings: false,
+                binding_map: binding_map.clone(),
+                capabilities: Some(allowed.clone()),
+                use_storage_input_output_16: false,
+                ..spv::Options::default()
+            };
+            let pipeline =
+                spv::PipelineOptions { shader_stage: naga::ShaderStage::Compute, entry_point: "main".to_string() };
+            let words = spv::write_vec(&module, &info, &options, Some(&pipeline))
+                .unwrap_or_else(|e| panic!("{what}: naga's SPIR-V backend fails: {e} ({e:?})"));
+            let spirv = walk_spirv(&words, &what);
+            assert_eq!(spirv.version, lang_version, "{what}: header version");
+
+            assert_eq!(spirv.entry_points.len(), 1, "{what}: one entry point");
+            let (model, id, name) = &spirv.entry_points[0];
+            assert_eq!((*model, name.as_str()), (GL_COMPUTE, "main"), "{what}: entry point");
+            assert_eq!(spirv.local_sizes, [(*id, [spec.workgroup_size, 1, 1])], "{what}: LocalSize");
+
+            let emitted: BTreeSet<Capability> = spirv
+                .capabilities
+                .iter()
+                .map(|&c| Capability::from_u32(c).unwrap_or_else(|| panic!("{what}: unknown capability {c}")))
+                .collect();
+            let beyond: Vec<_> = emitted.iter().filter(|c| !allowed.contains(*c)).collect();
+            assert!(beyond.is_empty(), "{what}: capabilities beyond the declared features: {beyond:?}");
+            assert!(emitted.contains(&Capability::Shader), "{what}: no Shader capability");
+            let witnesses = [
+                (wgpu::Features::SHADER_F16, Capability::Float16),
+                (wgpu::Features::SUBGROUP, Capability::GroupNonUniform),
+                (wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX, Capability::CooperativeMatrixKHR),
+            ];
+            for (feature, capability) in witnesses {
+                assert_eq!(
+                    emitted.contains(&capability),
+                    spec.features.contains(feature),
+                    "{what}: capability {capability:?} against declared feature {feature:?} ({emitted:?})"
+                );
+            }
+
+            let group_ops = emitted.iter().filter(|c| format!("{c:?}").starts_with("GroupNonUniform")).count();
+            assert!(group_ops == 0 || spirv.version >= (1, 3), "{what}: group operations need SPIR-V 1.3");
+            assert!(
+                !emitted.contains(&Capability::VulkanMemoryModel)
+                    || spirv.version >= (1, 5)
+                    || spirv.extensions.contains("SPV_KHR_vulkan_memory_model"),
+                "{what}: VulkanMemoryModel before SPIR-V 1.5 without its extension"
+            );
+
+            let coop_ops = [
+                op::TYPE_COOPERATIVE_MATRIX_KHR,
+                op::COOPERATIVE_MATRIX_LOAD_KHR,
+                op::COOPERATIVE_MATRIX_STORE_KHR,
+                op::COOPERATIVE_MATRIX_MUL_ADD_KHR,
+            ];
+            let coop = spec.features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX);
+            for opcode in coop_ops {
+                assert_eq!(spirv.opcodes.contains(&opcode), coop, "{what}: cooperative-matrix opcode {opcode}");
+            }
+            assert_eq!(
+                spirv.extensions.contains("SPV_KHR_cooperative_matrix"),
+                coop,
+                "{what}: extensions {:?}",
+                spirv.extensions
+            );
+        }
+    }
 }
 
 /// Parses and validates `spec`'s source with the capabilities of its declared features (none for a portable
