@@ -10,5 +10,6 @@ pub mod hypotheses;
 pub mod max_pool;
 pub mod mutual_knn;
 pub mod patch_features;
+pub mod pose_feature;
 pub mod rotation_head;
 pub mod score_hypotheses;

@@ -14,6 +14,7 @@ use super::kernel::{GpuKernel, Kernel, KernelSpec};
 use super::max_pool::MaxPool;
 use super::mutual_knn::MutualKnn;
 use super::patch_features::PatchFeatures;
+use super::pose_feature::PoseFeature;
 use super::rotation_head::RotationHead;
 use super::score_hypotheses::ScoreHypotheses;
 use crate::error::{Error, Result};
@@ -25,6 +26,7 @@ pub const KERNELS: &[KernelSpec] = &[
     MaxPool::SPEC,
     CodewordDistance::SPEC,
     MutualKnn::SPEC,
+    PoseFeature::SPEC,
     RotationHead::SPEC,
     Hypotheses::SPEC,
     ScoreHypotheses::SPEC,
