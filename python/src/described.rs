@@ -7,12 +7,12 @@ use crate::arrays::{cloud_from_arrays, matrix, positions, vectors};
 use crate::errors::{to_py_err, value_error};
 use crate::result::timings_dict;
 use crate::state::{Reader, Writer, flat, triples};
+use dpr_gpu::backend::{HostRows, HostScanRows, check_restored};
 use dpr_gpu::eval::groundtruth::PreparedFragment;
 use dpr_gpu::io::{LoadOptions, OriginShift};
 use dpr_gpu::multiway::pair::{InformationSettings, prepare_for_information, register_pair};
 use dpr_gpu::multiway::pairs::pooled_codeword;
 use dpr_gpu::multiway::{MultiwaySettings, PairResult as RustPairResult};
-use dpr_gpu::backend::{HostRows, HostScanRows, check_restored};
 use dpr_gpu::pipeline::{PoseRows, ScanFeatures, weights_file};
 use dpr_gpu::{Error, PointCloud, RegistrationSettings, StageTime};
 use numpy::{IntoPyArray, PyArray1, PyArray2};
@@ -438,14 +438,15 @@ pub(crate) fn register_described(
         max_points: MultiwaySettings::default().max_information_points,
         seed: registrar.settings.seed,
     };
-    let result = py.detach(|| {
-        let (pt, ps) = (target.prepared(distance), source.prepared(distance));
-        // Unpickled scans hold host rows: the registrar's backend takes them over (kept as they are when it
-        // described them itself).
-        let (tf, sf) = (registrar.adopt(&target.features)?, registrar.adopt(&source.features)?);
-        Ok::<_, Error>(register_pair(registrar, (i, j), &tf, &sf, &pt, &ps, &information))
-    })
-    .map_err(to_py_err)?;
+    let result = py
+        .detach(|| {
+            let (pt, ps) = (target.prepared(distance), source.prepared(distance));
+            // Unpickled scans hold host rows: the registrar's backend takes them over (kept as they are when it
+            // described them itself).
+            let (tf, sf) = (registrar.adopt(&target.features)?, registrar.adopt(&source.features)?);
+            Ok::<_, Error>(register_pair(registrar, (i, j), &tf, &sf, &pt, &ps, &information))
+        })
+        .map_err(to_py_err)?;
     Ok(PairResult { result })
 }
 

@@ -435,7 +435,8 @@ mod tests {
     use crate::model::{Model, ModelConfig, Weights};
 
     fn host(rows: usize, codeword: usize) -> HostScanRows {
-        let pose = PoseRows { input: vec![0.0; rows * 3], features: vec![0.0; rows * codeword], ready: vec![false; rows] };
+        let pose =
+            PoseRows { input: vec![0.0; rows * 3], features: vec![0.0; rows * codeword], ready: vec![false; rows] };
         HostScanRows::with_rows(codeword, HostRows { codewords: vec![0.5; rows * codeword], pose })
     }
 

@@ -49,7 +49,12 @@ pub fn verify(
 
 /// The pose of [`Backend::verify`]'s best hypothesis, refined on its inliers among the correspondences
 /// (`source`, `target`: the matched keypoints).
-pub fn refine_best(verified: &Verified, source: &[[f32; 3]], target: &[[f32; 3]], threshold: f32) -> Result<PoseEstimate> {
+pub fn refine_best(
+    verified: &Verified,
+    source: &[[f32; 3]],
+    target: &[[f32; 3]],
+    threshold: f32,
+) -> Result<PoseEstimate> {
     let best = verified.best.first().ok_or_else(|| crate::Error::invalid("no hypotheses to verify"))?;
     Ok(refine(matrix_from_hypothesis(&best.hypothesis), source, target, threshold, verified.hypotheses))
 }

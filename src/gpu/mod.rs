@@ -28,12 +28,12 @@ pub mod score_hypotheses;
 pub mod testing;
 
 use crate::backend::{Backend, MatchedRows, PatchBatch, RotationInputs, RowMatch, ScanRows, Verified};
-use crate::pipeline::PoseRows;
 use crate::cpu::hypotheses::Hypothesis;
 use crate::cpu::mutual_knn::Match;
 use crate::cpu::score_hypotheses::HypothesisScore;
 use crate::error::{Error, Result};
 use crate::model::{Model, Net};
+use crate::pipeline::PoseRows;
 use crate::preprocess::GatheredPatches;
 use crate::settings::MatchMode;
 use buffer::Workspace;
@@ -340,7 +340,13 @@ impl Backend for GpuBackend {
                 let ppf = ws.buffer(ctx, "pf_ppf", (rows * 16) as u64)?;
                 let pc = ws.buffer(ctx, "pf_pc", (rows * 12) as u64)?;
                 let mut rec = Recorder::new(gpu, "patch_features");
-                self.record_patch_features(&mut rec, radius, cp, [&centers, &center_normals, &points, &normals], [&ppf, &pc])?;
+                self.record_patch_features(
+                    &mut rec,
+                    radius,
+                    cp,
+                    [&centers, &center_normals, &points, &normals],
+                    [&ppf, &pc],
+                )?;
                 rec.read(&ppf, 0, (rows * 16) as u64);
                 rec.read(&pc, 0, (rows * 12) as u64);
                 pending.push(rec.submit()?);

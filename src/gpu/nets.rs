@@ -230,7 +230,16 @@ pub fn record_encode<'a>(
     max_pool::record(rec, &MaxPoolParams::new(cp, points, last.out_dim)?, &acts[acts.len() - 1].0, &global)?;
     // The global slice sits after the encoder slices in head.0's input; it is the per-patch term.
     let group = ws.buffer(ctx, "enc_group", (cp * head0.out_dim * 4) as u64)?;
-    dense_call(rec, gpu, head0, (&global, last.out_dim, concat_offset), (cp, cp), Some(&head0.bias), (false, false), &group)?;
+    dense_call(
+        rec,
+        gpu,
+        head0,
+        (&global, last.out_dim, concat_offset),
+        (cp, cp),
+        Some(&head0.bias),
+        (false, false),
+        &group,
+    )?;
     let bufs = ping_pong(ws, ctx, ["head_a", "head_b"], &f.head, rows)?;
     let mut offset = 0;
     for (s, (a, w)) in acts.iter().enumerate() {

@@ -46,8 +46,12 @@ pub fn record<'a>(
     [pc, ppf, rows]: [&wgpu::Buffer; 3],
     out: &wgpu::Buffer,
 ) -> Result<()> {
-    let params =
-        PoseFeatureParams { slots: to_u32(slots, "pose feature rows")?, width: to_u32(width, "codeword")?, _pad0: 0, _pad1: 0 };
+    let params = PoseFeatureParams {
+        slots: to_u32(slots, "pose feature rows")?,
+        width: to_u32(width, "codeword")?,
+        _pad0: 0,
+        _pad1: 0,
+    };
     to_u32(slots * width, "pose feature values")?;
     rec.dispatch::<PoseFeature>(&params, &[pc, ppf, rows, out], workgroups(slots * width, WG_SIZE))
 }

@@ -8,9 +8,7 @@ use super::buffer::{self, storage_buffer};
 use super::nets::{self, items_per_chunk};
 use super::recorder::Recorder;
 use super::{Gpu, GpuBackend, hypotheses, pose_feature, score_hypotheses, to_u32};
-use crate::backend::{
-    MatchedRows, PatchBatch, RankedHypothesis, RowMatch, ScanRows, Verified, check_restored, rank,
-};
+use crate::backend::{MatchedRows, PatchBatch, RankedHypothesis, RowMatch, ScanRows, Verified, check_restored, rank};
 use crate::cpu::score_hypotheses::HypothesisScore;
 use crate::error::{Error, Result};
 use crate::pipeline::PoseRows;
@@ -76,7 +74,13 @@ impl GpuScanRows {
             ready: Vec::new(),
             segments: Vec::new(),
         };
-        Ok(GpuScanRows { gpu: Arc::clone(&backend.gpu), owner: backend.owner, codeword, pc_width, state: Mutex::new(state) })
+        Ok(GpuScanRows {
+            gpu: Arc::clone(&backend.gpu),
+            owner: backend.owner,
+            codeword,
+            pc_width,
+            state: Mutex::new(state),
+        })
     }
 
     /// Whether the backend `owner` made these rows.
@@ -177,7 +181,12 @@ impl GpuBackend {
         Ok(Arc::new(self.run("scan rows", |_| GpuScanRows::new(self, capacity))?))
     }
 
-    pub(super) fn restore_device_rows(&self, codewords: Vec<f32>, pose: PoseRows, keypoints: usize) -> Result<Arc<dyn ScanRows>> {
+    pub(super) fn restore_device_rows(
+        &self,
+        codewords: Vec<f32>,
+        pose: PoseRows,
+        keypoints: usize,
+    ) -> Result<Arc<dyn ScanRows>> {
         let dim = self.model.config.codeword();
         check_restored(&codewords, &pose, keypoints, dim)?;
         let pc_width = self.model.config.points_per_patch * 3;
@@ -223,8 +232,11 @@ impl GpuBackend {
             let mut s = store.lock();
             let start = s.rows;
             store.reserve(&mut s, start + p)?;
-            let chunk = items_per_chunk(ctx, (n * 16) as u64, "patch's features")?
-                .min(nets::encoder_chunk(ctx, &self.weights.ppf, n)?);
+            let chunk = items_per_chunk(ctx, (n * 16) as u64, "patch's features")?.min(nets::encoder_chunk(
+                ctx,
+                &self.weights.ppf,
+                n,
+            )?);
             let mut pending = Vec::new();
             let mut segments = Vec::new();
             for c0 in (0..p).step_by(chunk) {
@@ -237,7 +249,13 @@ impl GpuBackend {
                 let ppf = ws.buffer(ctx, "pf_ppf", (cp * n * 16) as u64)?;
                 let pc = storage_buffer(ctx, "scan pc inputs", (cp * n * 12) as u64)?;
                 let mut rec = Recorder::new(gpu, "describe");
-                self.record_patch_features(&mut rec, batch.radius(), cp, [&centers, &center_normals, &points, &normals], [&ppf, &pc])?;
+                self.record_patch_features(
+                    &mut rec,
+                    batch.radius(),
+                    cp,
+                    [&centers, &center_normals, &points, &normals],
+                    [&ppf, &pc],
+                )?;
                 let codewords = nets::record_encode(&mut rec, gpu, ws, &self.weights.ppf, &ppf, (cp, n))?;
                 rec.copy(&codewords, 0, &s.codewords, ((start + c0) * cw * 4) as u64, (cp * cw * 4) as u64);
                 pending.push(rec.submit()?);
@@ -290,7 +308,10 @@ impl GpuBackend {
         self.run("pc_encoder", |ws| {
             let mut s = store.lock();
             if let Some(&bad) = which.iter().find(|&&r| r as usize >= s.rows) {
-                return Err(Error::invalid(format!("pose features: row {bad} asked of a scan with {} keypoints", s.rows)));
+                return Err(Error::invalid(format!(
+                    "pose features: row {bad} asked of a scan with {} keypoints",
+                    s.rows
+                )));
             }
             let mut missing: Vec<u32> = which.iter().copied().filter(|&r| !s.ready[r as usize]).collect();
             missing.sort_unstable();
@@ -333,7 +354,10 @@ impl GpuBackend {
         let layers = &self.weights.relative;
         let f = nets::relative_width(layers, config)?;
         if f != ss.codeword {
-            return Err(Error::invalid(format!("verify: RelativeNet takes {f} pose features, the scan has {}", ss.codeword)));
+            return Err(Error::invalid(format!(
+                "verify: RelativeNet takes {f} pose features, the scan has {}",
+                ss.codeword
+            )));
         }
         let m = config.rotation_output.candidates();
         let rows = request.len();
@@ -363,7 +387,8 @@ impl GpuBackend {
                 let mut rec = Recorder::new(gpu, "verify");
                 ss.gather_rows(&mut rec, &source_pose, &src.rows[r0..r0 + n], &s_in);
                 ts.gather_rows(&mut rec, &target_pose, &tgt.rows[r0..r0 + n], &t_in);
-                let rotations = nets::record_relative(&mut rec, gpu, ws, (layers, config), [&s_in, &t_in, &ns, &nt], n)?;
+                let rotations =
+                    nets::record_relative(&mut rec, gpu, ws, (layers, config), [&s_in, &t_in, &ns, &nt], n)?;
                 hypotheses::record(&mut rec, n * m, [&rotations, &hs, &ht], &h)?;
                 let params = score_hypotheses::ScoreHypothesesParams {
                     hypotheses: to_u32(n * m, "hypotheses")?,
@@ -371,7 +396,8 @@ impl GpuBackend {
                     threshold_sq: request.threshold() * request.threshold(),
                     write_mask: 0,
                 };
-                let out = score_hypotheses::ScoreBuffers { inliers: &inliers, residual_sums: &sums, mask: &gpu.dummy_rw };
+                let out =
+                    score_hypotheses::ScoreBuffers { inliers: &inliers, residual_sums: &sums, mask: &gpu.dummy_rw };
                 score_hypotheses::record(&mut rec, &params, [&h, &points_s, &points_t], &out)?;
                 rec.read(&inliers, 0, (n * m * 4) as u64);
                 rec.read(&sums, 0, (n * m * 4) as u64);
@@ -389,7 +415,9 @@ impl GpuBackend {
             let data = p.wait(gpu)?;
             let counts: Vec<u32> = bytemuck::pod_collect_to_vec(&data[0]);
             let sums: Vec<f32> = bytemuck::pod_collect_to_vec(&data[1]);
-            scores.extend(counts.into_iter().zip(sums).map(|(inliers, residual_sum)| HypothesisScore { inliers, residual_sum }));
+            scores.extend(
+                counts.into_iter().zip(sums).map(|(inliers, residual_sum)| HypothesisScore { inliers, residual_sum }),
+            );
             if let Some(r) = rotations.as_mut() {
                 r.extend(bytemuck::pod_collect_to_vec::<u8, [f32; 9]>(&data[2]));
             }
@@ -397,7 +425,8 @@ impl GpuBackend {
         let best = rank(&scores, request.keep())
             .into_iter()
             .map(|index| {
-                let (first, _, h) = hyps.iter().rev().find(|(first, _, _)| *first <= index).expect("chunks cover every index");
+                let (first, _, h) =
+                    hyps.iter().rev().find(|(first, _, _)| *first <= index).expect("chunks cover every index");
                 let bytes = buffer::read_bytes(ctx, h, ((index - first) * hf * 4) as u64, (hf * 4) as u64)?;
                 let hypothesis = hypotheses::from_row(&bytemuck::pod_collect_to_vec::<u8, f32>(&bytes));
                 Ok(RankedHypothesis { index, hypothesis, score: scores[index] })

@@ -430,7 +430,10 @@ impl Registrar {
                     rows.iter()
                         .map(|&r| {
                             scan.keypoint_normals.get(r as usize).copied().ok_or_else(|| {
-                                Error::invalid(format!("estimate: row {r} of a scan with {} keypoints", scan.keypoints.len()))
+                                Error::invalid(format!(
+                                    "estimate: row {r} of a scan with {} keypoints",
+                                    scan.keypoints.len()
+                                ))
                             })
                         })
                         .collect()
@@ -499,8 +502,10 @@ impl Registrar {
         if estimator == Estimator::RelativeNet {
             // Computed here (and kept in the scans) to time PC-FoldNet on its own.
             let (s, t) = (source.rows.as_ref(), target.rows.as_ref());
-            self.backend.prepare_pose_features(s, &correspondences.iter().map(|c| c.source_index).collect::<Vec<_>>())?;
-            self.backend.prepare_pose_features(t, &correspondences.iter().map(|c| c.target_index).collect::<Vec<_>>())?;
+            self.backend
+                .prepare_pose_features(s, &correspondences.iter().map(|c| c.source_index).collect::<Vec<_>>())?;
+            self.backend
+                .prepare_pose_features(t, &correspondences.iter().map(|c| c.target_index).collect::<Vec<_>>())?;
         }
         clock.lap("pc_encoder");
         let estimate = self.estimate(source, target, &correspondences, estimator)?;

@@ -6,10 +6,10 @@
 //! K at once: the keypoint order is a prefix-stable seeded sample, each patch draws from its own stream (derived
 //! from its keypoint), and every network row depends only on its own patch.
 
+use crate::backend::ScanRows;
 use crate::cloud::PointCloud;
 use crate::settings::StageTime;
 use crate::spatial::PointIndex;
-use crate::backend::ScanRows;
 use std::sync::Arc;
 
 /// Per-scan output of the description stages.
