@@ -20,8 +20,8 @@ use dpr_gpu::model::{Model, Net};
 use dpr_gpu::preprocess::GatheredPatches;
 use dpr_gpu::settings::MatchMode;
 use serde_json::Value;
-use std::process::Command;
 use std::collections::HashSet;
+use std::process::Command;
 use std::sync::{Arc, Mutex};
 
 /// The small run every test makes: sizes lavapipe gets through in seconds.
@@ -320,8 +320,7 @@ fn bench_json_on_the_test_adapter_is_consistent() {
     let pair = &r["pair"];
     let model = bench::bench_model(&args).unwrap();
     let counted = Arc::new(Mutex::new((0u64, 0u64)));
-    let counting =
-        CountingBackend {
+    let counting = CountingBackend {
         inner: GpuBackend::with_gpu(Arc::clone(&gpu), model).unwrap(),
         bytes: Arc::clone(&counted),
         computed: Mutex::new(HashSet::new()),
