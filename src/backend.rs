@@ -10,6 +10,14 @@ use crate::error::Result;
 use crate::model::{Model, Net};
 use crate::preprocess::GatheredPatches;
 use crate::settings::MatchMode;
+use std::sync::Arc;
+
+mod steps;
+pub use crate::pipeline::PoseRows;
+pub use steps::{
+    HostRows, HostScanRows, MatchedRows, MatchedSide, PatchBatch, RankedHypothesis, RowMatch, ScanRows, Verified,
+    check_restored, host_correspond, host_describe, host_pose_features, host_rows, host_verify, rank,
+};
 
 /// What RelativeNet needs per correspondence: `rows` rows of source and target pose features (`rows x
 /// codeword` each) and the keypoint normals of both patches.
@@ -49,13 +57,70 @@ impl RotationInputs<'_> {
     }
 }
 
-/// The stages a backend implements. Every method is deterministic for given inputs.
+/// The steps and stages a backend implements. Every method is deterministic for given inputs.
+///
+/// The steps (`new_scan_rows`, `describe`, `correspond`, `pose_features`, `verify`) keep a scan's rows where
+/// the backend computed them and take inputs checked by their constructors; their provided versions run on host
+/// rows through the stages, which is what the CPU backend does. The stages (`patch_features` ...
+/// `score_hypotheses`) take and return host vectors (benchmarks, parity tests).
 pub trait Backend: Send + Sync {
     /// Human-readable backend name (and adapter, for a GPU).
     fn name(&self) -> String;
 
     /// The model the backend runs.
     fn model(&self) -> &Model;
+
+    /// An empty store for a scan's rows; `capacity` rows (the scan's whole keypoint order) are expected.
+    fn new_scan_rows(&self, capacity: usize) -> Result<Arc<dyn ScanRows>> {
+        let _ = capacity;
+        Ok(Arc::new(HostScanRows::new(self.model().config.codeword())))
+    }
+
+    /// A store holding saved rows (e.g. an unpickled scan), checked with [`check_restored`] for `keypoints`.
+    fn restore_scan_rows(&self, codewords: Vec<f32>, pose: PoseRows, keypoints: usize) -> Result<Arc<dyn ScanRows>> {
+        let dim = self.model().config.codeword();
+        check_restored(&codewords, &pose, keypoints, dim)?;
+        Ok(Arc::new(HostScanRows::with_rows(dim, HostRows { codewords, pose })))
+    }
+
+    /// `rows` as a store of this backend: the same store when this backend made it (or it is on the host and
+    /// this backend keeps host rows), else a copy restored from a readback (e.g. unpickled host rows moved to
+    /// a GPU).
+    fn adopt_rows(&self, rows: &Arc<dyn ScanRows>) -> Result<Arc<dyn ScanRows>> {
+        if rows.as_any().is::<HostScanRows>() {
+            return Ok(Arc::clone(rows));
+        }
+        self.restore_scan_rows(rows.read_codewords()?, rows.read_pose_rows()?, rows.rows())
+    }
+
+    /// Appends the rows of `batch` to `rows`: patch features, PPF-FoldNet codewords, PC-FoldNet's inputs kept.
+    fn describe(&self, batch: PatchBatch<'_>, rows: &dyn ScanRows) -> Result<()> {
+        host_describe(self, batch, rows)
+    }
+
+    /// Correspondences between the first rows of two scans.
+    fn correspond(&self, request: RowMatch<'_>) -> Result<Vec<Match>> {
+        host_correspond(self, request)
+    }
+
+    /// The pose features of rows `which` of a scan, in that order (`which.len() x codeword`, a readback);
+    /// rows not computed before run through PC-FoldNet now, once.
+    fn pose_features(&self, rows: &dyn ScanRows, which: &[u32]) -> Result<Vec<f32>> {
+        host_pose_features(self, rows, which)
+    }
+
+    /// Computes the pose features of rows `which` that are missing, keeping them in the store (nothing is
+    /// read back from a device store).
+    fn prepare_pose_features(&self, rows: &dyn ScanRows, which: &[u32]) -> Result<()> {
+        self.pose_features(rows, which).map(drop)
+    }
+
+    /// RelativeNet's hypothesize-and-verify on matched rows: the missing pose features, a rotation per
+    /// correspondence, a hypothesis per rotation, every hypothesis scored over the correspondences; only the
+    /// best hypotheses and their scores come back (the rotations too when asked).
+    fn verify(&self, request: MatchedRows<'_>) -> Result<Verified> {
+        host_verify(self, request)
+    }
 
     /// PPF (P x N x 4) and PC (P x N x 3) network inputs of gathered patches.
     fn patch_features(&self, patches: &GatheredPatches, radius: f32) -> Result<(Vec<f32>, Vec<f32>)>;
@@ -84,6 +149,47 @@ pub trait Backend: Send + Sync {
     ) -> Result<Vec<HypothesisScore>>;
 }
 
+/// Checks of the stage inputs, shared by every backend so that none divides by zero or truncates on lengths
+/// that do not fit.
+pub mod check {
+    use crate::error::{Error, Result};
+
+    /// `input` holds `patches x points x width` values.
+    pub fn encode_input(input: &[f32], patches: usize, points: usize, width: usize) -> Result<()> {
+        if input.len() != patches * points * width {
+            return Err(Error::invalid(format!(
+                "encode: input has {} values, expected {patches} patches x {points} points x {width}",
+                input.len()
+            )));
+        }
+        Ok(())
+    }
+
+    /// Both codeword arrays are whole rows of `dim > 0` values.
+    pub fn codeword_rows(source: &[f32], target: &[f32], dim: usize) -> Result<()> {
+        if dim == 0 || !source.len().is_multiple_of(dim) || !target.len().is_multiple_of(dim) {
+            return Err(Error::invalid(format!("match_codewords: codeword arrays are not rows of {dim}")));
+        }
+        Ok(())
+    }
+
+    /// One source and one target point per rotation.
+    pub fn hypothesis_inputs(rotations: usize, source: usize, target: usize) -> Result<()> {
+        if source != rotations || target != rotations {
+            return Err(Error::invalid("hypotheses: rotations and points differ in length"));
+        }
+        Ok(())
+    }
+
+    /// As many source as target points.
+    pub fn correspondences(source: usize, target: usize) -> Result<()> {
+        if source != target {
+            return Err(Error::invalid("score_hypotheses: source and target points differ in length"));
+        }
+        Ok(())
+    }
+}
+
 /// The plain-Rust reference backend: the oracle for the GPU and the fallback without one.
 pub struct CpuBackend {
     model: Model,
@@ -107,11 +213,13 @@ impl Backend for CpuBackend {
 
     fn patch_features(&self, patches: &GatheredPatches, radius: f32) -> Result<(Vec<f32>, Vec<f32>)> {
         let c = &self.model.config;
+        PatchBatch::new(patches, c.points_per_patch, radius)?;
         Ok(patches.features(c.points_per_patch, radius, c.pose_frame))
     }
 
     fn encode(&self, net: Net, input: &[f32], patches: usize) -> Result<Vec<f32>> {
         let n = self.model.config.points_per_patch;
+        check::encode_input(input, patches, n, net.io_width())?;
         Ok(match net {
             Net::Ppf => self.model.ppf.encode(input, patches, n),
             Net::Pc => self.model.pc.encode(input, patches, n),
@@ -119,6 +227,7 @@ impl Backend for CpuBackend {
     }
 
     fn match_codewords(&self, source: &[f32], target: &[f32], dim: usize, mode: MatchMode) -> Result<Vec<Match>> {
+        check::codeword_rows(source, target, dim)?;
         let d = codeword_distance(source, target, dim);
         Ok(mutual_knn(&d, source.len() / dim, target.len() / dim, mode))
     }
@@ -131,9 +240,7 @@ impl Backend for CpuBackend {
     }
 
     fn hypotheses(&self, rotations: &[[f32; 9]], source: &[[f32; 3]], target: &[[f32; 3]]) -> Result<Vec<Hypothesis>> {
-        if source.len() != rotations.len() || target.len() != rotations.len() {
-            return Err(crate::Error::invalid("hypotheses: rotations and points differ in length"));
-        }
+        check::hypothesis_inputs(rotations.len(), source.len(), target.len())?;
         Ok(hypotheses(rotations, source, target))
     }
 
@@ -144,6 +251,7 @@ impl Backend for CpuBackend {
         target: &[[f32; 3]],
         threshold: f32,
     ) -> Result<Vec<HypothesisScore>> {
+        check::correspondences(source.len(), target.len())?;
         Ok(score_hypotheses(hypotheses, source, target, threshold))
     }
 }

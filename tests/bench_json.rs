@@ -7,7 +7,7 @@
 //! GPU tests print `SKIPPED (no GPU adapter)` and return without one (they fail instead with `CI=true` or
 //! `DPR_GPU_REQUIRE_ADAPTER=1`).
 
-use dpr_gpu::backend::{Backend, RotationInputs};
+use dpr_gpu::backend::{Backend, MatchedRows, PatchBatch, RotationInputs, RowMatch, ScanRows, Verified};
 use dpr_gpu::cli::bench::{self, Args};
 use dpr_gpu::cpu::hypotheses::Hypothesis;
 use dpr_gpu::cpu::mutual_knn::Match;
@@ -21,6 +21,7 @@ use dpr_gpu::model::{Model, Net};
 use dpr_gpu::preprocess::GatheredPatches;
 use dpr_gpu::settings::MatchMode;
 use serde_json::Value;
+use std::collections::HashSet;
 use std::process::Command;
 use std::sync::{Arc, Mutex};
 
@@ -106,11 +107,17 @@ fn expected_stage_bytes(stage: &str, config: &Value) -> (u64, u64) {
 }
 
 /// Wraps the GPU backend and adds up, for every call, the bytes its inputs and result buffers take: an
-/// independent count of what one registration moves.
+/// independent count of what one registration moves. The steps keep a scan's rows on the device: describing
+/// uploads the gathered patches and reads nothing back; matching reads back three K_MAX lists per source row;
+/// pose features upload the indices of the rows they compute (each row once per scan); verifying uploads the
+/// matched normals and points (per rotation candidate for the hypotheses) and reads back a score per
+/// hypothesis and the kept hypotheses.
 struct CountingBackend {
     inner: GpuBackend,
     /// (host to device, device to host), shared with the test.
     bytes: Arc<Mutex<(u64, u64)>>,
+    /// (scan rows, row) whose pose feature has been computed.
+    computed: Mutex<HashSet<(usize, u32)>>,
 }
 
 impl CountingBackend {
@@ -118,6 +125,13 @@ impl CountingBackend {
         let mut b = self.bytes.lock().unwrap();
         b.0 += up as u64;
         b.1 += down as u64;
+    }
+
+    /// Rows of `which` not computed before (now marked computed).
+    fn newly_computed(&self, rows: &dyn ScanRows, which: &[u32]) -> usize {
+        let scan = rows as *const dyn ScanRows as *const () as usize;
+        let mut done = self.computed.lock().unwrap();
+        which.iter().filter(|&&r| done.insert((scan, r))).count()
     }
 }
 
@@ -128,6 +142,42 @@ impl Backend for CountingBackend {
 
     fn model(&self) -> &Model {
         self.inner.model()
+    }
+
+    fn new_scan_rows(&self, capacity: usize) -> dpr_gpu::Result<Arc<dyn ScanRows>> {
+        self.inner.new_scan_rows(capacity)
+    }
+
+    fn describe(&self, batch: PatchBatch<'_>, rows: &dyn ScanRows) -> dpr_gpu::Result<()> {
+        self.inner.describe(batch, rows)?;
+        let p = batch.patches();
+        self.add(24 * p.centers.len() + 24 * p.points.len(), 0);
+        Ok(())
+    }
+
+    fn correspond(&self, request: RowMatch<'_>) -> dpr_gpu::Result<Vec<Match>> {
+        let out = self.inner.correspond(request)?;
+        let ((_, ns), (_, nt)) = (request.source(), request.target());
+        if ns > 0 && nt > 0 {
+            self.add(0, 3 * 4 * K_MAX * ns);
+        }
+        Ok(out)
+    }
+
+    fn prepare_pose_features(&self, rows: &dyn ScanRows, which: &[u32]) -> dpr_gpu::Result<()> {
+        self.inner.prepare_pose_features(rows, which)?;
+        self.add(4 * self.newly_computed(rows, which), 0);
+        Ok(())
+    }
+
+    fn verify(&self, request: MatchedRows<'_>) -> dpr_gpu::Result<Verified> {
+        let out = self.inner.verify(request)?;
+        let (s, t) = (request.source(), request.target());
+        let missing = self.newly_computed(s.scan, s.rows) + self.newly_computed(t.scan, t.rows);
+        let (c, m) = (request.len(), self.inner.model().config.rotation_output.candidates());
+        let rotations = if request.wants_rotations() { 36 * c * m } else { 0 };
+        self.add(4 * missing + 12 * 2 * c * (2 + m), 8 * c * m + 4 * HYPOTHESIS_FLOATS * out.best.len() + rotations);
+        Ok(out)
     }
 
     fn patch_features(&self, patches: &GatheredPatches, radius: f32) -> dpr_gpu::Result<(Vec<f32>, Vec<f32>)> {
@@ -290,8 +340,11 @@ fn bench_json_on_the_test_adapter_is_consistent() {
     let pair = &r["pair"];
     let model = bench::bench_model(&args).unwrap();
     let counted = Arc::new(Mutex::new((0u64, 0u64)));
-    let counting =
-        CountingBackend { inner: GpuBackend::with_gpu(Arc::clone(&gpu), model).unwrap(), bytes: Arc::clone(&counted) };
+    let counting = CountingBackend {
+        inner: GpuBackend::with_gpu(Arc::clone(&gpu), model).unwrap(),
+        bytes: Arc::clone(&counted),
+        computed: Mutex::new(HashSet::new()),
+    };
     let (source, target) = bench::synthetic_pair(args.seed, args.pair_points);
     let registrar = dpr_gpu::Registrar::with_backend(&bench::pair_settings(&args), Box::new(counting)).unwrap();
     let before = gpu.context.transfers();

@@ -909,8 +909,9 @@ fn register_matches_cpu_with(g: Arc<Gpu>, s: u64) {
     let (cs, ct) = (on_cpu.describe(&source, 0).unwrap(), on_cpu.describe(&target, 1).unwrap());
     assert_eq!(gs.keypoints, cs.keypoints, "{s_msg}");
     let rtol = if variant.is_f32() { NETWORK_RTOL } else { NETWORK_RTOL_F16 };
-    let tol = rtol * max_abs(&cs.ppf_codewords);
-    assert_close(&format!("register ppf codewords ({s_msg})"), s, &gs.ppf_codewords, &cs.ppf_codewords, |_| tol);
+    let (g_cw, c_cw) = (gs.read_codewords().unwrap(), cs.read_codewords().unwrap());
+    let tol = rtol * max_abs(&c_cw);
+    assert_close(&format!("register ppf codewords ({s_msg})"), s, &g_cw, &c_cw, |_| tol);
     let g_corr = on_gpu.correspond(&gs, &gt).unwrap();
     let c_corr = on_cpu.correspond(&cs, &ct).unwrap();
     let pairs = |c: &[dpr_gpu::Correspondence]| c.iter().map(|c| (c.source_index, c.target_index)).collect::<Vec<_>>();
@@ -1021,6 +1022,187 @@ fn register_with_relativenet_matches_cpu_on_a_generated_pair() {
     assert!(cp.inliers >= 10, "the CPU reference registers the pair ({} inliers), seed {s}", cp.inliers);
 }
 
+/// pose_feature: a subtraction per value, exact on both sides; rows not named keep their contents.
+fn pose_feature_matches_cpu_scattered() {
+    let Some(g) = gpu() else { return };
+    let s = seed(72);
+    let mut rng = Rng::new(s);
+    let (rows, width) = (37, 13);
+    let ppf = normals(&mut rng, rows * width);
+    // Rows 3, 5, ... in scrambled order.
+    let mut picked: Vec<u32> = (0..rows as u32).filter(|r| r % 2 == 1).collect();
+    picked.reverse();
+    picked.swap(1, 7);
+    let pc = normals(&mut rng, picked.len() * width);
+    let mut want = vec![SENTINEL; rows * width];
+    gpu::pose_feature::PoseFeature::CPU_TWIN(&pc, &ppf, &picked, width, &mut want);
+    let mut got = vec![SENTINEL; rows * width];
+    gpu::pose_feature::run(&g, &pc, &ppf, &picked, width, &mut got).unwrap();
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&got), bits(&want), "pose_feature (seed {s})");
+    assert!(want.iter().filter(|x| x.is_nan()).count() == (rows - picked.len()) * width, "unnamed rows untouched");
+    assert!(gpu::pose_feature::run(&g, &pc, &ppf, &[rows as u32], width, &mut got).is_err(), "row out of range");
+}
+
+/// The step seam on the device: scans described on the GPU give the CPU's codewords; a CPU scan adopted by the
+/// GPU backend reads back bit for bit; `verify` on matched rows gives the CPU's rotations (asked for) and the
+/// same number of hypotheses, and its best hypothesis scores like the CPU's.
+fn device_steps_match_cpu_steps() {
+    use dpr_gpu::backend::{MatchedRows, MatchedSide};
+    let Some(g) = gpu() else { return };
+    let s = seed(73);
+    let (gpu_b, cpu_b) = backends_for(g, small_model(s));
+    let settings = dpr_gpu::RegistrationSettings { keypoints: 80, seed: s, ..Default::default() };
+    let (source, target, _) = common::room_pair(s, 3_000);
+    let on_gpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(gpu_b)).unwrap();
+    let on_cpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(cpu_b)).unwrap();
+    let (cs, ct) = (on_cpu.describe(&source, 0).unwrap(), on_cpu.describe(&target, 1).unwrap());
+    let (gs, gt) = (on_gpu.adopt(&cs).unwrap(), on_gpu.adopt(&ct).unwrap());
+    assert_eq!(gs.read_codewords().unwrap(), cs.read_codewords().unwrap(), "adopted codewords, seed {s}");
+    let c_corr = on_cpu.correspond(&cs, &ct).unwrap();
+    let g_corr = on_gpu.correspond(&gs, &gt).unwrap();
+    let pairs = |c: &[dpr_gpu::Correspondence]| c.iter().map(|c| (c.source_index, c.target_index)).collect::<Vec<_>>();
+    assert_eq!(pairs(&g_corr), pairs(&c_corr), "correspondences of adopted rows, seed {s}");
+    assert!(c_corr.len() >= 3, "the pair gives correspondences ({})", c_corr.len());
+    let rows = |f: fn(&dpr_gpu::Correspondence) -> u32| c_corr.iter().map(f).collect::<Vec<u32>>();
+    let (sr, tr) = (rows(|c| c.source_index), rows(|c| c.target_index));
+    let (sp, tp): (Vec<_>, Vec<_>) = c_corr.iter().map(|c| (c.source_point, c.target_point)).unzip();
+    let ns: Vec<[f32; 3]> = sr.iter().map(|&r| cs.keypoint_normals[r as usize]).collect();
+    let nt: Vec<[f32; 3]> = tr.iter().map(|&r| ct.keypoint_normals[r as usize]).collect();
+    let verify = |r: &dpr_gpu::Registrar, a: &dpr_gpu::pipeline::ScanFeatures, b: &dpr_gpu::pipeline::ScanFeatures| {
+        let request = MatchedRows::new(
+            MatchedSide { scan: a.rows.as_ref(), rows: &sr, points: &sp, normals: &ns },
+            MatchedSide { scan: b.rows.as_ref(), rows: &tr, points: &tp, normals: &nt },
+            0.1,
+            3,
+        )
+        .unwrap()
+        .with_rotations();
+        r.backend().verify(request).unwrap()
+    };
+    let (want, got) = (verify(&on_cpu, &cs, &ct), verify(&on_gpu, &gs, &gt));
+    assert_eq!(got.hypotheses, want.hypotheses, "seed {s}");
+    let (wr, gr) = (want.rotations.unwrap(), got.rotations.unwrap());
+    assert_close("verify rotations", s, gr.as_flattened(), wr.as_flattened(), |_| ROTATION_ATOL.max(NETWORK_RTOL));
+    assert_eq!(got.best.len(), 3.min(want.hypotheses));
+    let (gb, wb) = (got.best[0].score, want.best[0].score);
+    assert!(gb.inliers.abs_diff(wb.inliers) <= 1, "best inliers {} vs {}, seed {s}", gb.inliers, wb.inliers);
+    assert!(got.best.windows(2).all(|w| w[0].score.inliers >= w[1].score.inliers), "best first, seed {s}");
+    // Pose features read back after verify: what the CPU computed.
+    let (gf, wf) = (on_gpu.pose_features(&gs, &sr).unwrap(), on_cpu.pose_features(&cs, &sr).unwrap());
+    assert_close("pose features", s, &gf, &wf, |_| NETWORK_RTOL * max_abs(&wf).max(1.0));
+}
+
+/// After describing, a pair's correspond + estimate on the GPU moves only small results: no codeword or pose
+/// feature crosses the bus. The bound is counted from the step's inputs and outputs, independently of the
+/// counters: up, the pose rows' indices, the matched normals and points (repeated per rotation candidate for the
+/// hypotheses); down, the matcher's per-row lists (3 x K_MAX words per source row), a score (8 bytes) per
+/// hypothesis and the best hypothesis (12 floats).
+fn pair_steps_read_back_only_small_results() {
+    let Some(g) = gpu() else { return };
+    let s = seed(74);
+    let model = small_model(s);
+    let config = model.config.clone();
+    let backend = GpuBackend::with_gpu(Arc::clone(&g), model.clone()).unwrap();
+    let settings = dpr_gpu::RegistrationSettings {
+        keypoints: 80,
+        estimator: dpr_gpu::Estimator::RelativeNet,
+        icp: None,
+        seed: s,
+        ..Default::default()
+    };
+    let (source, target, _) = common::room_pair(s, 3_000);
+    let r = dpr_gpu::Registrar::with_backend(&settings, Box::new(backend)).unwrap();
+    let (fs, ft) = (r.describe(&source, 0).unwrap(), r.describe(&target, 1).unwrap());
+    let before = g.context.transfers();
+    let corr = r.correspond(&fs, &ft).unwrap();
+    let estimate = r.estimate(&fs, &ft, &corr, dpr_gpu::Estimator::RelativeNet).unwrap();
+    let moved = g.context.transfers().since(before);
+    let (c, m, cw) = (corr.len() as u64, config.rotation_output.candidates() as u64, config.codeword() as u64);
+    let (ns, nt) = (fs.keypoints.len() as u64, ft.keypoints.len() as u64);
+    let k_max = dpr_gpu::gpu::mutual_knn::K_MAX as u64;
+    let up_bound = 4 * 2 * c + 12 * 2 * c + 12 * 2 * c * m + 12 * 2 * c;
+    let down_bound = 3 * 4 * k_max * ns + 8 * c * m + 4 * 12;
+    assert!(c >= 3 && estimate.hypotheses_scored == (c * m) as usize, "{c} correspondences, seed {s}");
+    assert!(moved.host_to_device_bytes <= up_bound, "{} bytes up, bound {up_bound}", moved.host_to_device_bytes);
+    assert!(moved.device_to_host_bytes <= down_bound, "{} bytes down, bound {down_bound}", moved.device_to_host_bytes);
+    // What the host-vector seam moved for matching alone: both scans' codewords up.
+    let codewords_up = 4 * cw * (ns + nt);
+    assert!(moved.host_to_device_bytes + moved.device_to_host_bytes < codewords_up, "{moved:?} vs {codewords_up}");
+    // The same pair through the stage methods only (the seam before: host vectors in and out of every stage):
+    // the same correspondences and pose, more bytes.
+    let old = dpr_gpu::Registrar::with_backend(
+        &settings,
+        Box::new(HostSteps(GpuBackend::with_gpu(Arc::clone(&g), model).unwrap())),
+    )
+    .unwrap();
+    let (os, ot) = (old.describe(&source, 0).unwrap(), old.describe(&target, 1).unwrap());
+    let before_old = g.context.transfers();
+    let old_corr = old.correspond(&os, &ot).unwrap();
+    let old_estimate = old.estimate(&os, &ot, &old_corr, dpr_gpu::Estimator::RelativeNet).unwrap();
+    let moved_old = g.context.transfers().since(before_old);
+    let pairs = |c: &[dpr_gpu::Correspondence]| c.iter().map(|c| (c.source_index, c.target_index)).collect::<Vec<_>>();
+    assert_eq!(pairs(&old_corr), pairs(&corr), "seed {s}");
+    assert_eq!(old_estimate.hypotheses_scored, estimate.hypotheses_scored);
+    let total = |t: dpr_gpu::gpu::context::Transfers| t.host_to_device_bytes + t.device_to_host_bytes;
+    assert!(total(moved) < total(moved_old), "steps {moved:?} vs stages {moved_old:?}");
+    // Whole registrations (description included), for the record.
+    let t0 = g.context.transfers();
+    r.register(&source, &target).unwrap();
+    let t1 = g.context.transfers();
+    old.register(&source, &target).unwrap();
+    let t2 = g.context.transfers();
+    eprintln!(
+        "pair after description ({c} correspondences, {ns}+{nt} rows, codeword {cw}): steps {} up / {} down, \
+         stages {} up / {} down; whole registration: steps {} up / {} down, stages {} up / {} down (bytes)",
+        moved.host_to_device_bytes,
+        moved.device_to_host_bytes,
+        moved_old.host_to_device_bytes,
+        moved_old.device_to_host_bytes,
+        t1.since(t0).host_to_device_bytes,
+        t1.since(t0).device_to_host_bytes,
+        t2.since(t1).host_to_device_bytes,
+        t2.since(t1).device_to_host_bytes,
+    );
+}
+
+/// A GPU backend seen only through its stage methods: the steps run on host rows, as every pair did before
+/// the step seam.
+struct HostSteps(GpuBackend);
+
+impl Backend for HostSteps {
+    fn name(&self) -> String {
+        self.0.name()
+    }
+    fn model(&self) -> &Model {
+        self.0.model()
+    }
+    fn patch_features(&self, p: &GatheredPatches, radius: f32) -> dpr_gpu::Result<(Vec<f32>, Vec<f32>)> {
+        self.0.patch_features(p, radius)
+    }
+    fn encode(&self, net: Net, input: &[f32], patches: usize) -> dpr_gpu::Result<Vec<f32>> {
+        self.0.encode(net, input, patches)
+    }
+    fn match_codewords(&self, s: &[f32], t: &[f32], dim: usize, mode: MatchMode) -> dpr_gpu::Result<Vec<Match>> {
+        self.0.match_codewords(s, t, dim, mode)
+    }
+    fn predict_rotations(&self, pose: RotationInputs<'_>) -> dpr_gpu::Result<Vec<[f32; 9]>> {
+        self.0.predict_rotations(pose)
+    }
+    fn hypotheses(&self, r: &[[f32; 9]], s: &[[f32; 3]], t: &[[f32; 3]]) -> dpr_gpu::Result<Vec<Hypothesis>> {
+        self.0.hypotheses(r, s, t)
+    }
+    fn score_hypotheses(
+        &self,
+        h: &[Hypothesis],
+        s: &[[f32; 3]],
+        t: &[[f32; 3]],
+        threshold: f32,
+    ) -> dpr_gpu::Result<Vec<HypothesisScore>> {
+        self.0.score_hypotheses(h, s, t, threshold)
+    }
+}
+
 /// `--backend auto` never takes a software rasteriser on its own: on a CPU-type adapter (lavapipe in CI) the
 /// hardware-only policy finds nothing and names what it skipped, and the registrar falls back to the CPU and says
 /// why; `DPR_GPU_ALLOW_SOFTWARE=1` lets it take the adapter. On a hardware adapter it takes a hardware one.
@@ -1094,6 +1276,9 @@ const TESTS: &[dpr_gpu::gpu::testing::GpuTest] = &[
     ("register_matches_cpu_with_the_reference_gemm", register_matches_cpu_with_the_reference_gemm),
     ("poison_inputs_stay_in_their_patches", poison_inputs_stay_in_their_patches),
     ("auto_backend_skips_software_adapters", auto_backend_skips_software_adapters),
+    ("pose_feature_matches_cpu_scattered", pose_feature_matches_cpu_scattered),
+    ("device_steps_match_cpu_steps", device_steps_match_cpu_steps),
+    ("pair_steps_read_back_only_small_results", pair_steps_read_back_only_small_results),
     (
         "register_with_relativenet_matches_cpu_on_a_generated_pair",
         register_with_relativenet_matches_cpu_on_a_generated_pair,

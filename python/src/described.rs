@@ -7,12 +7,13 @@ use crate::arrays::{cloud_from_arrays, matrix, positions, vectors};
 use crate::errors::{to_py_err, value_error};
 use crate::result::timings_dict;
 use crate::state::{Reader, Writer, flat, triples};
+use dpr_gpu::backend::{HostRows, HostScanRows, check_restored};
 use dpr_gpu::eval::groundtruth::PreparedFragment;
 use dpr_gpu::io::{LoadOptions, OriginShift};
 use dpr_gpu::multiway::pair::{InformationSettings, prepare_for_information, register_pair};
 use dpr_gpu::multiway::pairs::pooled_codeword;
 use dpr_gpu::multiway::{MultiwaySettings, PairResult as RustPairResult};
-use dpr_gpu::pipeline::{PoseFeatures, PoseRows, ScanFeatures, weights_file};
+use dpr_gpu::pipeline::{PoseRows, ScanFeatures, weights_file};
 use dpr_gpu::{Error, PointCloud, RegistrationSettings, StageTime};
 use numpy::{IntoPyArray, PyArray1, PyArray2};
 use pyo3::prelude::*;
@@ -62,8 +63,11 @@ impl DescribedScan {
         if *d == distance { Arc::clone(p) } else { Arc::new(prepare_for_information(&self.features, distance)) }
     }
 
-    fn state(&self) -> Vec<u8> {
+    fn state(&self) -> PyResult<Vec<u8>> {
         let f = &self.features;
+        // The rows live with the backend that described them (device buffers for a GPU): read back once here.
+        let codewords = f.read_codewords().map_err(to_py_err)?;
+        let pose = f.read_pose_rows().map_err(to_py_err)?;
         let mut w = Writer::new(SCAN_MAGIC);
         w.u64(self.key);
         w.u64(self.index as u64);
@@ -78,8 +82,7 @@ impl DescribedScan {
         w.u64(f.empty_patches as u64);
         w.u32s(&f.keypoint_ranks);
         w.u64(f.candidates as u64);
-        w.f32s(&f.ppf_codewords);
-        let pose = f.pose.rows();
+        w.f32s(&codewords);
         w.f32s(&pose.input);
         w.f32s(&pose.features);
         w.u32s(&pose.ready.iter().map(|&r| u32::from(r)).collect::<Vec<u32>>());
@@ -89,7 +92,7 @@ impl DescribedScan {
             w.str(&t.stage);
             w.f64(t.seconds);
         }
-        w.bytes
+        Ok(w.bytes)
     }
 
     fn from_state(bytes: &[u8]) -> PyResult<DescribedScan> {
@@ -129,8 +132,10 @@ impl DescribedScan {
         let codeword = ppf_codewords.len() / keypoints.len().max(1);
         let pose_rows =
             PoseRows { input: pose_input, features: pose_values, ready: ready.iter().map(|&r| r != 0).collect() };
-        let pose = PoseFeatures::from_rows(pose_rows, keypoints.len(), codeword)
+        // Host rows; `Registrar.register_described` moves them to its backend (`Registrar::adopt`).
+        check_restored(&ppf_codewords, &pose_rows, keypoints.len(), codeword)
             .map_err(|e| value_error(format!("DescribedScan: {e}")))?;
+        let rows = Arc::new(HostScanRows::with_rows(codeword, HostRows { codewords: ppf_codewords, pose: pose_rows }));
         let features = ScanFeatures {
             cloud: PointCloud { points, normals: has_normals.then_some(normals) },
             keypoints,
@@ -138,9 +143,8 @@ impl DescribedScan {
             keypoint_ranks,
             candidates,
             empty_patches,
-            ppf_codewords,
+            rows,
             timings,
-            pose,
         };
         Ok(DescribedScan { features: Arc::new(features), index, origin, key, pooled, prepared: OnceLock::new() })
     }
@@ -209,7 +213,7 @@ impl DescribedScan {
     /// Pickling: the state as bytes, restored bit for bit by ``dpr_gpu._dpr_gpu._described_scan_from_state``.
     fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
         let restore = py.import("dpr_gpu._dpr_gpu")?.getattr("_described_scan_from_state")?;
-        let state = PyBytes::new(py, &self.state());
+        let state = PyBytes::new(py, &self.state()?);
         PyTuple::new(py, [restore, PyTuple::new(py, [state])?.into_any()])
     }
 }
@@ -385,7 +389,8 @@ pub(crate) fn describe_scan(
     let (cloud, _) = cloud_from_arrays(points, normals, &format!("scan {index}"), &options)?;
     let features =
         py.detach(|| registrar.describe(&cloud, index as u64)).map_err(|e| to_py_err(scan_error(index, e)))?;
-    let pooled = pooled_codeword(&features.ppf_codewords, registrar.backend().model().config.codeword());
+    let codewords = features.read_codewords().map_err(to_py_err)?;
+    let pooled = pooled_codeword(&codewords, registrar.backend().model().config.codeword());
     Ok(DescribedScan {
         features: Arc::new(features),
         index,
@@ -433,10 +438,15 @@ pub(crate) fn register_described(
         max_points: MultiwaySettings::default().max_information_points,
         seed: registrar.settings.seed,
     };
-    let result = py.detach(|| {
-        let (pt, ps) = (target.prepared(distance), source.prepared(distance));
-        register_pair(registrar, (i, j), &target.features, &source.features, &pt, &ps, &information)
-    });
+    let result = py
+        .detach(|| {
+            let (pt, ps) = (target.prepared(distance), source.prepared(distance));
+            // Unpickled scans hold host rows: the registrar's backend takes them over (kept as they are when it
+            // described them itself).
+            let (tf, sf) = (registrar.adopt(&target.features)?, registrar.adopt(&source.features)?);
+            Ok::<_, Error>(register_pair(registrar, (i, j), &tf, &sf, &pt, &ps, &information))
+        })
+        .map_err(to_py_err)?;
     Ok(PairResult { result })
 }
 

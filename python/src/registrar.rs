@@ -469,7 +469,9 @@ fn correspondences_between(
     target: &ScanFeatures,
     pairs: &[[i64; 2]],
 ) -> PyResult<Vec<Correspondence>> {
-    let dim = source.ppf_codewords.len() / source.keypoints.len().max(1);
+    let (source_codewords, target_codewords) =
+        (source.read_codewords().map_err(to_py_err)?, target.read_codewords().map_err(to_py_err)?);
+    let dim = source_codewords.len() / source.keypoints.len().max(1);
     let check = |i: i64, n: usize, what: &str, row: usize| {
         usize::try_from(i)
             .ok()
@@ -482,7 +484,7 @@ fn correspondences_between(
         .map(|(row, &[s, t])| {
             let s = check(s, source.keypoints.len(), "source", row)?;
             let t = check(t, target.keypoints.len(), "target", row)?;
-            let (a, b) = (&source.ppf_codewords[s * dim..(s + 1) * dim], &target.ppf_codewords[t * dim..(t + 1) * dim]);
+            let (a, b) = (&source_codewords[s * dim..(s + 1) * dim], &target_codewords[t * dim..(t + 1) * dim]);
             let distance = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f32>().sqrt();
             Ok(Correspondence {
                 source_index: s as u32,

@@ -17,6 +17,7 @@ pub mod max_pool;
 pub mod mutual_knn;
 pub mod patch_features;
 pub mod pca_normals;
+pub mod pose_feature;
 pub mod prefix_scan;
 pub mod rotation_head;
 pub mod score_hypotheses;

@@ -9,4 +9,4 @@ pub mod verify;
 pub use icp::icp_point_to_plane;
 pub use ransac::ransac;
 pub use refine::{evaluate, inlier_set, refine};
-pub use verify::{best_hypothesis, verify};
+pub use verify::{best_hypothesis, refine_best, verify};

@@ -29,22 +29,25 @@ pub mod mutual_knn;
 pub mod nets;
 pub mod patch_features;
 pub mod pca_normals;
+pub mod pose_feature;
 pub mod prefix_scan;
 pub mod preprocess;
 pub mod recorder;
 pub mod registry;
 pub mod rotation_head;
+pub mod rows;
 pub mod score_hypotheses;
 pub mod segments;
 pub mod testing;
 pub mod voxel_average;
 
-use crate::backend::{Backend, RotationInputs};
+use crate::backend::{Backend, MatchedRows, PatchBatch, RotationInputs, RowMatch, ScanRows, Verified};
 use crate::cpu::hypotheses::Hypothesis;
 use crate::cpu::mutual_knn::Match;
 use crate::cpu::score_hypotheses::HypothesisScore;
 use crate::error::{Error, Result};
 use crate::model::{Model, Net};
+use crate::pipeline::PoseRows;
 use crate::preprocess::GatheredPatches;
 use crate::settings::MatchMode;
 use buffer::Workspace;
@@ -165,6 +168,8 @@ pub struct GpuBackend {
     model: Model,
     weights: GpuModel,
     workspace: Mutex<Workspace>,
+    /// Identity of this backend: the scan rows it makes are only read by it.
+    owner: u64,
 }
 
 impl GpuBackend {
@@ -181,7 +186,7 @@ impl GpuBackend {
     /// Uploads `model`'s weights to an existing (possibly shared) device.
     pub fn with_gpu(gpu: Arc<Gpu>, model: Model) -> Result<GpuBackend> {
         let weights = gpu.context.scoped("uploading weights", || GpuModel::upload(&gpu.context, &model))??;
-        Ok(GpuBackend { gpu, model, weights, workspace: Mutex::new(Workspace::default()) })
+        Ok(GpuBackend { gpu, model, weights, workspace: Mutex::new(Workspace::default()), owner: rows::new_owner() })
     }
 
     /// One line describing the adapter.
@@ -238,6 +243,71 @@ impl GpuBackend {
         Ok(mask.into_iter().map(|m| m == 1).collect())
     }
 
+    /// Records the patch features of `patches` patches (`[centers, center normals, points, normals]` on the
+    /// device) into `[ppf, pc]`.
+    fn record_patch_features<'a>(
+        &self,
+        rec: &mut Recorder<'a>,
+        radius: f32,
+        patches: usize,
+        [centers, center_normals, points, normals]: [&wgpu::Buffer; 4],
+        [ppf, pc]: [&wgpu::Buffer; 2],
+    ) -> Result<()> {
+        let n = self.model.config.points_per_patch;
+        let params = patch_features::PatchFeaturesParams {
+            rows: to_u32(patches * n, "patch points")?,
+            points_per_patch: to_u32(n, "points per patch")?,
+            radius,
+            normal_frame: u32::from(self.model.config.pose_frame == crate::model::config::PoseFrame::Normal),
+        };
+        let b = patch_features::PatchFeaturesBuffers { centers, center_normals, points, normals, ppf, pc };
+        patch_features::record(rec, &params, &b)
+    }
+
+    /// Mutual kNN between the first `ns` rows of `source` and the first `nt` of `target` (codewords of `dim`
+    /// on the device); only the per-row lists come back.
+    fn match_buffers(
+        &self,
+        s: &wgpu::Buffer,
+        t: &wgpu::Buffer,
+        (ns, nt, dim): (usize, usize, usize),
+        mode: MatchMode,
+    ) -> Result<Vec<Match>> {
+        let (k, mutual) = mutual_knn::mode_k(mode)?;
+        if ns == 0 || nt == 0 {
+            return Ok(Vec::new());
+        }
+        let gpu = &self.gpu;
+        let ctx = &gpu.context;
+        self.run("match_codewords", |ws| {
+            let chunk = items_per_chunk(ctx, (nt * 4) as u64, "row of the distance matrix")?;
+            let lists = mutual_knn::KnnBuffers::new(|name, bytes| ws.buffer(ctx, name, bytes), ns, nt)?;
+            let dist = ws.buffer(ctx, "match_distances", (chunk.min(ns) * nt * 4) as u64)?;
+            let mut rec = Recorder::new(gpu, "match_codewords");
+            for r0 in (0..ns).step_by(chunk) {
+                let rows = chunk.min(ns - r0);
+                let params = codeword_distance::CodewordDistanceParams::new(rows, nt, dim, r0)?;
+                codeword_distance::record(&mut rec, &params, s, t, &dist)?;
+                mutual_knn::record_chunk(&mut rec, &lists, &dist, (rows, nt, r0, ns), k, mutual)?;
+            }
+            if mutual {
+                mutual_knn::record_flags(&mut rec, &lists, &dist, ns, nt, k)?;
+            }
+            let bytes = (ns * mutual_knn::K_MAX * 4) as u64;
+            rec.read(&lists.row_dist, 0, bytes);
+            rec.read(&lists.row_index, 0, bytes);
+            rec.read(&lists.flags, 0, bytes);
+            let out = rec.finish()?;
+            let flags: Vec<u32> = bytemuck::pod_collect_to_vec(&out[2]);
+            Ok(mutual_knn::compact(
+                &bytemuck::pod_collect_to_vec::<u8, f32>(&out[0]),
+                &bytemuck::pod_collect_to_vec::<u8, u32>(&out[1]),
+                mutual.then_some(flags.as_slice()),
+                k,
+            ))
+        })
+    }
+
     fn foldnet(&self, net: Net) -> &nets::GpuFoldNet {
         match net {
             Net::Ppf => &self.weights.ppf,
@@ -255,12 +325,46 @@ impl Backend for GpuBackend {
         &self.model
     }
 
+    fn new_scan_rows(&self, capacity: usize) -> Result<Arc<dyn ScanRows>> {
+        self.new_device_rows(capacity)
+    }
+
+    fn restore_scan_rows(&self, codewords: Vec<f32>, pose: PoseRows, keypoints: usize) -> Result<Arc<dyn ScanRows>> {
+        self.restore_device_rows(codewords, pose, keypoints)
+    }
+
+    fn adopt_rows(&self, rows: &Arc<dyn ScanRows>) -> Result<Arc<dyn ScanRows>> {
+        if rows.as_any().downcast_ref::<rows::GpuScanRows>().is_some_and(|r| r.owned_by(self.owner)) {
+            return Ok(Arc::clone(rows));
+        }
+        self.restore_device_rows(rows.read_codewords()?, rows.read_pose_rows()?, rows.rows())
+    }
+
+    fn describe(&self, batch: PatchBatch<'_>, rows: &dyn ScanRows) -> Result<()> {
+        self.describe_on_device(batch, rows)
+    }
+
+    fn correspond(&self, request: RowMatch<'_>) -> Result<Vec<Match>> {
+        self.correspond_on_device(request)
+    }
+
+    fn pose_features(&self, rows: &dyn ScanRows, which: &[u32]) -> Result<Vec<f32>> {
+        self.prepare_on_device(rows, which)?;
+        self.read_pose_features(rows, which)
+    }
+
+    fn prepare_pose_features(&self, rows: &dyn ScanRows, which: &[u32]) -> Result<()> {
+        self.prepare_on_device(rows, which)
+    }
+
+    fn verify(&self, request: MatchedRows<'_>) -> Result<Verified> {
+        self.verify_on_device(request)
+    }
+
     fn patch_features(&self, patches: &GatheredPatches, radius: f32) -> Result<(Vec<f32>, Vec<f32>)> {
         let n = self.model.config.points_per_patch;
         let p = patches.centers.len();
-        if patches.center_normals.len() != p || patches.points.len() != p * n || patches.normals.len() != p * n {
-            return Err(Error::invalid(format!("patch_features: expected {p} patches of {n} points with normals")));
-        }
+        PatchBatch::new(patches, n, radius)?;
         let gpu = &self.gpu;
         let ctx = &gpu.context;
         self.run("patch_features", |ws| {
@@ -276,22 +380,14 @@ impl Backend for GpuBackend {
                 let normals = ws.upload(ctx, "pf_normals", &patches.normals[pts])?;
                 let ppf = ws.buffer(ctx, "pf_ppf", (rows * 16) as u64)?;
                 let pc = ws.buffer(ctx, "pf_pc", (rows * 12) as u64)?;
-                let params = patch_features::PatchFeaturesParams {
-                    rows: to_u32(rows, "patch points")?,
-                    points_per_patch: to_u32(n, "points per patch")?,
-                    radius,
-                    normal_frame: u32::from(self.model.config.pose_frame == crate::model::config::PoseFrame::Normal),
-                };
                 let mut rec = Recorder::new(gpu, "patch_features");
-                let b = patch_features::PatchFeaturesBuffers {
-                    centers: &centers,
-                    center_normals: &center_normals,
-                    points: &points,
-                    normals: &normals,
-                    ppf: &ppf,
-                    pc: &pc,
-                };
-                patch_features::record(&mut rec, &params, &b)?;
+                self.record_patch_features(
+                    &mut rec,
+                    radius,
+                    cp,
+                    [&centers, &center_normals, &points, &normals],
+                    [&ppf, &pc],
+                )?;
                 rec.read(&ppf, 0, (rows * 16) as u64);
                 rec.read(&pc, 0, (rows * 12) as u64);
                 pending.push(rec.submit()?);
@@ -313,45 +409,17 @@ impl Backend for GpuBackend {
     }
 
     fn match_codewords(&self, source: &[f32], target: &[f32], dim: usize, mode: MatchMode) -> Result<Vec<Match>> {
-        let (k, mutual) = mutual_knn::mode_k(mode)?;
-        if dim == 0 || !source.len().is_multiple_of(dim) || !target.len().is_multiple_of(dim) {
-            return Err(Error::invalid(format!("match_codewords: codeword arrays are not rows of {dim}")));
-        }
+        crate::backend::check::codeword_rows(source, target, dim)?;
         let (ns, nt) = (source.len() / dim, target.len() / dim);
         if ns == 0 || nt == 0 {
             return Ok(Vec::new());
         }
-        let gpu = &self.gpu;
-        let ctx = &gpu.context;
-        self.run("match_codewords", |ws| {
-            let chunk = items_per_chunk(ctx, (nt * 4) as u64, "row of the distance matrix")?;
-            let s = ws.upload(ctx, "match_source", source)?;
-            let t = ws.upload(ctx, "match_target", target)?;
-            let lists = mutual_knn::KnnBuffers::new(|name, bytes| ws.buffer(ctx, name, bytes), ns, nt)?;
-            let dist = ws.buffer(ctx, "match_distances", (chunk.min(ns) * nt * 4) as u64)?;
-            let mut rec = Recorder::new(gpu, "match_codewords");
-            for r0 in (0..ns).step_by(chunk) {
-                let rows = chunk.min(ns - r0);
-                let params = codeword_distance::CodewordDistanceParams::new(rows, nt, dim, r0)?;
-                codeword_distance::record(&mut rec, &params, &s, &t, &dist)?;
-                mutual_knn::record_chunk(&mut rec, &lists, &dist, (rows, nt, r0, ns), k, mutual)?;
-            }
-            if mutual {
-                mutual_knn::record_flags(&mut rec, &lists, &dist, ns, nt, k)?;
-            }
-            let bytes = (ns * mutual_knn::K_MAX * 4) as u64;
-            rec.read(&lists.row_dist, 0, bytes);
-            rec.read(&lists.row_index, 0, bytes);
-            rec.read(&lists.flags, 0, bytes);
-            let out = rec.finish()?;
-            let flags: Vec<u32> = bytemuck::pod_collect_to_vec(&out[2]);
-            Ok(mutual_knn::compact(
-                &bytemuck::pod_collect_to_vec::<u8, f32>(&out[0]),
-                &bytemuck::pod_collect_to_vec::<u8, u32>(&out[1]),
-                mutual.then_some(flags.as_slice()),
-                k,
-            ))
-        })
+        mutual_knn::mode_k(mode)?;
+        let (s, t) = self.run("match_codewords", |ws| {
+            let ctx = &self.gpu.context;
+            Ok((ws.upload(ctx, "match_source", source)?, ws.upload(ctx, "match_target", target)?))
+        })?;
+        self.match_buffers(&s, &t, (ns, nt, dim), mode)
     }
 
     fn predict_rotations(&self, pose: RotationInputs<'_>) -> Result<Vec<[f32; 9]>> {
@@ -362,9 +430,7 @@ impl Backend for GpuBackend {
 
     fn hypotheses(&self, rotations: &[[f32; 9]], source: &[[f32; 3]], target: &[[f32; 3]]) -> Result<Vec<Hypothesis>> {
         let rows = rotations.len();
-        if source.len() != rows || target.len() != rows {
-            return Err(Error::invalid("hypotheses: rotations and points differ in length"));
-        }
+        crate::backend::check::hypothesis_inputs(rows, source.len(), target.len())?;
         let gpu = &self.gpu;
         let ctx = &gpu.context;
         self.run("hypotheses", |ws| {
@@ -398,9 +464,7 @@ impl Backend for GpuBackend {
         target: &[[f32; 3]],
         threshold: f32,
     ) -> Result<Vec<HypothesisScore>> {
-        if source.len() != target.len() {
-            return Err(Error::invalid("score_hypotheses: source and target points differ in length"));
-        }
+        crate::backend::check::correspondences(source.len(), target.len())?;
         let gpu = &self.gpu;
         let ctx = &gpu.context;
         self.run("score_hypotheses", |ws| {

@@ -196,6 +196,65 @@ fn collect(gpu: &Gpu, pending: Vec<Pending>, index: usize) -> Result<Vec<u8>> {
     Ok(out)
 }
 
+/// Patches per submission of the encoder: the most whose widest activation fits the buffer cap.
+pub fn encoder_chunk(ctx: &GpuContext, f: &GpuFoldNet, points: usize) -> Result<usize> {
+    let width = f.io_width;
+    let widest = f.encoder.iter().chain(&f.head).map(|l| l.out_dim).chain([width]).max().unwrap_or(width);
+    items_per_chunk(ctx, (points * widest * 4) as u64, "patch of the encoder")
+}
+
+/// Records the encoder on `patches` patches of `points` rows already on the device (`x_in`, `io_width` values
+/// per row); returns the buffer holding their codewords (`patches x codeword`, workspace `enc_codewords`).
+pub fn record_encode<'a>(
+    rec: &mut Recorder<'a>,
+    gpu: &'a Gpu,
+    ws: &mut Workspace,
+    f: &GpuFoldNet,
+    x_in: &wgpu::Buffer,
+    (cp, points): (usize, usize),
+) -> Result<wgpu::Buffer> {
+    let ctx = &gpu.context;
+    let rows = cp * points;
+    let cw = f.codeword_len();
+    let last = f.encoder.last().expect("checked on upload");
+    let head0 = &f.head[0];
+    let concat_offset: usize = f.encoder.iter().map(|l| l.out_dim).sum();
+    let mut acts: Vec<(wgpu::Buffer, usize)> = Vec::with_capacity(f.encoder.len());
+    for (i, layer) in f.encoder.iter().enumerate() {
+        let out = ws.buffer(ctx, ENCODER_NAMES[i], (rows * layer.out_dim * 4) as u64)?;
+        let x = acts.last().map_or(x_in, |(b, _)| b);
+        apply(rec, gpu, layer, x, rows, true, &out)?;
+        acts.push((out, layer.out_dim));
+    }
+    let global = ws.buffer(ctx, "enc_global", (cp * last.out_dim * 4) as u64)?;
+    max_pool::record(rec, &MaxPoolParams::new(cp, points, last.out_dim)?, &acts[acts.len() - 1].0, &global)?;
+    // The global slice sits after the encoder slices in head.0's input; it is the per-patch term.
+    let group = ws.buffer(ctx, "enc_group", (cp * head0.out_dim * 4) as u64)?;
+    dense_call(
+        rec,
+        gpu,
+        head0,
+        (&global, last.out_dim, concat_offset),
+        (cp, cp),
+        Some(&head0.bias),
+        (false, false),
+        &group,
+    )?;
+    let bufs = ping_pong(ws, ctx, ["head_a", "head_b"], &f.head, rows)?;
+    let mut offset = 0;
+    for (s, (a, w)) in acts.iter().enumerate() {
+        let first = s == 0;
+        let last_seg = s + 1 == acts.len();
+        let g = first.then_some(&group);
+        dense_call(rec, gpu, head0, (a, *w, offset), (rows, points), g, (!first, last_seg), &bufs[0])?;
+        offset += w;
+    }
+    let h = tail(rec, gpu, &f.head, &bufs, rows, true)?;
+    let codewords = ws.buffer(ctx, "enc_codewords", (cp * cw * 4) as u64)?;
+    max_pool::record(rec, &MaxPoolParams::new(cp, points, cw)?, &h, &codewords)?;
+    Ok(codewords)
+}
+
 /// Codewords (`patches x codeword`) of `input` (`patches x points x io_width`), as `FoldNet::encode`.
 pub fn encode(
     gpu: &Gpu,
@@ -216,51 +275,14 @@ pub fn encode(
         return Ok(vec![0.0; 0]);
     }
     let ctx = &gpu.context;
-    let widest = f.encoder.iter().chain(&f.head).map(|l| l.out_dim).chain([width]).max().unwrap_or(width);
-    let chunk = items_per_chunk(ctx, (points * widest * 4) as u64, "patch of the encoder")?;
+    let chunk = encoder_chunk(ctx, f, points)?;
     let cw = f.codeword_len();
-    let last = f.encoder.last().expect("checked on upload");
-    let head0 = &f.head[0];
-    let concat_offset: usize = f.encoder.iter().map(|l| l.out_dim).sum();
     let mut pending = Vec::new();
     for c0 in (0..patches).step_by(chunk) {
         let cp = chunk.min(patches - c0);
-        let rows = cp * points;
         let x_in = ws.upload(ctx, "enc_input", &input[c0 * points * width..(c0 + cp) * points * width])?;
         let mut rec = Recorder::new(gpu, "encode");
-        let mut acts: Vec<(wgpu::Buffer, usize)> = Vec::with_capacity(f.encoder.len());
-        for (i, layer) in f.encoder.iter().enumerate() {
-            let out = ws.buffer(ctx, ENCODER_NAMES[i], (rows * layer.out_dim * 4) as u64)?;
-            let x = acts.last().map_or(&x_in, |(b, _)| b);
-            apply(&mut rec, gpu, layer, x, rows, true, &out)?;
-            acts.push((out, layer.out_dim));
-        }
-        let global = ws.buffer(ctx, "enc_global", (cp * last.out_dim * 4) as u64)?;
-        max_pool::record(&mut rec, &MaxPoolParams::new(cp, points, last.out_dim)?, &acts[acts.len() - 1].0, &global)?;
-        // The global slice sits after the encoder slices in head.0's input; it is the per-patch term.
-        let group = ws.buffer(ctx, "enc_group", (cp * head0.out_dim * 4) as u64)?;
-        dense_call(
-            &mut rec,
-            gpu,
-            head0,
-            (&global, last.out_dim, concat_offset),
-            (cp, cp),
-            Some(&head0.bias),
-            (false, false),
-            &group,
-        )?;
-        let bufs = ping_pong(ws, ctx, ["head_a", "head_b"], &f.head, rows)?;
-        let mut offset = 0;
-        for (s, (a, w)) in acts.iter().enumerate() {
-            let first = s == 0;
-            let last_seg = s + 1 == acts.len();
-            let g = first.then_some(&group);
-            dense_call(&mut rec, gpu, head0, (a, *w, offset), (rows, points), g, (!first, last_seg), &bufs[0])?;
-            offset += w;
-        }
-        let h = tail(&mut rec, gpu, &f.head, &bufs, rows, true)?;
-        let codewords = ws.buffer(ctx, "enc_codewords", (cp * cw * 4) as u64)?;
-        max_pool::record(&mut rec, &MaxPoolParams::new(cp, points, cw)?, &h, &codewords)?;
+        let codewords = record_encode(&mut rec, gpu, ws, f, &x_in, (cp, points))?;
         rec.read(&codewords, 0, (cp * cw * 4) as u64);
         pending.push(rec.submit()?);
     }
@@ -319,6 +341,52 @@ pub fn decode(gpu: &Gpu, ws: &mut Workspace, f: &GpuFoldNet, codewords: &[f32], 
     Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0)?))
 }
 
+/// Checks RelativeNet's output width against the configured rotation head; returns the pose feature width.
+pub fn relative_width(layers: &[GpuLinear], config: &ModelConfig) -> Result<usize> {
+    let out_w = layers.last().map_or(0, |l| l.out_dim);
+    if out_w != config.rotation_output.width() {
+        return Err(Error::invalid(format!(
+            "RelativeNet's last layer has width {out_w}, expected {} for {:?}",
+            config.rotation_output.width(),
+            config.rotation_output
+        )));
+    }
+    Ok(layers[0].in_dim / 2)
+}
+
+/// Bytes per row of RelativeNet's largest buffer (for [`items_per_chunk`]).
+pub fn relative_row_bytes(layers: &[GpuLinear], config: &ModelConfig) -> u64 {
+    let f = layers[0].in_dim / 2;
+    let m = config.rotation_output.candidates();
+    (layers.iter().map(|l| l.out_dim).chain([f, 9 * m]).max().unwrap_or(f) * 4) as u64
+}
+
+/// Records RelativeNet and its rotation head on `n` rows already on the device (`[source, target]` pose
+/// features, `[source, target]` normals); returns the buffer of rotations (`n x candidates x 9`, workspace
+/// `rel_rotations`).
+pub fn record_relative<'a>(
+    rec: &mut Recorder<'a>,
+    gpu: &'a Gpu,
+    ws: &mut Workspace,
+    (layers, config): (&[GpuLinear], &ModelConfig),
+    [s, t, ns, nt]: [&wgpu::Buffer; 4],
+    n: usize,
+) -> Result<wgpu::Buffer> {
+    let ctx = &gpu.context;
+    let l0 = &layers[0];
+    let f = l0.in_dim / 2;
+    let m = config.rotation_output.candidates();
+    let bufs = ping_pong(ws, ctx, ["rel_a", "rel_b"], layers, n)?;
+    let relu0 = layers.len() > 1;
+    dense_call(rec, gpu, l0, (s, f, 0), (n, n), Some(&l0.bias), (false, false), &bufs[0])?;
+    dense_call(rec, gpu, l0, (t, f, f), (n, n), None, (true, relu0), &bufs[0])?;
+    let raw = tail(rec, gpu, layers, &bufs, n, false)?;
+    let rotations = ws.buffer(ctx, "rel_rotations", (n * m * 36) as u64)?;
+    let params = rotation_head::RotationHeadParams::new(n, config.rotation_output, config.pose_frame)?;
+    rotation_head::record(rec, &params, [&raw, ns, nt], &rotations)?;
+    Ok(rotations)
+}
+
 /// RelativeNet's rotations (row-major, fragment frames; `candidates` per row) for the rows of `pose`, as
 /// `RelativeNet::predict`.
 pub fn relative(
@@ -329,29 +397,19 @@ pub fn relative(
     pose: RotationInputs<'_>,
 ) -> Result<Vec<[f32; 9]>> {
     let RotationInputs { source, target, source_normals, target_normals, rows } = pose;
-    let l0 = &layers[0];
-    let f = l0.in_dim / 2;
+    let f = relative_width(layers, config)?;
     if source.len() != rows * f || target.len() != rows * f {
         return Err(Error::invalid(format!("predict_rotations: inputs must be {rows} rows of {f} values")));
     }
     if source_normals.len() != rows || target_normals.len() != rows {
         return Err(Error::invalid(format!("predict_rotations: expected {rows} normals per side")));
     }
-    let out_w = layers.last().map_or(0, |l| l.out_dim);
-    if out_w != config.rotation_output.width() {
-        return Err(Error::invalid(format!(
-            "RelativeNet's last layer has width {out_w}, expected {} for {:?}",
-            config.rotation_output.width(),
-            config.rotation_output
-        )));
-    }
     if rows == 0 {
         return Ok(Vec::new());
     }
     let ctx = &gpu.context;
     let m = config.rotation_output.candidates();
-    let widest = layers.iter().map(|l| l.out_dim).chain([f, 9 * m]).max().unwrap_or(f);
-    let chunk = items_per_chunk(ctx, (widest * 4) as u64, "RelativeNet row")?;
+    let chunk = items_per_chunk(ctx, relative_row_bytes(layers, config), "RelativeNet row")?;
     let mut pending = Vec::new();
     for r0 in (0..rows).step_by(chunk) {
         let n = chunk.min(rows - r0);
@@ -360,14 +418,7 @@ pub fn relative(
         let ns = ws.upload(ctx, "rel_source_normals", &source_normals[r0..r0 + n])?;
         let nt = ws.upload(ctx, "rel_target_normals", &target_normals[r0..r0 + n])?;
         let mut rec = Recorder::new(gpu, "predict_rotations");
-        let bufs = ping_pong(ws, ctx, ["rel_a", "rel_b"], layers, n)?;
-        let relu0 = layers.len() > 1;
-        dense_call(&mut rec, gpu, l0, (&s, f, 0), (n, n), Some(&l0.bias), (false, false), &bufs[0])?;
-        dense_call(&mut rec, gpu, l0, (&t, f, f), (n, n), None, (true, relu0), &bufs[0])?;
-        let raw = tail(&mut rec, gpu, layers, &bufs, n, false)?;
-        let rotations = ws.buffer(ctx, "rel_rotations", (n * m * 36) as u64)?;
-        let params = rotation_head::RotationHeadParams::new(n, config.rotation_output, config.pose_frame)?;
-        rotation_head::record(&mut rec, &params, [&raw, &ns, &nt], &rotations)?;
+        let rotations = record_relative(&mut rec, gpu, ws, (layers, config), [&s, &t, &ns, &nt], n)?;
         rec.read(&rotations, 0, (n * m * 36) as u64);
         pending.push(rec.submit()?);
     }

@@ -21,6 +21,7 @@ use super::max_pool::MaxPool;
 use super::mutual_knn::MutualKnn;
 use super::patch_features::PatchFeatures;
 use super::pca_normals::PcaNormals;
+use super::pose_feature::PoseFeature;
 use super::prefix_scan::PrefixScan;
 use super::rotation_head::RotationHead;
 use super::score_hypotheses::ScoreHypotheses;
@@ -45,6 +46,7 @@ pub const KERNELS: &[KernelSpec] = &[
     MaxPool::SPEC,
     CodewordDistance::SPEC,
     MutualKnn::SPEC,
+    PoseFeature::SPEC,
     RotationHead::SPEC,
     Hypotheses::SPEC,
     ScoreHypotheses::SPEC,

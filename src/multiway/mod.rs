@@ -221,7 +221,7 @@ pub fn multiway_detailed(
                     _ => {
                         describe(k, &mut described)?;
                         let f = &described[k].as_ref().expect("described").0;
-                        let p = pairs::pooled_codeword(&f.ppf_codewords, dim);
+                        let p = pairs::pooled_codeword(&f.read_codewords()?, dim);
                         store.save_pooled(k, &p)?;
                         p
                     }

@@ -2,11 +2,11 @@
 //! estimate the pose. `register` runs it all; `Registrar` exposes the steps for evaluation tools and keeps the
 //! model and backend loaded across pairs.
 
-use crate::backend::{Backend, CpuBackend, RotationInputs};
+use crate::backend::{Backend, CpuBackend, MatchedRows, MatchedSide, PatchBatch, RowMatch};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::estimate::{icp_point_to_plane, ransac, verify};
-use crate::model::{Model, Net, Weights};
+use crate::estimate::{icp_point_to_plane, ransac, refine_best};
+use crate::model::{Model, Weights};
 use crate::preprocess::{estimate_normals_at, extract_patches, gather, select_keypoints, voxel_downsample};
 use crate::rng::Rng;
 use crate::settings::*;
@@ -18,7 +18,7 @@ mod scan;
 mod stages;
 
 use scan::{DescribingScan, MissingNormals};
-pub use scan::{PoseFeatures, PoseRows, ScanFeatures};
+pub use scan::{PoseRows, ScanFeatures};
 pub use stages::{Round, keypoint_stages};
 
 /// Fewest points a scan may have after preprocessing.
@@ -113,12 +113,12 @@ impl<'a> Stopwatch<'a> {
     }
 }
 
-/// Stages a pairwise registration's first round reports to the progress callback: seven per scan (downsample,
-/// index, keypoints, patches, normals, patch features, PPF-FoldNet), then matching, PC-FoldNet on the matched
-/// keypoints, and estimation.
-pub const PAIR_STAGES: usize = 17;
-/// Stages each further round of the progressive schedule reports: four per scan, then three for the pair.
-pub const ROUND_STAGES: usize = 11;
+/// Stages a pairwise registration's first round reports to the progress callback: six per scan (downsample,
+/// index, keypoints, patches, normals, PPF-FoldNet with its patch features), then matching, PC-FoldNet on the
+/// matched keypoints, and estimation.
+pub const PAIR_STAGES: usize = 15;
+/// Stages each further round of the progressive schedule reports: three per scan, then three for the pair.
+pub const ROUND_STAGES: usize = 9;
 
 /// A configured pipeline: model and backend loaded once, reused across pairs.
 pub struct Registrar {
@@ -266,9 +266,8 @@ impl Registrar {
             keypoint_ranks: Vec::new(),
             candidates: 0,
             empty_patches: 0,
-            ppf_codewords: Vec::new(),
+            rows: self.backend.new_scan_rows(order.len())?,
             timings: Vec::new(),
-            pose: Default::default(),
         };
         let patch_seed = Rng::derived(s.seed, 2 * stream + 1).next_u64();
         Ok(DescribingScan { features, index, order, patch_seed, missing_normals })
@@ -301,13 +300,7 @@ impl Registrar {
         let normals = f.cloud.normals.as_ref().expect("normals set when the description started");
         let gathered = gather(&f.cloud.points, normals, &patches);
         clock.lap("normals");
-        let count = patches.keypoints.len();
-        let (ppf_input, pc_input) =
-            if count == 0 { (Vec::new(), Vec::new()) } else { self.backend.patch_features(&gathered, radius)? };
-        clock.lap("patch_features");
-        if count > 0 {
-            f.ppf_codewords.extend(self.backend.encode(Net::Ppf, &ppf_input, count)?);
-        }
+        self.backend.describe(PatchBatch::new(&gathered, config.points_per_patch, radius)?, f.rows.as_ref())?;
         clock.lap("ppf_encoder");
         // Ranks of the kept keypoints: patches keep the order of `scan.order[from..to]`.
         let mut kept = patches.keypoints.iter().peekable();
@@ -321,12 +314,6 @@ impl Registrar {
         f.keypoint_normals.extend(gathered.center_normals);
         f.empty_patches += patches.empty.len();
         f.candidates = to;
-        let dim = config.codeword();
-        let mut pose = f.pose.lock();
-        pose.input.extend(pc_input);
-        pose.features.resize(f.keypoints.len() * dim, f32::NAN);
-        pose.ready.resize(f.keypoints.len(), false);
-        drop(pose);
         if to == scan.order.len() && f.keypoints.is_empty() {
             return Err(Error::invalid(format!(
                 "no keypoint has a neighbour within radius {radius}: is the radius right for the cloud's units?"
@@ -366,33 +353,24 @@ impl Registrar {
     }
 
     /// The pose features (PC-FoldNet codeword minus PPF-FoldNet codeword) of `rows` of `scan`, in that order,
-    /// `rows.len() x codeword`. Rows not computed before run through PC-FoldNet now, once.
+    /// `rows.len() x codeword` (read back from the backend). Rows not computed before run through PC-FoldNet
+    /// now, once.
     pub fn pose_features(&self, scan: &ScanFeatures, rows: &[u32]) -> Result<Vec<f32>> {
-        let dim = self.backend.model().config.codeword();
-        let mut pose = scan.pose.lock();
-        if let Some(&bad) = rows.iter().find(|&&r| r as usize >= pose.ready.len()) {
+        self.backend.pose_features(scan.rows.as_ref(), rows)
+    }
+
+    /// `scan` with its rows held by this registrar's backend: the same rows when the backend described them,
+    /// else a copy moved to it (e.g. a scan unpickled with host rows, registered on a GPU).
+    pub fn adopt(&self, scan: &ScanFeatures) -> Result<ScanFeatures> {
+        let rows = self.backend.adopt_rows(&scan.rows)?;
+        if rows.rows() != scan.keypoints.len() {
             return Err(Error::invalid(format!(
-                "pose features: row {bad} asked of a scan with {} keypoints",
-                pose.ready.len()
+                "described scan: {} rows for {} keypoints",
+                rows.rows(),
+                scan.keypoints.len()
             )));
         }
-        let mut missing: Vec<u32> = rows.iter().copied().filter(|&r| !pose.ready[r as usize]).collect();
-        missing.sort_unstable();
-        missing.dedup();
-        if !missing.is_empty() {
-            let width = pose.input.len() / pose.ready.len().max(1);
-            let input: Vec<f32> =
-                missing.iter().flat_map(|&r| pose.input[r as usize * width..][..width].iter().copied()).collect();
-            let pc = self.backend.encode(Net::Pc, &input, missing.len())?;
-            for (slot, &r) in missing.iter().enumerate() {
-                let r = r as usize;
-                let ppf = &scan.ppf_codewords[r * dim..][..dim];
-                let feature = crate::model::pose_feature(&pc[slot * dim..][..dim], ppf);
-                pose.features[r * dim..][..dim].copy_from_slice(&feature);
-                pose.ready[r] = true;
-            }
-        }
-        Ok(rows.iter().flat_map(|&r| pose.features[r as usize * dim..][..dim].iter().copied()).collect())
+        Ok(ScanFeatures { rows, ..scan.clone() })
     }
 
     /// Correspondences between two described scans (matching rule from the settings).
@@ -409,9 +387,12 @@ impl Registrar {
         target: &ScanFeatures,
         target_rows: usize,
     ) -> Result<Vec<Correspondence>> {
-        let dim = self.backend.model().config.codeword();
-        let (s, t) = (&source.ppf_codewords[..source_rows * dim], &target.ppf_codewords[..target_rows * dim]);
-        let matches = self.backend.match_codewords(s, t, dim, self.settings.matching)?;
+        let request = RowMatch::new(
+            (source.rows.as_ref(), source_rows),
+            (target.rows.as_ref(), target_rows),
+            self.settings.matching,
+        )?;
+        let matches = self.backend.correspond(request)?;
         Ok(matches
             .into_iter()
             .map(|m| Correspondence {
@@ -445,19 +426,26 @@ impl Registrar {
             Estimator::RelativeNet => {
                 let source_rows: Vec<u32> = correspondences.iter().map(|c| c.source_index).collect();
                 let target_rows: Vec<u32> = correspondences.iter().map(|c| c.target_index).collect();
-                let fs = self.pose_features(source, &source_rows)?;
-                let ft = self.pose_features(target, &target_rows)?;
-                let ns: Vec<[f32; 3]> = source_rows.iter().map(|&r| source.keypoint_normals[r as usize]).collect();
-                let nt: Vec<[f32; 3]> = target_rows.iter().map(|&r| target.keypoint_normals[r as usize]).collect();
-                let pose = RotationInputs {
-                    source: &fs,
-                    target: &ft,
-                    source_normals: &ns,
-                    target_normals: &nt,
-                    rows: correspondences.len(),
+                let normals = |scan: &ScanFeatures, rows: &[u32]| -> Result<Vec<[f32; 3]>> {
+                    rows.iter()
+                        .map(|&r| {
+                            scan.keypoint_normals.get(r as usize).copied().ok_or_else(|| {
+                                Error::invalid(format!(
+                                    "estimate: row {r} of a scan with {} keypoints",
+                                    scan.keypoints.len()
+                                ))
+                            })
+                        })
+                        .collect()
                 };
-                let rotations = self.backend.predict_rotations(pose)?;
-                verify(self.backend.as_ref(), &rotations, &src, &tgt, threshold)?
+                let (ns, nt) = (normals(source, &source_rows)?, normals(target, &target_rows)?);
+                let request = MatchedRows::new(
+                    MatchedSide { scan: source.rows.as_ref(), rows: &source_rows, points: &src, normals: &ns },
+                    MatchedSide { scan: target.rows.as_ref(), rows: &target_rows, points: &tgt, normals: &nt },
+                    threshold,
+                    1,
+                )?;
+                refine_best(&self.backend.verify(request)?, &src, &tgt, threshold)?
             }
             Estimator::Ransac => ransac(&src, &tgt, threshold, &self.settings.ransac, self.settings.seed)?,
         };
@@ -513,9 +501,12 @@ impl Registrar {
         let correspondences = self.correspond_rows(source, sr, target, tr)?;
         clock.lap("matching");
         if estimator == Estimator::RelativeNet {
-            // Computed here (and cached in the scans) to time PC-FoldNet on its own.
-            self.pose_features(source, &correspondences.iter().map(|c| c.source_index).collect::<Vec<_>>())?;
-            self.pose_features(target, &correspondences.iter().map(|c| c.target_index).collect::<Vec<_>>())?;
+            // Computed here (and kept in the scans) to time PC-FoldNet on its own.
+            let (s, t) = (source.rows.as_ref(), target.rows.as_ref());
+            self.backend
+                .prepare_pose_features(s, &correspondences.iter().map(|c| c.source_index).collect::<Vec<_>>())?;
+            self.backend
+                .prepare_pose_features(t, &correspondences.iter().map(|c| c.target_index).collect::<Vec<_>>())?;
         }
         clock.lap("pc_encoder");
         let estimate = self.estimate(source, target, &correspondences, estimator)?;

@@ -6,10 +6,11 @@
 //! K at once: the keypoint order is a prefix-stable seeded sample, each patch draws from its own stream (derived
 //! from its keypoint), and every network row depends only on its own patch.
 
+use crate::backend::ScanRows;
 use crate::cloud::PointCloud;
 use crate::settings::StageTime;
 use crate::spatial::PointIndex;
-use std::sync::Mutex;
+use std::sync::Arc;
 
 /// Per-scan output of the description stages.
 #[derive(Clone, Debug)]
@@ -29,12 +30,12 @@ pub struct ScanFeatures {
     pub candidates: usize,
     /// Keypoints dropped because their patch was empty.
     pub empty_patches: usize,
-    /// Rotation-invariant PPF-FoldNet codewords, `keypoints.len() x codeword`, row-major.
-    pub ppf_codewords: Vec<f32>,
+    /// The described rows (one per kept keypoint), held by the backend that described them: PPF-FoldNet
+    /// codewords, PC-FoldNet's inputs and the pose features computed so far. Shared by clones; pairs that
+    /// read one scan reuse them.
+    pub rows: Arc<dyn ScanRows>,
     /// Stage times spent describing this scan.
     pub timings: Vec<StageTime>,
-    /// PC-FoldNet's inputs and the pose features computed from them so far.
-    pub pose: PoseFeatures,
 }
 
 impl ScanFeatures {
@@ -42,17 +43,21 @@ impl ScanFeatures {
     pub fn rows_within(&self, candidates: usize) -> usize {
         self.keypoint_ranks.partition_point(|&r| (r as usize) < candidates)
     }
+
+    /// The rotation-invariant PPF-FoldNet codewords, `keypoints.len() x codeword`, row-major (read back from
+    /// the backend that holds them).
+    pub fn read_codewords(&self) -> crate::Result<Vec<f32>> {
+        self.rows.read_codewords()
+    }
+
+    /// PC-FoldNet's inputs and the pose features computed so far (read back).
+    pub fn read_pose_rows(&self) -> crate::Result<PoseRows> {
+        self.rows.read_pose_rows()
+    }
 }
 
 /// PC-FoldNet's input rows (`points_per_patch x 3` per kept keypoint) and, once computed, each row's pose
-/// feature (`codeword` wide). Behind a lock so that estimates reading one scan from several pairs compute each
-/// row once.
-#[derive(Debug, Default)]
-pub struct PoseFeatures {
-    rows: Mutex<PoseRows>,
-}
-
-/// The content of [`PoseFeatures`] (e.g. to serialise a described scan).
+/// feature (`codeword` wide): the pose part of a scan's rows on the host (e.g. to serialise a described scan).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PoseRows {
     /// PC-FoldNet input, `rows x input_width`.
@@ -61,41 +66,6 @@ pub struct PoseRows {
     pub features: Vec<f32>,
     /// Whether each row's pose feature has been computed.
     pub ready: Vec<bool>,
-}
-
-impl Clone for PoseFeatures {
-    fn clone(&self) -> Self {
-        PoseFeatures { rows: Mutex::new(self.lock().clone()) }
-    }
-}
-
-impl PoseFeatures {
-    /// Pose features from their content; errors when the lengths do not fit `keypoints` rows of `codeword`.
-    pub fn from_rows(rows: PoseRows, keypoints: usize, codeword: usize) -> crate::Result<PoseFeatures> {
-        let fits = rows.ready.len() == keypoints
-            && rows.features.len() == keypoints * codeword
-            && rows.input.len().is_multiple_of(keypoints.max(1));
-        if !fits {
-            return Err(crate::Error::invalid(format!(
-                "pose features: {} input values, {} features and {} flags do not fit {keypoints} keypoints of \
-                 {codeword} values",
-                rows.input.len(),
-                rows.features.len(),
-                rows.ready.len()
-            )));
-        }
-        Ok(PoseFeatures { rows: Mutex::new(rows) })
-    }
-
-    /// A copy of the content.
-    pub fn rows(&self) -> PoseRows {
-        self.lock().clone()
-    }
-
-    /// The rows, also after a panic elsewhere poisoned the lock (every update leaves them consistent).
-    pub(crate) fn lock(&self) -> std::sync::MutexGuard<'_, PoseRows> {
-        self.rows.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
-    }
 }
 
 /// A scan between description rounds: what extending its description needs besides the features so far.
