@@ -105,6 +105,19 @@ pub fn pca_normal(points: &[[f32; 3]], p: &[f32; 3], nbrs: &[u32], viewpoint: [f
     if n[0] * to_view[0] + n[1] * to_view[1] + n[2] * to_view[2] < 0.0 { n.map(|c| -c) } else { n }
 }
 
+/// Checks the inputs of [`pca_normals`] (and of its kernel): `queries x k` neighbour slots, every index a point
+/// or [`NO_NEIGHBOR`].
+pub fn check_inputs(points: &[[f32; 3]], queries: &[u32], knn_index: &[u32], k: usize) -> Result<()> {
+    if k == 0 || knn_index.len() != queries.len() * k {
+        return Err(Error::invalid("pca_normals: the neighbour lists are not queries x k"));
+    }
+    let bad = |j: u32| j != NO_NEIGHBOR && j as usize >= points.len();
+    if queries.iter().any(|&q| q as usize >= points.len()) || knn_index.iter().any(|&j| bad(j)) {
+        return Err(Error::invalid("pca_normals: an index is not a point"));
+    }
+    Ok(())
+}
+
 /// The normal of each query point `points[queries[i]]` from its `k` neighbour slots in `knn_index`
 /// (`queries x k`, unused slots [`NO_NEIGHBOR`]), towards `viewpoint`.
 pub fn pca_normals(
@@ -114,13 +127,7 @@ pub fn pca_normals(
     k: usize,
     viewpoint: [f32; 3],
 ) -> Result<Vec<[f32; 3]>> {
-    if k == 0 || knn_index.len() != queries.len() * k {
-        return Err(Error::invalid("pca_normals: the neighbour lists are not queries x k"));
-    }
-    let bad = |j: u32| j != NO_NEIGHBOR && j as usize >= points.len();
-    if queries.iter().any(|&q| q as usize >= points.len()) || knn_index.iter().any(|&j| bad(j)) {
-        return Err(Error::invalid("pca_normals: an index is not a point"));
-    }
+    check_inputs(points, queries, knn_index, k)?;
     Ok(queries
         .iter()
         .zip(knn_index.chunks_exact(k))

@@ -5,7 +5,7 @@ use super::buffer::GpuBuffer;
 use super::kernel::{BindKind, GpuKernel, gpu_params};
 use super::recorder::Recorder;
 use super::{Gpu, to_u32, workgroups};
-use crate::error::{Error, Result};
+use crate::error::Result;
 
 gpu_params! {
     /// Mirrors `struct PcaNormalsParams` in shaders/pca_normals.wgsl.
@@ -68,13 +68,7 @@ pub fn run(
     k: usize,
     viewpoint: [f32; 3],
 ) -> Result<Vec<[f32; 3]>> {
-    if k == 0 || knn_index.len() != queries.len() * k {
-        return Err(Error::invalid("pca_normals: the neighbour lists are not queries x k"));
-    }
-    let bad = |j: u32| j != u32::MAX && j as usize >= points.len();
-    if queries.iter().any(|&q| q as usize >= points.len()) || knn_index.iter().any(|&j| bad(j)) {
-        return Err(Error::invalid("pca_normals: an index is not a point"));
-    }
+    crate::cpu::pca_normals::check_inputs(points, queries, knn_index, k)?;
     if queries.is_empty() {
         return Ok(Vec::new());
     }
