@@ -70,18 +70,24 @@ pub fn sorted_cells(
     Ok((bounds, keys, seg))
 }
 
-/// Voxel-grid downsampling (see the module docs): one averaged point (and normal) per occupied `voxel`-sized
-/// cube, sorted by voxel. An error for a voxel size that is not positive and finite, or a cloud too wide for
-/// the grid's keys.
-pub fn voxel_downsample(cloud: &PointCloud, voxel: f32) -> Result<PointCloud> {
+/// Checks the inputs of voxel downsampling (here and on the GPU): a positive finite voxel, as many normals as
+/// points. `Some(empty cloud)` is the whole answer for an empty cloud.
+pub fn check_downsample(cloud: &PointCloud, voxel: f32) -> Result<Option<PointCloud>> {
     if !(voxel.is_finite() && voxel > 0.0) {
         return Err(Error::invalid(format!("voxel size must be positive, got {voxel}")));
     }
     if cloud.normals.as_ref().is_some_and(|n| n.len() != cloud.len()) {
         return Err(Error::invalid("voxel downsampling: the normals and points differ in number"));
     }
-    if cloud.is_empty() {
-        return Ok(PointCloud { points: Vec::new(), normals: cloud.normals.as_ref().map(|_| Vec::new()) });
+    Ok(cloud.is_empty().then(|| PointCloud { points: Vec::new(), normals: cloud.normals.as_ref().map(|_| Vec::new()) }))
+}
+
+/// Voxel-grid downsampling (see the module docs): one averaged point (and normal) per occupied `voxel`-sized
+/// cube, sorted by voxel. An error for a voxel size that is not positive and finite, or a cloud too wide for
+/// the grid's keys.
+pub fn voxel_downsample(cloud: &PointCloud, voxel: f32) -> Result<PointCloud> {
+    if let Some(empty) = check_downsample(cloud, voxel)? {
+        return Ok(empty);
     }
     let (_, sorted, seg) = sorted_cells(&cloud.points, 1.0 / voxel)?;
     let (points, normals) = voxel_average(&cloud.points, cloud.normals.as_deref(), &sorted, &seg);

@@ -82,14 +82,8 @@ impl CellTable {
 /// Voxel-grid downsampling on the GPU: [`crate::cpu::voxel_average::voxel_downsample`]'s definition (the CPU
 /// path's), with the same voxel membership bit for bit and averages within f32 rounding of the twin's.
 pub fn voxel_downsample(gpu: &Gpu, cloud: &PointCloud, voxel: f32) -> Result<PointCloud> {
-    if !(voxel.is_finite() && voxel > 0.0) {
-        return Err(Error::invalid(format!("voxel size must be positive, got {voxel}")));
-    }
-    if cloud.normals.as_ref().is_some_and(|n| n.len() != cloud.len()) {
-        return Err(Error::invalid("voxel downsampling: the normals and points differ in number"));
-    }
-    if cloud.is_empty() {
-        return Ok(PointCloud { points: Vec::new(), normals: cloud.normals.as_ref().map(|_| Vec::new()) });
+    if let Some(empty) = crate::cpu::voxel_average::check_downsample(cloud, voxel)? {
+        return Ok(empty);
     }
     let ctx = &gpu.context;
     let n = cloud.len();
