@@ -325,10 +325,7 @@ pub fn rank(scores: &[HypothesisScore], keep: usize) -> Vec<usize> {
         return best_hypothesis(scores).into_iter().collect();
     }
     let mut order: Vec<usize> = (0..scores.len()).collect();
-    order.sort_by(|&a, &b| {
-        let (sa, sb) = (&scores[a], &scores[b]);
-        sb.inliers.cmp(&sa.inliers).then(sa.residual_sum.total_cmp(&sb.residual_sum)).then(a.cmp(&b))
-    });
+    order.sort_by(|&a, &b| crate::estimate::verify::compare_hypotheses(scores, a, b));
     order.truncate(keep);
     order
 }
@@ -411,12 +408,7 @@ pub fn host_verify<B: Backend + ?Sized>(backend: &B, request: MatchedRows<'_>) -
     if rotations.len() != m * request.len() {
         return Err(Error::invalid(format!("verify: {} rotations for {} rows", rotations.len(), request.len())));
     }
-    let repeat = |p: &[[f32; 3]]| p.iter().flat_map(|&q| std::iter::repeat_n(q, m)).collect::<Vec<_>>();
-    let hypotheses = if m == 1 {
-        backend.hypotheses(&rotations, s.points, t.points)?
-    } else {
-        backend.hypotheses(&rotations, &repeat(s.points), &repeat(t.points))?
-    };
+    let hypotheses = crate::estimate::verify::hypotheses_of(backend, &rotations, s.points, t.points, m)?;
     let scores = backend.score_hypotheses(&hypotheses, s.points, t.points, request.threshold())?;
     if scores.len() != hypotheses.len() {
         return Err(Error::invalid("verify: a score per hypothesis expected"));

@@ -9,12 +9,22 @@ use crate::error::Result;
 use crate::pose::matrix_from_hypothesis;
 use crate::settings::PoseEstimate;
 
-/// Index of the best score: most inliers, then smallest residual sum, then lowest index.
+/// The order of hypotheses `a` and `b` by their scores, better first: most inliers, then smallest residual sum,
+/// then lowest index.
+pub fn compare_hypotheses(scores: &[HypothesisScore], a: usize, b: usize) -> std::cmp::Ordering {
+    let (sa, sb) = (&scores[a], &scores[b]);
+    sb.inliers.cmp(&sa.inliers).then(sa.residual_sum.total_cmp(&sb.residual_sum)).then(a.cmp(&b))
+}
+
+/// Index of the best score ([`compare_hypotheses`]).
 pub fn best_hypothesis(scores: &[HypothesisScore]) -> Option<usize> {
-    (0..scores.len()).min_by(|&a, &b| {
-        let (sa, sb) = (&scores[a], &scores[b]);
-        sb.inliers.cmp(&sa.inliers).then(sa.residual_sum.total_cmp(&sb.residual_sum)).then(a.cmp(&b))
-    })
+    (0..scores.len()).min_by(|&a, &b| compare_hypotheses(scores, a, b))
+}
+
+/// Each point repeated `candidates` times: the points of the hypotheses when every correspondence has
+/// `candidates` consecutive rotations.
+pub fn repeat_per_candidate(points: &[[f32; 3]], candidates: usize) -> Vec<[f32; 3]> {
+    points.iter().flat_map(|&q| std::iter::repeat_n(q, candidates)).collect()
 }
 
 /// Hypothesize and verify from per-correspondence rotations (row-major, target_from_source): `rotations` holds
@@ -36,15 +46,29 @@ pub fn verify(
         )));
     }
     let m = rotations.len() / source.len();
-    let repeat = |p: &[[f32; 3]]| p.iter().flat_map(|&q| std::iter::repeat_n(q, m)).collect::<Vec<_>>();
-    let hypotheses = if m == 1 {
-        backend.hypotheses(rotations, source, target)?
-    } else {
-        backend.hypotheses(rotations, &repeat(source), &repeat(target))?
-    };
+    let hypotheses = hypotheses_of(backend, rotations, source, target, m)?;
     let scores = backend.score_hypotheses(&hypotheses, source, target, threshold)?;
     let best = best_hypothesis(&scores).ok_or_else(|| crate::Error::invalid("no hypotheses to verify"))?;
     Ok(refine(matrix_from_hypothesis(&hypotheses[best]), source, target, threshold, hypotheses.len()))
+}
+
+/// One hypothesis per rotation (`candidates` consecutive rotations per correspondence of `source` / `target`).
+pub fn hypotheses_of<B: Backend + ?Sized>(
+    backend: &B,
+    rotations: &[[f32; 9]],
+    source: &[[f32; 3]],
+    target: &[[f32; 3]],
+    candidates: usize,
+) -> Result<Vec<crate::cpu::hypotheses::Hypothesis>> {
+    if candidates == 1 {
+        backend.hypotheses(rotations, source, target)
+    } else {
+        backend.hypotheses(
+            rotations,
+            &repeat_per_candidate(source, candidates),
+            &repeat_per_candidate(target, candidates),
+        )
+    }
 }
 
 /// The pose of [`Backend::verify`]'s best hypothesis, refined on its inliers among the correspondences

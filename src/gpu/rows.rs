@@ -11,6 +11,7 @@ use super::{Gpu, GpuBackend, hypotheses, pose_feature, score_hypotheses, to_u32}
 use crate::backend::{MatchedRows, PatchBatch, RankedHypothesis, RowMatch, ScanRows, Verified, check_restored, rank};
 use crate::cpu::score_hypotheses::HypothesisScore;
 use crate::error::{Error, Result};
+use crate::estimate::verify::repeat_per_candidate;
 use crate::pipeline::PoseRows;
 use std::any::Any;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -362,8 +363,7 @@ impl GpuBackend {
         let m = config.rotation_output.candidates();
         let rows = request.len();
         let hf = hypotheses::HYPOTHESIS_FLOATS;
-        let repeat = |p: &[[f32; 3]]| p.iter().flat_map(|&q| std::iter::repeat_n(q, m)).collect::<Vec<_>>();
-        let (rep_source, rep_target) = (repeat(src.points), repeat(tgt.points));
+        let (rep_source, rep_target) = (repeat_per_candidate(src.points, m), repeat_per_candidate(tgt.points, m));
         let gpu = &self.gpu;
         let ctx = &gpu.context;
         let row_bytes = nets::relative_row_bytes(layers, config).max((m * hf * 4) as u64);
