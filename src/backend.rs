@@ -3,10 +3,11 @@
 //! (normals, keypoints, patch gathering, the final rigid fit) stays on the CPU for every backend.
 
 use crate::cpu::codeword_distance::codeword_distance;
+use crate::cpu::gemm::Precision;
 use crate::cpu::hypotheses::{Hypothesis, hypotheses};
 use crate::cpu::mutual_knn::{Match, mutual_knn};
 use crate::cpu::score_hypotheses::{HypothesisScore, score_hypotheses};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::model::{Model, Net};
 use crate::preprocess::GatheredPatches;
 use crate::settings::MatchMode;
@@ -193,18 +194,38 @@ pub mod check {
 /// The plain-Rust reference backend: the oracle for the GPU and the fallback without one.
 pub struct CpuBackend {
     model: Model,
+    precision: Precision,
 }
 
 impl CpuBackend {
-    /// Wraps a model.
+    /// Wraps a model; the encoders run in f32 (bit-identical to the twins).
     pub fn new(model: Model) -> CpuBackend {
-        CpuBackend { model }
+        CpuBackend { model, precision: Precision::F32 }
+    }
+
+    /// Wraps a model whose encoders' wide layers run at `precision`; errors when this CPU lacks it.
+    pub fn with_precision(model: Model, precision: Precision) -> Result<CpuBackend> {
+        if !precision.is_available() {
+            return Err(Error::invalid(format!(
+                "CPU precision {} needs AVX-512 BF16, which this CPU does not have",
+                precision.name()
+            )));
+        }
+        Ok(CpuBackend { model, precision })
+    }
+
+    /// The encoders' arithmetic.
+    pub fn precision(&self) -> Precision {
+        self.precision
     }
 }
 
 impl Backend for CpuBackend {
     fn name(&self) -> String {
-        format!("cpu ({} threads)", rayon::current_num_threads())
+        match self.precision {
+            Precision::F32 => format!("cpu ({} threads)", rayon::current_num_threads()),
+            p => format!("cpu ({} threads, {})", rayon::current_num_threads(), p.name()),
+        }
     }
 
     fn model(&self) -> &Model {
@@ -221,8 +242,8 @@ impl Backend for CpuBackend {
         let n = self.model.config.points_per_patch;
         check::encode_input(input, patches, n, net.io_width())?;
         Ok(match net {
-            Net::Ppf => self.model.ppf.encode(input, patches, n),
-            Net::Pc => self.model.pc.encode(input, patches, n),
+            Net::Ppf => self.model.ppf.encode_at(self.precision, input, patches, n),
+            Net::Pc => self.model.pc.encode_at(self.precision, input, patches, n),
         })
     }
 

@@ -234,3 +234,65 @@ fn a_moved_scan_described_from_its_moved_sensor_gets_the_moved_normals() {
     let left_behind = registrar.describe(&moved, 0).unwrap();
     assert!(flipped(&left_behind) > 0.05, "{}", flipped(&left_behind));
 }
+
+/// The bf16 encoders (`DPR_GPU_CPU_PRECISION=bf16`, the default where the CPU has AVX-512 BF16) against the
+/// f32 ones on the shipped example pair with the shipped weights: codewords within the rounding the encoders'
+/// four bf16 layers can add (each rounds both factors of every product to 8 significant bits, a relative
+/// 2 x 2^-8 at most, so 4 x 2 x 2^-8 ~ 0.031 without cancellation), nearly the same correspondences, and after
+/// ICP the same pose.
+#[test]
+fn bf16_encoders_register_the_example_pair_like_f32() {
+    use dpr_gpu::cpu::gemm::Precision;
+    if !Precision::Bf16.is_available() {
+        eprintln!("SKIPPED: this CPU has no AVX-512 BF16, so the bf16 encoders are never used here");
+        return;
+    }
+    const CODEWORD_RELATIVE_TOL: f64 = 4.0 * 2.0 / 256.0;
+    const ROTATION_DEG_TOL: f64 = 0.25;
+    const TRANSLATION_TOL: f64 = 0.01;
+    let weights = Weights::built_in().unwrap();
+    let model = Model::from_weights(&weights).unwrap();
+    let pair = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/pair");
+    let load = |name: &str| dpr_gpu::io::read_cloud(&pair.join(name), &Default::default()).unwrap().0;
+    let (source, target) = (load("cloud_bin_1.ply"), load("cloud_bin_0.ply"));
+    let settings = dpr_gpu::RegistrationSettings { keypoints: 500, first_keypoints: None, ..Default::default() };
+    let f32_reg = dpr_gpu::Registrar::with_backend(&settings, Box::new(CpuBackend::new(model.clone()))).unwrap();
+    let bf16_backend = CpuBackend::with_precision(model, Precision::Bf16).unwrap();
+    let bf16_reg = dpr_gpu::Registrar::with_backend(&settings, Box::new(bf16_backend)).unwrap();
+
+    let (a, b) = (f32_reg.describe(&source, 0).unwrap(), bf16_reg.describe(&source, 0).unwrap());
+    assert_eq!(a.keypoints, b.keypoints, "the same keypoints and patches");
+    let (ca, cb) = (a.read_codewords().unwrap(), b.read_codewords().unwrap());
+    let dim = ca.len() / a.keypoints.len();
+    let mut worst = 0.0f64;
+    for (ra, rb) in ca.chunks(dim).zip(cb.chunks(dim)) {
+        let norm = ra.iter().map(|&v| f64::from(v).powi(2)).sum::<f64>().sqrt();
+        let diff = ra.iter().zip(rb).map(|(&x, &y)| f64::from(x - y).powi(2)).sum::<f64>().sqrt();
+        worst = worst.max(diff / norm.max(1e-12));
+    }
+    assert!(worst <= CODEWORD_RELATIVE_TOL, "codewords differ by {worst} (relative)");
+    assert!(worst > 0.0, "bf16 rounding must show: the bf16 layer did not run");
+
+    let (ta, tb) = (f32_reg.describe(&target, 1).unwrap(), bf16_reg.describe(&target, 1).unwrap());
+    let pairs = |reg: &dpr_gpu::Registrar, s, t| -> std::collections::HashSet<(u32, u32)> {
+        reg.correspond(s, t).unwrap().iter().map(|c| (c.source_index, c.target_index)).collect()
+    };
+    let (pa, pb) = (pairs(&f32_reg, &a, &ta), pairs(&bf16_reg, &b, &tb));
+    // A mutual nearest neighbour flips where its runner-up is within the perturbation (here about 1 in 9).
+    let shared = pa.intersection(&pb).count();
+    assert!(shared * 4 >= 3 * pa.len().max(pb.len()), "{shared} shared of {} / {}", pa.len(), pb.len());
+
+    let (ra, rb) = (f32_reg.register(&source, &target).unwrap(), bf16_reg.register(&source, &target).unwrap());
+    let (ea, eb) = (&ra.estimate, &rb.estimate);
+    let angle = rotation_error_deg(&ea.target_from_source, &eb.target_from_source);
+    let shift = translation_error(&ea.target_from_source, &eb.target_from_source);
+    assert!(angle < ROTATION_DEG_TOL && shift < TRANSLATION_TOL, "poses differ by {angle} deg, {shift}");
+    assert!(
+        ra.success && rb.success,
+        "both registrations are trusted: {} {} ({} / {} inliers)",
+        ra.success,
+        rb.success,
+        ea.inliers,
+        eb.inliers
+    );
+}

@@ -13,7 +13,7 @@
 
 use crate::backend::{Backend, CpuBackend, RotationInputs};
 use crate::cpu::dense::{DenseShape, dense as dense_twin};
-use crate::cpu::gemm::{GemmPath, dense_on};
+use crate::cpu::gemm::{GemmPath, Precision, dense_on};
 use crate::gpu::context::Transfers;
 use crate::gpu::{Gpu, GpuBackend, buffer::GpuBuffer, dense as gpu_dense, gemm::GemmVariant, recorder::Recorder};
 use crate::model::{Model, ModelConfig, Net, Weights};
@@ -126,6 +126,9 @@ pub struct CpuInfo {
     pub threads: usize,
     /// The GEMM micro-kernel the CPU backend uses (`avx512`, `avx2`, `portable`).
     pub gemm_path: &'static str,
+    /// The encoders' arithmetic on the CPU (`f32`, or `bf16` where the CPU has AVX-512 BF16; set with
+    /// `DPR_GPU_CPU_PRECISION`).
+    pub precision: &'static str,
 }
 
 /// The GPU the kernels ran on, or why none did.
@@ -481,7 +484,8 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
         args.repeat.max(1)
     ));
 
-    let cpu = use_cpu.then(|| CpuBackend::new(model.clone()));
+    let (precision, _) = Precision::from_env()?;
+    let cpu = use_cpu.then(|| CpuBackend::with_precision(model.clone(), precision)).transpose()?;
     let device = match (use_gpu, use_cpu) {
         (false, _) => Err("not requested (--backend cpu)".to_string()),
         (true, false) => Ok(Arc::new(Gpu::new().context("creating the GPU backend")?)),
@@ -518,8 +522,11 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
             None
         }
     };
-    let cpu_info =
-        cpu.as_ref().map(|_| CpuInfo { threads: rayon::current_num_threads(), gemm_path: GemmPath::selected().name() });
+    let cpu_info = cpu.as_ref().map(|_| CpuInfo {
+        threads: rayon::current_num_threads(),
+        gemm_path: GemmPath::selected().name(),
+        precision: precision.name(),
+    });
 
     let mut rng = Rng::new(args.seed);
     let patches = synthetic_patches(&mut rng, k, p, radius);
@@ -581,13 +588,14 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
         }
         stages.push(row);
     }
-    let (gemm, gemm_unavailable) = gemm_variants(args, gpu.as_ref().map(GpuBackend::gpu), use_cpu, k * p)?;
+    let (gemm, gemm_unavailable) =
+        gemm_variants(args, gpu.as_ref().map(GpuBackend::gpu), use_cpu.then_some(precision), k * p)?;
     let pair = if args.pair_points == 0 {
         None
     } else {
         let backend: Box<dyn Backend> = match &gpu {
             Some(g) => Box::new(GpuBackend::with_gpu(Arc::clone(g.gpu_arc()), model.clone())?),
-            None => Box::new(CpuBackend::new(model.clone())),
+            None => Box::new(CpuBackend::with_precision(model.clone(), precision)?),
         };
         Some(measure_pair(args, backend, gpu.as_ref().map(GpuBackend::gpu))?)
     };
@@ -641,7 +649,7 @@ type DenseLayer<'a> = dyn Fn(&DenseShape, &[f32], &mut [f32]) + Sync + 'a;
 fn gemm_variants(
     args: &Args,
     gpu: Option<&Gpu>,
-    use_cpu: bool,
+    cpu_precision: Option<Precision>,
     rows: usize,
 ) -> anyhow::Result<(Vec<GemmReport>, Vec<GemmUnavailable>)> {
     let rows = rows.clamp(1, 32_768);
@@ -654,7 +662,11 @@ fn gemm_variants(
     let report = |variant: String, device: &'static str, used: bool, time_ms: f64, clock: Clock| {
         let g = gflops(flops, time_ms);
         GemmReport {
-            precision: if variant == "gpu_dense_coop_f16" { "f16" } else { "f32" },
+            precision: match variant.as_str() {
+                "gpu_dense_coop_f16" => "f16",
+                "cpu_gemm_bf16" => "bf16",
+                _ => "f32",
+            },
             variant,
             device,
             used_by_backend: used,
@@ -669,7 +681,7 @@ fn gemm_variants(
         }
     };
     let (mut out, mut unavailable) = (Vec::new(), Vec::new());
-    if use_cpu {
+    if let Some(precision) = cpu_precision {
         let mut y = vec![0.0f32; rows * out_dim];
         // Parallel over row blocks, as the CPU encoder runs it.
         let mut time_cpu = |layer: &DenseLayer<'_>| {
@@ -682,9 +694,15 @@ fn gemm_variants(
             })
         };
         let selected = GemmPath::selected();
+        let f32_used = precision == Precision::F32;
         for path in GemmPath::available() {
             let m = time_cpu(&|s, xc, o| dense_on(path, s, xc, &w, &b, o))?;
-            out.push(report(format!("cpu_gemm_{}", path.name()), "cpu", path == selected, ms(m.wall), Clock::HostWall));
+            let used = f32_used && path == selected;
+            out.push(report(format!("cpu_gemm_{}", path.name()), "cpu", used, ms(m.wall), Clock::HostWall));
+        }
+        if Precision::Bf16.is_available() {
+            let m = time_cpu(&|s, xc, o| crate::cpu::gemm_bf16::dense_bf16(s, xc, &w, &b, o))?;
+            out.push(report("cpu_gemm_bf16".into(), "cpu", !f32_used, ms(m.wall), Clock::HostWall));
         }
         let m = time_cpu(&|s, xc, o| dense_twin(s, xc, &w, &b, o))?;
         out.push(report("cpu_twin".into(), "cpu", false, ms(m.wall), Clock::HostWall));
@@ -737,7 +755,7 @@ fn print_report(r: &Report) {
         (None, None) => {}
     }
     if let Some(cpu) = &r.cpu {
-        println!("cpu: {} threads, GEMM micro-kernel {}", cpu.threads, cpu.gemm_path);
+        println!("cpu: {} threads, GEMM micro-kernel {}, {} encoders", cpu.threads, cpu.gemm_path, cpu.precision);
     }
     println!();
     println!(

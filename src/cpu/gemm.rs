@@ -306,6 +306,67 @@ pub fn dense_on(path: GemmPath, shape: &DenseShape, x: &[f32], w_t: &[f32], grou
     run_on(path, &op, out, out_dim, epi);
 }
 
+/// The arithmetic of the CPU dense layers at inference: f32 (bit-identical to the twin; training always uses
+/// it) or bf16 inputs with f32 sums ([`crate::cpu::gemm_bf16`]), for layers at least [`BF16_MIN_IN_DIM`] wide.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Precision {
+    /// f32 throughout: [`dense`].
+    #[default]
+    F32,
+    /// bf16 inputs and weights, f32 sums: [`crate::cpu::gemm_bf16::dense_bf16`].
+    Bf16,
+}
+
+/// Environment variable that picks the CPU backend's encoder precision: `f32`, `bf16` or `auto`.
+pub const CPU_PRECISION_ENV: &str = "DPR_GPU_CPU_PRECISION";
+
+/// Narrowest input the bf16 layer takes: the first layers (3-4 wide PPF / PC inputs) cost nothing and keep
+/// their inputs exact.
+pub const BF16_MIN_IN_DIM: usize = 32;
+
+impl Precision {
+    /// `f32` or `bf16`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::F32 => "f32",
+            Precision::Bf16 => "bf16",
+        }
+    }
+
+    /// The precision [`CPU_PRECISION_ENV`] asks for (`f32`, `bf16`, or `auto` / unset: bf16 where this CPU
+    /// has AVX-512 BF16, else f32), and why.
+    pub fn from_env() -> crate::error::Result<(Precision, String)> {
+        let auto = || {
+            if Precision::Bf16.is_available() {
+                (Precision::Bf16, "bf16 encoders: this CPU has AVX-512 BF16".to_string())
+            } else {
+                (Precision::F32, "f32 encoders: this CPU has no AVX-512 BF16".to_string())
+            }
+        };
+        match std::env::var(CPU_PRECISION_ENV).ok().as_deref().map(str::trim) {
+            None | Some("" | "auto") => Ok(auto()),
+            Some("f32") => Ok((Precision::F32, format!("f32 encoders: {CPU_PRECISION_ENV}=f32"))),
+            Some("bf16") if Precision::Bf16.is_available() => {
+                Ok((Precision::Bf16, format!("bf16 encoders: {CPU_PRECISION_ENV}=bf16")))
+            }
+            Some("bf16") => {
+                Err(crate::error::Error::invalid(format!("{CPU_PRECISION_ENV}=bf16, but this CPU has no AVX-512 BF16")))
+            }
+            Some(other) => {
+                Err(crate::error::Error::invalid(format!("{CPU_PRECISION_ENV}='{other}': expected f32, bf16 or auto")))
+            }
+        }
+    }
+
+    /// Whether this CPU computes at this precision.
+    pub fn is_available(self) -> bool {
+        match self {
+            Precision::F32 => true,
+            Precision::Bf16 => crate::cpu::gemm_bf16::is_available(),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

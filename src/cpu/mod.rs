@@ -11,6 +11,7 @@ pub mod dense;
 pub mod dense_coop_f16;
 pub mod dense_fast;
 pub mod gemm;
+pub mod gemm_bf16;
 pub mod grid_knn;
 pub mod hypotheses;
 pub mod max_pool;

@@ -6,7 +6,8 @@ use super::linear::Linear;
 use super::params::{Net, foldnet_layers};
 use super::weights::Weights;
 use crate::cpu::dense::DenseShape;
-use crate::cpu::gemm::dense;
+use crate::cpu::gemm::{BF16_MIN_IN_DIM, Precision, dense};
+use crate::cpu::gemm_bf16::dense_bf16_packed;
 use crate::cpu::max_pool::max_pool;
 use crate::error::Result;
 use rayon::prelude::*;
@@ -33,17 +34,12 @@ const ROWS_PER_TASK: usize = 2048;
 
 /// `layer(x)` over `rows` rows with only the bias as group term.
 pub(crate) fn apply(layer: &Linear, x: &[f32], rows: usize, relu: bool) -> Vec<f32> {
-    let mut out = vec![0.0; rows * layer.out_dim];
-    let shape = DenseShape {
-        rows,
-        in_dim: layer.in_dim,
-        out_dim: layer.out_dim,
-        rows_per_group: rows.max(1),
-        accumulate: false,
-        relu,
-    };
-    dense(&shape, x, &layer.weight_t, &layer.bias, &mut out);
-    out
+    apply_at(Precision::F32, layer, x, rows, relu)
+}
+
+/// [`apply`] at `precision`.
+pub(crate) fn apply_at(precision: Precision, layer: &Linear, x: &[f32], rows: usize, relu: bool) -> Vec<f32> {
+    dense_layer(precision, layer, &[(x, layer.in_dim, 0)], (rows, rows.max(1)), &layer.bias, relu)
 }
 
 /// One slice of a concatenated input: data (`rows x width`), its width, and the first row of the layer's
@@ -60,32 +56,73 @@ pub(crate) fn apply_concat(
     rows_per_group: usize,
     relu: bool,
 ) -> Vec<f32> {
+    apply_concat_at(Precision::F32, layer, per_group, segments, rows, rows_per_group, relu)
+}
+
+/// [`apply_concat`] at `precision` (the per-group term is always f32: it is one row per patch).
+pub(crate) fn apply_concat_at(
+    precision: Precision,
+    layer: &Linear,
+    per_group: Slice<'_>,
+    segments: &[Slice<'_>],
+    rows: usize,
+    rows_per_group: usize,
+    relu: bool,
+) -> Vec<f32> {
     let (g_x, g_w, g_offset) = per_group;
     let groups = rows / rows_per_group;
-    let mut group_term = vec![0.0; groups * layer.out_dim];
-    let shape = DenseShape {
-        rows: groups,
-        in_dim: g_w,
-        out_dim: layer.out_dim,
-        rows_per_group: groups.max(1),
-        accumulate: false,
-        relu: false,
-    };
-    dense(&shape, g_x, layer.weight_t_rows(g_offset, g_w), &layer.bias, &mut group_term);
-    let mut out = vec![0.0; rows * layer.out_dim];
+    let group_term =
+        dense_layer(Precision::F32, layer, &[(g_x, g_w, g_offset)], (groups, groups.max(1)), &layer.bias, false);
+    dense_layer(precision, layer, segments, (rows, rows_per_group), &group_term, relu)
+}
+
+/// The rows of `layer` fed by `segments` over `rows` rows, plus `group_term` (one row per `rows_per_group`
+/// rows), in a new output. f32: one call per segment, accumulating, exactly the twin's order. bf16 (where
+/// [`bf16_segments`] allows): one multiply over the whole width with the layer's packed weight.
+fn dense_layer(
+    precision: Precision,
+    layer: &Linear,
+    segments: &[Slice<'_>],
+    (rows, rows_per_group): (usize, usize),
+    group_term: &[f32],
+    relu: bool,
+) -> Vec<f32> {
+    let n = layer.out_dim;
+    let mut out = vec![0.0; rows * n];
+    if bf16_segments(precision, segments) {
+        let parts: Vec<(&[f32], usize)> = segments.iter().map(|&(x, w, _)| (x, w)).collect();
+        let in_dim = parts.iter().map(|p| p.1).sum();
+        let shape = DenseShape { rows, in_dim, out_dim: n, rows_per_group, accumulate: false, relu };
+        let packed = &layer.packed_bf16()[segments[0].2 / 2 * n..];
+        dense_bf16_packed(&shape, &parts, packed, group_term, &mut out);
+        return out;
+    }
     for (s, &(x, w, offset)) in segments.iter().enumerate() {
         let shape = DenseShape {
             rows,
             in_dim: w,
-            out_dim: layer.out_dim,
+            out_dim: n,
             rows_per_group,
             accumulate: s > 0,
             relu: relu && s + 1 == segments.len(),
         };
-        let term: &[f32] = if s == 0 { &group_term } else { &[] };
+        let term: &[f32] = if s == 0 { group_term } else { &[] };
         dense(&shape, x, layer.weight_t_rows(offset, w), term, &mut out);
     }
     out
+}
+
+/// Whether `segments` go through the bf16 layer as one input: bf16 asked for and available, at least
+/// [`BF16_MIN_IN_DIM`] wide, the first weight row even and the segments' rows consecutive with even widths
+/// (but the last), so they are rows of the layer's packed weight.
+fn bf16_segments(precision: Precision, segments: &[Slice<'_>]) -> bool {
+    let width: usize = segments.iter().map(|s| s.1).sum();
+    precision == Precision::Bf16
+        && Precision::Bf16.is_available()
+        && width >= BF16_MIN_IN_DIM
+        && segments.first().is_some_and(|s| s.2 % 2 == 0)
+        && segments.iter().rev().skip(1).all(|s| s.1 % 2 == 0)
+        && segments.windows(2).all(|w| w[0].2 + w[0].1 == w[1].2)
 }
 
 /// Everything the encoder computed for a batch of patches: the codewords, and every layer's output (what the
@@ -165,11 +202,18 @@ impl FoldNet {
     /// Codewords of `patches` patches of `points` rows each (`input` is `patches x points x io_width`), in
     /// parallel chunks of patches.
     pub fn encode(&self, input: &[f32], patches: usize, points: usize) -> Vec<f32> {
+        self.encode_at(Precision::F32, input, patches, points)
+    }
+
+    /// [`FoldNet::encode`] with the wide layers at `precision`.
+    pub fn encode_at(&self, precision: Precision, input: &[f32], patches: usize, points: usize) -> Vec<f32> {
         let width = self.net.io_width();
         let per_task = (ROWS_PER_TASK / points.max(1)).max(1);
         input
             .par_chunks(per_task * points * width)
-            .flat_map_iter(|chunk| self.encode_tape(chunk, chunk.len() / (points * width), points).codeword)
+            .flat_map_iter(|chunk| {
+                self.encode_tape_at(precision, chunk, chunk.len() / (points * width), points).codeword
+            })
             .collect::<Vec<f32>>()
             .into_iter()
             .take(patches * self.codeword_len())
@@ -185,11 +229,16 @@ impl FoldNet {
     /// concatenation `[enc_0 | enc_1 | ... | global]` (the global slice enters as the per-patch term, so it sits
     /// last in the weight's rows), per-point MLP, max-pool to the codeword. Keeps every layer's output.
     pub fn encode_tape(&self, input: &[f32], patches: usize, points: usize) -> EncodeTape {
+        self.encode_tape_at(Precision::F32, input, patches, points)
+    }
+
+    /// [`FoldNet::encode_tape`] with the wide layers at `precision` (training records f32).
+    pub fn encode_tape_at(&self, precision: Precision, input: &[f32], patches: usize, points: usize) -> EncodeTape {
         let rows = patches * points;
         let mut encoder: Vec<Vec<f32>> = Vec::with_capacity(self.encoder.len());
         for layer in &self.encoder {
             let x = encoder.last().map_or(input, |v| v.as_slice());
-            encoder.push(apply(layer, x, rows, true));
+            encoder.push(apply_at(precision, layer, x, rows, true));
         }
         let last_w = self.encoder.last().map_or(0, |l| l.out_dim);
         let global = max_pool(encoder.last().map_or(&[], Vec::as_slice), patches, points, last_w);
@@ -200,9 +249,9 @@ impl FoldNet {
             offset += layer.out_dim;
         }
         let mut head: Vec<Vec<f32>> = Vec::with_capacity(self.head.len());
-        head.push(apply_concat(&self.head[0], (&global, last_w, offset), &segments, rows, points, true));
+        head.push(apply_concat_at(precision, &self.head[0], (&global, last_w, offset), &segments, rows, points, true));
         for layer in &self.head[1..] {
-            let h = apply(layer, head.last().expect("one head output"), rows, true);
+            let h = apply_at(precision, layer, head.last().expect("one head output"), rows, true);
             head.push(h);
         }
         let codeword = max_pool(head.last().expect("head has layers"), patches, points, self.codeword_len());

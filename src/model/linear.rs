@@ -2,7 +2,9 @@
 
 use super::params::LayerSpec;
 use super::weights::Weights;
+use crate::cpu::gemm_bf16::pack_weight;
 use crate::error::Result;
+use std::sync::OnceLock;
 
 /// Weight stored transposed (`in_dim x out_dim`) so the CPU dense kernel streams rows of it.
 #[derive(Clone, Debug)]
@@ -15,6 +17,9 @@ pub struct Linear {
     pub weight_t: Vec<f32>,
     /// Bias, `out_dim`.
     pub bias: Vec<f32>,
+    /// `weight_t` packed for the bf16 layer, built on first use ([`Linear::packed_bf16`]). A `Linear` is not
+    /// changed after it is built (training builds new ones from its parameters).
+    packed_bf16: OnceLock<Vec<u32>>,
 }
 
 impl Linear {
@@ -29,7 +34,12 @@ impl Linear {
                 weight_t[k * o_n + o] = w[o * i_n + k];
             }
         }
-        Ok(Linear { in_dim: i_n, out_dim: o_n, weight_t, bias: b.to_vec() })
+        Ok(Linear { in_dim: i_n, out_dim: o_n, weight_t, bias: b.to_vec(), packed_bf16: OnceLock::new() })
+    }
+
+    /// The transposed weight as bf16 pairs of rows (`crate::cpu::gemm_bf16::pack_weight`), packed once.
+    pub fn packed_bf16(&self) -> &[u32] {
+        self.packed_bf16.get_or_init(|| pack_weight(&self.weight_t, self.in_dim, self.out_dim))
     }
 
     /// Rows `from..from + count` of the transposed weight: the block that multiplies one slice of a

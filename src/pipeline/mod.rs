@@ -4,6 +4,7 @@
 
 use crate::backend::{Backend, CpuBackend, MatchedRows, MatchedSide, PatchBatch, RowMatch};
 use crate::cloud::PointCloud;
+use crate::cpu::gemm::Precision;
 use crate::error::{Error, Result};
 use crate::estimate::{icp_point_to_plane, ransac, refine_best};
 use crate::model::{Model, Weights};
@@ -52,19 +53,23 @@ pub fn create_backend(kind: BackendKind, model: Model) -> Result<Box<dyn Backend
 /// there is one and otherwise the CPU reference path; it never takes a software rasteriser (an adapter whose
 /// device type is CPU, such as lavapipe) unless `DPR_GPU_ALLOW_SOFTWARE=1` or `WGPU_ADAPTER_NAME` asks for it.
 pub fn choose_backend(kind: BackendKind, model: Model) -> Result<(Box<dyn Backend>, String)> {
+    let cpu = |model: Model, why: String| -> Result<(Box<dyn Backend>, String)> {
+        let (precision, how) = Precision::from_env()?;
+        Ok((Box::new(CpuBackend::with_precision(model, precision)?), format!("{why}; {how}")))
+    };
     match kind {
-        BackendKind::Cpu => Ok((Box::new(CpuBackend::new(model)), "asked for (--backend cpu)".into())),
+        BackendKind::Cpu => cpu(model, "asked for (--backend cpu)".into()),
         #[cfg(feature = "gpu")]
         BackendKind::Gpu => Ok((Box::new(crate::gpu::GpuBackend::new(model)?), "asked for (--backend gpu)".into())),
         #[cfg(feature = "gpu")]
         BackendKind::Auto => match crate::gpu::GpuBackend::new_hardware(model.clone()) {
             Ok(gpu) => Ok((Box::new(gpu), "auto: a hardware GPU adapter was found".into())),
-            Err(e) => Ok((Box::new(CpuBackend::new(model)), format!("auto: {e}"))),
+            Err(e) => cpu(model, format!("auto: {e}")),
         },
         #[cfg(not(feature = "gpu"))]
         BackendKind::Gpu => Err(Error::Gpu("dpr-gpu was built without its `gpu` feature".into())),
         #[cfg(not(feature = "gpu"))]
-        BackendKind::Auto => Ok((Box::new(CpuBackend::new(model)), "auto: built without the `gpu` feature".into())),
+        BackendKind::Auto => cpu(model, "auto: built without the `gpu` feature".into()),
     }
 }
 
