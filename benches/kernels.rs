@@ -4,8 +4,8 @@
 //! What is timed: the GPU side is the slice API `gpu::k::run` (upload, one dispatch, readback, all
 //! waited for), so small kernels are dominated by transfer and submission latency; the CPU side (`cpu/N`) is
 //! the code `CpuBackend` runs: the twin `cpu::k` for every kernel but dense, where it is the vectorised
-//! `cpu::gemm::dense` (bit-identical to the twin); the readable dense twin is timed as `cpu_twin/N` for
-//! comparison. Inputs are built once outside the timed closure. Benchmark ids are `cpu/N` and `gpu/N` with
+//! `cpu::gemm::dense` (bit-identical to the twin), and `cpu_bf16/N` the bf16 layer the CPU backend runs
+//! instead where the CPU has AVX-512 BF16; the readable dense twin is timed as `cpu_twin/N` for comparison. Inputs are built once outside the timed closure. Benchmark ids are `cpu/N` and `gpu/N` with
 //! N the problem size. Without a Vulkan adapter (or `DPR_GPU_BACKEND`/`WGPU_BACKEND`) only the CPU side runs.
 //! CI builds these (`cargo bench --no-run`) but does not run them.
 
@@ -81,8 +81,15 @@ fn dense(c: &mut Criterion) {
     let mut g = c.benchmark_group("dense");
     // "elements" are floating-point operations: criterion's Gelem/s is GFLOP/s here.
     g.throughput(criterion::Throughput::Elements((2 * rows * i * o) as u64));
-    // What CpuBackend runs (model::foldnet calls cpu::gemm::dense), and the readable twin it reproduces.
+    // What CpuBackend runs (model::foldnet calls cpu::gemm::dense in f32, and cpu::gemm_bf16 with the packed
+    // weight where the CPU has AVX-512 BF16), and the readable twin the f32 path reproduces.
     g.bench_function(BenchmarkId::new("cpu", rows), |b| b.iter(|| cpu::gemm::dense(&shape, &x, &w, &bias, &mut out)));
+    if cpu::gemm_bf16::is_available() {
+        let packed = cpu::gemm_bf16::pack_weight(&w, i, o);
+        g.bench_function(BenchmarkId::new("cpu_bf16", rows), |b| {
+            b.iter(|| cpu::gemm_bf16::dense_bf16_packed(&shape, &[(&x, i)], &packed, &bias, &mut out))
+        });
+    }
     g.bench_function(BenchmarkId::new("cpu_twin", rows), |b| {
         b.iter(|| cpu::dense::dense(&shape, &x, &w, &bias, &mut out))
     });

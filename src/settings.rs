@@ -121,7 +121,7 @@ pub struct RegistrationSettings {
 }
 
 /// Keypoints per scan of the progressive schedule's first round (see `RegistrationSettings::first_keypoints`).
-pub const DEFAULT_FIRST_KEYPOINTS: usize = 500;
+pub const DEFAULT_FIRST_KEYPOINTS: usize = 250;
 /// Most keypoints per scan.
 pub const MAX_KEYPOINTS: usize = 1_000_000;
 /// Most neighbours for PCA normals.

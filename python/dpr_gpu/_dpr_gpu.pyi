@@ -236,7 +236,7 @@ class Registrar:
         radius: Optional[float] = None,
         voxel: Optional[float] = None,
         keypoints: int = 2500,
-        first_keypoints: Optional[int] = 500,
+        first_keypoints: Optional[int] = 250,
         keypoint_mode: Literal["random", "uniform"] = "random",
         normal_neighbors: int = 30,
         viewpoint: Sequence[float] = (0.0, 0.0, 0.0),

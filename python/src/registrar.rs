@@ -140,7 +140,7 @@ impl Registrar {
         radius = None,
         voxel = None,
         keypoints = 2500,
-        first_keypoints = Some(500),
+        first_keypoints = Some(250),
         keypoint_mode = "random".to_string(),
         normal_neighbors = 30,
         viewpoint = [0.0, 0.0, 0.0],
@@ -160,7 +160,7 @@ impl Registrar {
         min_inlier_ratio = 0.055,
         min_spread_over_threshold = 2.0,
     ),
-    text_signature = "(*, weights=None, radius=None, voxel=None, keypoints=2500, first_keypoints=500, \
+    text_signature = "(*, weights=None, radius=None, voxel=None, keypoints=2500, first_keypoints=250, \
         keypoint_mode='random', \
         normal_neighbors=30, viewpoint=(0.0, 0.0, 0.0), matching='mutual', mutual_k=1, estimator='relativenet', \
         inlier_threshold=None, ransac_iterations=100000, ransac_confidence=0.999, icp=True, \

@@ -6,9 +6,12 @@ use crate::error::{Error, Result};
 use crate::pose::{matrix_from_parts, transform_point, v3};
 use crate::spatial::PointIndex;
 use nalgebra::{Matrix4, Matrix6, Rotation3, Vector3, Vector6};
+use rayon::prelude::*;
 
 /// Source points used per iteration at most (an even stride over the cloud).
 pub const MAX_ICP_POINTS: usize = 20_000;
+/// Source points per parallel task of an iteration (fixed, so the sums do not depend on the thread count).
+const ICP_CHUNK: usize = 2048;
 /// Stop when the update's rotation (rad) and translation (cloud units) both fall below these.
 pub const CONVERGED_ROTATION: f64 = 1e-6;
 /// See [`CONVERGED_ROTATION`].
@@ -27,25 +30,38 @@ pub fn icp_point_to_plane(
     let normals = target.normals.as_ref().ok_or_else(|| Error::invalid("point-to-plane ICP needs target normals"))?;
     let stride = source.len().div_ceil(MAX_ICP_POINTS).max(1);
     let max_d2 = max_distance * max_distance;
+    let used_points: Vec<[f32; 3]> = source.points.iter().step_by(stride).copied().collect();
     let mut pose = initial;
     for _ in 0..max_iterations {
-        let mut ata = Matrix6::<f64>::zeros();
-        let mut atb = Vector6::<f64>::zeros();
-        let mut used = 0;
-        for p in source.points.iter().step_by(stride) {
-            let moved = transform_point(&pose, *p);
-            let nn = target_index.nearest_one(&moved);
-            if nn.distance_squared > max_d2 {
-                continue;
-            }
-            let (q, n) = (v3(target.points[nn.index]), v3(normals[nn.index]));
-            let m = v3(moved);
-            let r = n.dot(&(m - q));
-            let c = m.cross(&n);
-            let j = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
-            ata += j * j.transpose();
-            atb -= j * r;
-            used += 1;
+        // Normal equations summed per fixed chunk in parallel, then the chunks in order: the same sums for
+        // any thread count.
+        let partial: Vec<(Matrix6<f64>, Vector6<f64>, usize)> = used_points
+            .par_chunks(ICP_CHUNK)
+            .map(|chunk| {
+                let (mut ata, mut atb, mut used) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros(), 0);
+                for p in chunk {
+                    let moved = transform_point(&pose, *p);
+                    let nn = target_index.nearest_one(&moved);
+                    if nn.distance_squared > max_d2 {
+                        continue;
+                    }
+                    let (q, n) = (v3(target.points[nn.index]), v3(normals[nn.index]));
+                    let m = v3(moved);
+                    let r = n.dot(&(m - q));
+                    let c = m.cross(&n);
+                    let j = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
+                    ata += j * j.transpose();
+                    atb -= j * r;
+                    used += 1;
+                }
+                (ata, atb, used)
+            })
+            .collect();
+        let (mut ata, mut atb, mut used) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros(), 0);
+        for (a, b, u) in partial {
+            ata += a;
+            atb += b;
+            used += u;
         }
         if used < 6 {
             break;
