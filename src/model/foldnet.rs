@@ -87,15 +87,32 @@ fn dense_layer(
     group_term: &[f32],
     relu: bool,
 ) -> Vec<f32> {
+    let mut out = Vec::new();
+    dense_layer_into(precision, layer, segments, (rows, rows_per_group), group_term, relu, &mut out);
+    out
+}
+
+/// [`dense_layer`] into `out`, reusing its allocation (the encoder's tasks keep their buffers across
+/// chunks).
+fn dense_layer_into(
+    precision: Precision,
+    layer: &Linear,
+    segments: &[Slice<'_>],
+    (rows, rows_per_group): (usize, usize),
+    group_term: &[f32],
+    relu: bool,
+    out: &mut Vec<f32>,
+) {
     let n = layer.out_dim;
-    let mut out = vec![0.0; rows * n];
+    out.clear();
+    out.resize(rows * n, 0.0);
     if bf16_segments(precision, segments) {
         let parts: Vec<(&[f32], usize)> = segments.iter().map(|&(x, w, _)| (x, w)).collect();
         let in_dim = parts.iter().map(|p| p.1).sum();
         let shape = DenseShape { rows, in_dim, out_dim: n, rows_per_group, accumulate: false, relu };
         let packed = &layer.packed_bf16()[segments[0].2 / 2 * n..];
-        dense_bf16_packed(&shape, &parts, packed, group_term, &mut out);
-        return out;
+        dense_bf16_packed(&shape, &parts, packed, group_term, out);
+        return;
     }
     for (s, &(x, w, offset)) in segments.iter().enumerate() {
         let shape = DenseShape {
@@ -107,9 +124,8 @@ fn dense_layer(
             relu: relu && s + 1 == segments.len(),
         };
         let term: &[f32] = if s == 0 { group_term } else { &[] };
-        dense(&shape, x, layer.weight_t_rows(offset, w), term, &mut out);
+        dense(&shape, x, layer.weight_t_rows(offset, w), term, out);
     }
-    out
 }
 
 /// Whether `segments` go through the bf16 layer as one input: bf16 asked for and available, at least
@@ -127,7 +143,7 @@ fn bf16_segments(precision: Precision, segments: &[Slice<'_>]) -> bool {
 
 /// Everything the encoder computed for a batch of patches: the codewords, and every layer's output (what the
 /// trainer's backward pass needs).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct EncodeTape {
     /// Patches encoded.
     pub patches: usize,
@@ -211,9 +227,11 @@ impl FoldNet {
         let per_task = (ROWS_PER_TASK / points.max(1)).max(1);
         input
             .par_chunks(per_task * points * width)
-            .flat_map_iter(|chunk| {
-                self.encode_tape_at(precision, chunk, chunk.len() / (points * width), points).codeword
+            .map_init(EncodeTape::default, |tape, chunk| {
+                self.encode_into(precision, chunk, chunk.len() / (points * width), points, tape);
+                tape.codeword.clone()
             })
+            .flatten_iter()
             .collect::<Vec<f32>>()
             .into_iter()
             .take(patches * self.codeword_len())
@@ -234,28 +252,63 @@ impl FoldNet {
 
     /// [`FoldNet::encode_tape`] with the wide layers at `precision` (training records f32).
     pub fn encode_tape_at(&self, precision: Precision, input: &[f32], patches: usize, points: usize) -> EncodeTape {
+        let mut tape = EncodeTape::default();
+        self.encode_into(precision, input, patches, points, &mut tape);
+        tape
+    }
+
+    /// [`FoldNet::encode_tape_at`] into `tape`, reusing its buffers.
+    fn encode_into(&self, precision: Precision, input: &[f32], patches: usize, points: usize, tape: &mut EncodeTape) {
         let rows = patches * points;
-        let mut encoder: Vec<Vec<f32>> = Vec::with_capacity(self.encoder.len());
-        for layer in &self.encoder {
-            let x = encoder.last().map_or(input, |v| v.as_slice());
-            encoder.push(apply_at(precision, layer, x, rows, true));
+        (tape.patches, tape.points) = (patches, points);
+        tape.encoder.resize_with(self.encoder.len(), Vec::new);
+        for (i, layer) in self.encoder.iter().enumerate() {
+            let (done, rest) = tape.encoder.split_at_mut(i);
+            let x = done.last().map_or(input, |v| v.as_slice());
+            dense_layer_into(
+                precision,
+                layer,
+                &[(x, layer.in_dim, 0)],
+                (rows, rows.max(1)),
+                &layer.bias,
+                true,
+                &mut rest[0],
+            );
         }
         let last_w = self.encoder.last().map_or(0, |l| l.out_dim);
-        let global = max_pool(encoder.last().map_or(&[], Vec::as_slice), patches, points, last_w);
-        let mut segments = Vec::with_capacity(encoder.len());
+        tape.global = max_pool(tape.encoder.last().map_or(&[], Vec::as_slice), patches, points, last_w);
+        let mut segments = Vec::with_capacity(tape.encoder.len());
         let mut offset = 0;
-        for (a, layer) in encoder.iter().zip(&self.encoder) {
+        for (a, layer) in tape.encoder.iter().zip(&self.encoder) {
             segments.push((a.as_slice(), layer.out_dim, offset));
             offset += layer.out_dim;
         }
-        let mut head: Vec<Vec<f32>> = Vec::with_capacity(self.head.len());
-        head.push(apply_concat_at(precision, &self.head[0], (&global, last_w, offset), &segments, rows, points, true));
-        for layer in &self.head[1..] {
-            let h = apply_at(precision, layer, head.last().expect("one head output"), rows, true);
-            head.push(h);
+        tape.head.resize_with(self.head.len(), Vec::new);
+        let head0 = &self.head[0];
+        let groups = rows / points.max(1);
+        let group_term = dense_layer(
+            Precision::F32,
+            head0,
+            &[(&tape.global, last_w, offset)],
+            (groups, groups.max(1)),
+            &head0.bias,
+            false,
+        );
+        dense_layer_into(precision, head0, &segments, (rows, points), &group_term, true, &mut tape.head[0]);
+        for (i, layer) in self.head.iter().enumerate().skip(1) {
+            let (done, rest) = tape.head.split_at_mut(i);
+            let x = &done[i - 1];
+            dense_layer_into(
+                precision,
+                layer,
+                &[(x, layer.in_dim, 0)],
+                (rows, rows.max(1)),
+                &layer.bias,
+                true,
+                &mut rest[0],
+            );
         }
-        let codeword = max_pool(head.last().expect("head has layers"), patches, points, self.codeword_len());
-        EncodeTape { patches, points, encoder, global, head, codeword }
+        tape.codeword = max_pool(tape.head.last().expect("head has layers"), patches, points, self.codeword_len());
     }
 
     /// The folding grid repeated for every patch.
