@@ -16,6 +16,8 @@ pub mod hypotheses;
 pub mod max_pool;
 pub mod mutual_knn;
 pub mod patch_features;
+pub mod patch_gather;
+pub mod patch_sample;
 pub mod pca_normals;
 pub mod pose_feature;
 pub mod prefix_scan;

@@ -28,6 +28,8 @@ pub mod max_pool;
 pub mod mutual_knn;
 pub mod nets;
 pub mod patch_features;
+pub mod patch_gather;
+pub mod patch_sample;
 pub mod pca_normals;
 pub mod pose_feature;
 pub mod prefix_scan;

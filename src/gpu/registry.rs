@@ -20,6 +20,8 @@ use super::kernel::{GpuKernel, Kernel, KernelSpec};
 use super::max_pool::MaxPool;
 use super::mutual_knn::MutualKnn;
 use super::patch_features::PatchFeatures;
+use super::patch_gather::PatchGather;
+use super::patch_sample::PatchSample;
 use super::pca_normals::PcaNormals;
 use super::pose_feature::PoseFeature;
 use super::prefix_scan::PrefixScan;
@@ -39,6 +41,8 @@ pub const KERNELS: &[KernelSpec] = &[
     VoxelAverage::SPEC,
     GridKnn::SPEC,
     PcaNormals::SPEC,
+    PatchSample::SPEC,
+    PatchGather::SPEC,
     PatchFeatures::SPEC,
     Dense::SPEC,
     DenseFast::SPEC,
