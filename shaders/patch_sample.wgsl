@@ -145,7 +145,7 @@ fn main(
         let m = vec3<u32>(cell - glo);
         let s = find(vec2<u32>((m.x << 10u) | (m.y >> 11u), (m.y << 21u) | m.z));
         if s != NONE {
-            let patch = mix32(params.key0 ^ mix32(params.key1 ^ k));
+            let stream = mix32(params.key0 ^ mix32(params.key1 ^ k));
             var base = 0u;
             if params.stage == 1u {
                 base = offsets[t];
@@ -156,7 +156,7 @@ fn main(
                     if params.stage == 1u {
                         let w = (base + count) * 4u;
                         out[w] = slot;
-                        out[w + 1u] = mix32(patch ^ mix32(j + 0x9e3779b9u));
+                        out[w + 1u] = mix32(stream ^ mix32(j + 0x9e3779b9u));
                         out[w + 2u] = j;
                         out[w + 3u] = 0u;
                     }
