@@ -378,6 +378,11 @@ impl DeviceCloud {
         self.n
     }
 
+    /// The patch radius (the cell size of its table).
+    pub fn radius(&self) -> f32 {
+        self.radius
+    }
+
     /// Always false (a device cloud has points).
     pub fn is_empty(&self) -> bool {
         self.n == 0

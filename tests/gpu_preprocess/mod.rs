@@ -520,6 +520,26 @@ fn sample_patches_matches_cpu_and_brute_force() {
     assert!(!got.empty.is_empty() && got.keypoints.len() > 100);
 }
 
+/// A device cloud's estimated normals (its own kNN grid, cells sized from the point density) against the twins
+/// (grid_knn + pca_normals): the definition of the GPU path's normals.
+fn device_cloud_normals_match_cpu() {
+    use dpr_gpu::cpu::grid_knn::{CellGrid, grid_knn};
+    use dpr_gpu::cpu::pca_normals::pca_normals;
+    let Some(g) = gpu() else { return };
+    let s = seed(114);
+    let mut rng = Rng::new(s);
+    let pts = knn_scene(&mut rng, 1500, false);
+    let (k, view) = (12, [20.0, 0.0, 3.0]);
+    let source = gpu::preprocess::NormalSource::Estimate { k, viewpoint: view };
+    let cloud = gpu::preprocess::DeviceCloud::new(&g, &pts, source, 0.3).unwrap();
+    let got = cloud.read_normals(&g).unwrap();
+    let grid = CellGrid::new(&pts, 1.0 / 0.1).unwrap();
+    let queries: Vec<u32> = (0..pts.len() as u32).collect();
+    let (lists, _) = grid_knn(&grid, &queries, k).unwrap();
+    let want = pca_normals(&pts, &queries, &lists, k, view).unwrap();
+    assert!(check_normals("device cloud normals", s, &pts, &lists, k, view, (&got, &want)) > pts.len() / 2);
+}
+
 /// Every test of this module.
 pub const TESTS: &[dpr_gpu::gpu::testing::GpuTest] = &[
     ("cell_bounds_matches_cpu", cell_bounds_matches_cpu),
@@ -535,4 +555,5 @@ pub const TESTS: &[dpr_gpu::gpu::testing::GpuTest] = &[
     ("patch_sample_matches_cpu", patch_sample_matches_cpu),
     ("patch_gather_matches_cpu", patch_gather_matches_cpu),
     ("sample_patches_matches_cpu_and_brute_force", sample_patches_matches_cpu_and_brute_force),
+    ("device_cloud_normals_match_cpu", device_cloud_normals_match_cpu),
 ];
