@@ -1377,6 +1377,29 @@ fn device_register_reads_back_no_per_point_data() {
     );
 }
 
+/// Uniform keypoints (farthest-point sampling) drawn on the device: the same keypoint order as the CPU path,
+/// hence the same kept keypoints and ranks.
+fn device_uniform_keypoints_match_cpu() {
+    let Some(g) = gpu() else { return };
+    let s = seed(77);
+    let (gpu_b, cpu_b) = backends(g, s);
+    let settings = dpr_gpu::RegistrationSettings {
+        keypoints: 60,
+        keypoint_mode: dpr_gpu::settings::KeypointMode::Uniform,
+        viewpoint: ROOM_VIEWPOINT,
+        seed: s,
+        ..Default::default()
+    };
+    let (source, _, _) = common::room_pair(s, 3_000);
+    let source = with_host_normals(&source);
+    let on_gpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(gpu_b)).unwrap();
+    let on_cpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(cpu_b)).unwrap();
+    let (gs, cs) = (on_gpu.describe(&source, 0).unwrap(), on_cpu.describe(&source, 0).unwrap());
+    assert_eq!(gs.keypoints, cs.keypoints, "seed {s}");
+    assert_eq!(gs.keypoint_ranks, cs.keypoint_ranks, "seed {s}");
+    assert_eq!(gs.cloud.normals, cs.cloud.normals, "file normals, normalised alike (seed {s})");
+}
+
 fn main() -> std::process::ExitCode {
     dpr_gpu::gpu::testing::run_tests(&[TESTS, gpu_preprocess::TESTS].concat())
 }
@@ -1414,6 +1437,7 @@ const TESTS: &[dpr_gpu::gpu::testing::GpuTest] = &[
     ("pair_steps_read_back_only_small_results", pair_steps_read_back_only_small_results),
     ("device_register_matches_cpu_register", device_register_matches_cpu_register),
     ("device_register_reads_back_no_per_point_data", device_register_reads_back_no_per_point_data),
+    ("device_uniform_keypoints_match_cpu", device_uniform_keypoints_match_cpu),
     (
         "register_with_relativenet_matches_cpu_on_a_generated_pair",
         register_with_relativenet_matches_cpu_on_a_generated_pair,

@@ -59,6 +59,12 @@ pub trait ScanCloud: Send + Sync {
         lap: Lap<'_>,
     ) -> Result<DescribedKeypoints>;
 
+    /// `count` indices of `cloud` (count < its points) by farthest-point sampling from `start`
+    /// ([`crate::cpu::farthest_point`]'s definition); the provided version runs on the host cloud.
+    fn farthest_points(&self, cloud: &PointCloud, count: usize, start: usize) -> Result<Vec<usize>> {
+        Ok(crate::cpu::farthest_point::farthest_point(&cloud.points, count, start))
+    }
+
     /// Fills every normal of `cloud` (estimating or reading back those not in it yet).
     fn complete_normals(&mut self, cloud: &mut PointCloud) -> Result<()>;
 

@@ -10,6 +10,7 @@ pub mod codeword_distance;
 pub mod dense;
 pub mod dense_coop_f16;
 pub mod dense_fast;
+pub mod farthest_point;
 pub mod gemm;
 pub mod grid_knn;
 pub mod hypotheses;

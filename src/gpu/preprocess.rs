@@ -388,6 +388,12 @@ impl DeviceCloud {
         self.n == 0
     }
 
+    /// `count` points by farthest-point sampling from `start` ([`super::farthest_point`]); only the chosen
+    /// indices come back.
+    pub fn farthest_points(&self, gpu: &Gpu, count: usize, start: usize) -> Result<Vec<usize>> {
+        super::farthest_point::sample(gpu, &self.table.points, self.n, count, start)
+    }
+
     /// The normals, read back (every point's: a per-point readback, for callers that ask for the whole cloud).
     pub fn read_normals(&self, gpu: &Gpu) -> Result<Vec<[f32; 3]>> {
         let bytes = super::buffer::read_bytes(&gpu.context, &self.normals, 0, (self.n * 12) as u64)?;

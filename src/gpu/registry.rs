@@ -14,6 +14,7 @@ use super::context::GpuContext;
 use super::dense::Dense;
 use super::dense_coop_f16::DenseCoopF16;
 use super::dense_fast::DenseFast;
+use super::farthest_point::FarthestPoint;
 use super::grid_knn::GridKnn;
 use super::hypotheses::Hypotheses;
 use super::kernel::{GpuKernel, Kernel, KernelSpec};
@@ -41,6 +42,7 @@ pub const KERNELS: &[KernelSpec] = &[
     VoxelAverage::SPEC,
     GridKnn::SPEC,
     PcaNormals::SPEC,
+    FarthestPoint::SPEC,
     PatchSample::SPEC,
     PatchGather::SPEC,
     PatchFeatures::SPEC,

@@ -1,6 +1,6 @@
 //! The GPU backend's scan cloud: the cloud is uploaded once per scan ([`DeviceCloud`]: points, normals given
 //! or estimated on the device for every point, the cell table of the patch radius), and each description round
-//! samples its keypoints' patches, gathers them, computes their features and PPF-FoldNet codewords on the
+//! samples its keypoints' patches (and, in uniform keypoint mode, the keypoint order is drawn there too), gathers them, computes their features and PPF-FoldNet codewords on the
 //! device. Per round only per-keypoint data crosses the bus: the keypoint indices and the per-(keypoint, cell)
 //! candidate offsets up, the candidate counts and the kept keypoints' positions and normals down. Voxel
 //! downsampling runs on the device ([`super::preprocess::voxel_downsample`]); its result is read back because
@@ -81,6 +81,10 @@ impl ScanCloud for GpuScanCloud {
             centers: sampled.centers,
             center_normals: sampled.center_normals,
         })
+    }
+
+    fn farthest_points(&self, _cloud: &PointCloud, count: usize, start: usize) -> Result<Vec<usize>> {
+        self.backend.run("farthest_point", |_| self.cloud.farthest_points(&self.backend.gpu, count, start))
     }
 
     fn complete_normals(&mut self, cloud: &mut PointCloud) -> Result<()> {

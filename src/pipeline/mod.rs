@@ -247,7 +247,14 @@ impl Registrar {
         let (cloud, scan_cloud) =
             self.backend.start_scan(cloud, &self.scan_settings(viewpoint), &mut |stage| clock.lap(stage))?;
         let mut rng = Rng::derived(s.seed, 2 * stream);
-        let order = select_keypoints(&cloud.points, s.keypoints, s.keypoint_mode, &mut rng);
+        let order = match s.keypoint_mode {
+            // Farthest-point sampling where the backend keeps the cloud (the same start draw as on the host).
+            KeypointMode::Uniform if s.keypoints < cloud.len() => {
+                let start = rng.below(cloud.len());
+                scan_cloud.farthest_points(&cloud, s.keypoints, start)?
+            }
+            _ => select_keypoints(&cloud.points, s.keypoints, s.keypoint_mode, &mut rng),
+        };
         clock.lap("keypoints");
         let features = ScanFeatures {
             cloud,

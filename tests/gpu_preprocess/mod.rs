@@ -540,6 +540,28 @@ fn device_cloud_normals_match_cpu() {
     assert!(check_normals("device cloud normals", s, &pts, &lists, k, view, (&got, &want)) > pts.len() / 2);
 }
 
+/// farthest_point: the same indices as the twin (the CPU path's definition), on random points, on a lattice
+/// (many exactly tied distances: ties go to the lower index), with duplicates, past one workgroup of partials,
+/// and drawing every point.
+fn farthest_point_matches_cpu() {
+    use dpr_gpu::cpu::farthest_point::farthest_point;
+    let Some(g) = gpu() else { return };
+    let s = seed(115);
+    let mut rng = Rng::new(s);
+    let lattice: Vec<[f32; 3]> =
+        (0..343).map(|i| [(i % 7) as f32 * 0.25, ((i / 7) % 7) as f32 * 0.25, (i / 49) as f32 * 0.25]).collect();
+    let mut dup = cloud(&mut rng, 300, 1.0, 5.0);
+    dup.extend_from_slice(&dup.clone()[..50]);
+    let cases =
+        [(cloud(&mut rng, 5000, 2.0, -1.0), 70), (lattice, 343), (dup, 120), (cloud(&mut rng, 70_000, 1.0, 0.0), 9)];
+    for (pts, count) in &cases {
+        let start = rng.below(pts.len());
+        let want = farthest_point(pts, *count, start);
+        assert_eq!(gpu::farthest_point::run(&g, pts, *count, start).unwrap(), want, "n {} (seed {s})", pts.len());
+    }
+    assert!(gpu::farthest_point::run(&g, &cases[0].0[..3], 4, 0).is_err());
+}
+
 /// Every test of this module.
 pub const TESTS: &[dpr_gpu::gpu::testing::GpuTest] = &[
     ("cell_bounds_matches_cpu", cell_bounds_matches_cpu),
@@ -556,4 +578,5 @@ pub const TESTS: &[dpr_gpu::gpu::testing::GpuTest] = &[
     ("patch_gather_matches_cpu", patch_gather_matches_cpu),
     ("sample_patches_matches_cpu_and_brute_force", sample_patches_matches_cpu_and_brute_force),
     ("device_cloud_normals_match_cpu", device_cloud_normals_match_cpu),
+    ("farthest_point_matches_cpu", farthest_point_matches_cpu),
 ];
