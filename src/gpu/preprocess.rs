@@ -411,8 +411,10 @@ impl DeviceCloud {
     }
 
     /// The patches of `keypoints` (cloud indices) ranked with `seed`: two submissions (count; write, sort and
-    /// gather the centres); the per-(keypoint, cell) counts and the kept centres come back.
-    pub fn sample(&self, gpu: &Gpu, keypoints: &[u32], seed: u64) -> Result<SampledPatches> {
+    /// gather the centres); the per-(keypoint, cell) counts and the kept centres come back. `None` when their
+    /// candidates (16 bytes each, padded to a power of two) would not fit one buffer: the caller splits the
+    /// keypoints.
+    pub fn sample(&self, gpu: &Gpu, keypoints: &[u32], seed: u64) -> Result<Option<SampledPatches>> {
         let params = patch_sample::params(keypoints.len(), self.table.inv_cell, self.radius, seed)?;
         let mut out = SampledPatches {
             kept: Vec::new(),
@@ -423,7 +425,7 @@ impl DeviceCloud {
             candidates: None,
         };
         if keypoints.is_empty() {
-            return Ok(out);
+            return Ok(Some(out));
         }
         if let Some(&bad) = keypoints.iter().find(|&&k| k as usize >= self.n) {
             return Err(Error::invalid(format!("patch_sample: keypoint {bad} of a cloud of {} points", self.n)));
@@ -449,9 +451,18 @@ impl DeviceCloud {
             start += count;
         }
         if out.table.is_empty() {
-            return Ok(out);
+            return Ok(Some(out));
         }
         let padded = cell_keys::padded_len(total)?;
+        if (padded * 16) as u64 > ctx.max_buffer_bytes() {
+            if keypoints.len() == 1 {
+                return Err(Error::Gpu(format!(
+                    "patch_sample: keypoint {} has {total} points within radius {}, more than one buffer holds",
+                    keypoints[0], self.radius
+                )));
+            }
+            return Ok(None);
+        }
         let ob = GpuBuffer::from_slice(ctx, "ps_offsets", &offsets)?;
         let cands = storage_buffer(ctx, "ps_candidates", (padded * 16) as u64)?;
         let p = out.table.len();
@@ -469,7 +480,27 @@ impl DeviceCloud {
         out.centers = bytemuck::pod_collect_to_vec(&bytes[rp]);
         out.center_normals = bytemuck::pod_collect_to_vec(&bytes[rn]);
         out.candidates = Some(cands);
-        Ok(out)
+        Ok(Some(out))
+    }
+
+    /// [`DeviceCloud::sample`], splitting `keypoints` in halves until each part's candidates fit a buffer;
+    /// `each` receives every part's patches in order with the position of its first keypoint.
+    pub fn sample_in_parts(
+        &self,
+        gpu: &Gpu,
+        keypoints: &[u32],
+        seed: u64,
+        first: usize,
+        each: &mut dyn FnMut(usize, SampledPatches) -> Result<()>,
+    ) -> Result<()> {
+        match self.sample(gpu, keypoints, seed)? {
+            Some(sampled) => each(first, sampled),
+            None => {
+                let half = keypoints.len() / 2;
+                self.sample_in_parts(gpu, &keypoints[..half], seed, first, each)?;
+                self.sample_in_parts(gpu, &keypoints[half..], seed, first + half, each)
+            }
+        }
     }
 
     /// Records the gather of the patches of `table` (a device copy of entries of `sampled.table`): `n` rows
@@ -505,29 +536,25 @@ pub fn sample_patches(
 ) -> Result<Patches> {
     // The points stand in for normals: only indices are read back.
     let cloud = DeviceCloud::new(gpu, points, NormalSource::Given(points), radius)?;
-    let sampled = cloud.sample(gpu, keypoints, seed)?;
     let n = points_per_patch;
-    let mut out = Patches {
-        keypoints: sampled.kept.iter().map(|&s| keypoints[s] as usize).collect(),
-        neighbors: Vec::new(),
-        points_per_patch: n,
-        empty: sampled.empty.iter().map(|&s| keypoints[s] as usize).collect(),
-    };
-    let Some(cands) = sampled.candidates() else { return Ok(out) };
-    let rows = sampled.table.len() * n;
-    if rows == 0 {
-        return Ok(out);
-    }
-    let ctx = &gpu.context;
-    let tb = GpuBuffer::from_slice(ctx, "sp_table", &sampled.table)?;
-    let (oi, op, on) = (
-        storage_buffer(ctx, "sp_index", (rows * 4) as u64)?,
-        storage_buffer(ctx, "sp_points", (rows * 12) as u64)?,
-        storage_buffer(ctx, "sp_normals", (rows * 12) as u64)?,
-    );
-    let mut rec = Recorder::new(gpu, "sample_patches");
-    cloud.record_gather(&mut rec, cands, tb.raw(), (sampled.table.len(), n, false), [&oi, &op, &on])?;
-    let r = rec.read(&oi, 0, (rows * 4) as u64);
-    out.neighbors = bytemuck::pod_collect_to_vec(&rec.finish()?[r]);
+    let mut out = Patches { points_per_patch: n, ..Patches::default() };
+    cloud.sample_in_parts(gpu, keypoints, seed, 0, &mut |first, sampled| {
+        out.keypoints.extend(sampled.kept.iter().map(|&s| keypoints[first + s] as usize));
+        out.empty.extend(sampled.empty.iter().map(|&s| keypoints[first + s] as usize));
+        let rows = sampled.table.len() * n;
+        let Some(cands) = sampled.candidates().filter(|_| rows > 0) else { return Ok(()) };
+        let ctx = &gpu.context;
+        let tb = GpuBuffer::from_slice(ctx, "sp_table", &sampled.table)?;
+        let (oi, op, on) = (
+            storage_buffer(ctx, "sp_index", (rows * 4) as u64)?,
+            storage_buffer(ctx, "sp_points", (rows * 12) as u64)?,
+            storage_buffer(ctx, "sp_normals", (rows * 12) as u64)?,
+        );
+        let mut rec = Recorder::new(gpu, "sample_patches");
+        cloud.record_gather(&mut rec, cands, tb.raw(), (sampled.table.len(), n, false), [&oi, &op, &on])?;
+        let r = rec.read(&oi, 0, (rows * 4) as u64);
+        out.neighbors.extend(bytemuck::pod_collect_to_vec::<u8, u32>(&rec.finish()?[r]));
+        Ok(())
+    })?;
     Ok(out)
 }

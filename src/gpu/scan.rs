@@ -69,18 +69,22 @@ impl ScanCloud for GpuScanCloud {
             .iter()
             .map(|&k| u32::try_from(k).map_err(|_| Error::invalid(format!("keypoint {k} does not fit 32 bits"))))
             .collect::<Result<Vec<u32>>>()?;
-        let sampled = b.run("patch_sample", |_| self.cloud.sample(&b.gpu, &ks, seed))?;
+        // Normals were estimated for every point when the scan started; sampling, gathering and describing run
+        // as one pass per part, timed as the encoder stage.
         lap("patches");
-        // Normals were estimated for every point when the scan started.
         lap("normals");
-        b.describe_sampled(&self.cloud, &sampled, rows)?;
+        let mut out = DescribedKeypoints::default();
+        // Parts of the keypoints whose candidates fit a buffer, sampled and described in order.
+        self.cloud.sample_in_parts(&b.gpu, &ks, seed, 0, &mut |first, sampled| {
+            b.describe_sampled(&self.cloud, &sampled, rows)?;
+            out.kept.extend(sampled.kept.iter().map(|&s| first + s));
+            out.empty += sampled.empty.len();
+            out.centers.extend(sampled.centers);
+            out.center_normals.extend(sampled.center_normals);
+            Ok(())
+        })?;
         lap("ppf_encoder");
-        Ok(DescribedKeypoints {
-            kept: sampled.kept,
-            empty: sampled.empty.len(),
-            centers: sampled.centers,
-            center_normals: sampled.center_normals,
-        })
+        Ok(out)
     }
 
     fn farthest_points(&self, _cloud: &PointCloud, count: usize, start: usize) -> Result<Vec<usize>> {

@@ -518,6 +518,15 @@ fn sample_patches_matches_cpu_and_brute_force() {
         assert!((0..pts.len()).all(|j| j == k || !in_patch(&pts[j], &pts[k], r2)), "empty {k}");
     }
     assert!(!got.empty.is_empty() && got.keypoints.len() > 100);
+    // Candidates that do not fit one buffer (64 KiB: the cell table fits, the ~60,000 candidates do not): the
+    // keypoints are split, with the same result.
+    let Some(small) = dpr_gpu::gpu::testing::new_gpu_or_skip() else { return };
+    small.context.set_max_buffer_bytes(64 * 1024);
+    let grid = dpr_gpu::cpu::grid_knn::CellGrid::new(&pts, 1.0 / radius).unwrap();
+    let total: u32 =
+        dpr_gpu::cpu::patch_sample::patch_sample(&grid, &keypoints, radius, s).unwrap().counts.iter().sum();
+    assert!(u64::from(total) * 16 > 64 * 1024, "{total} candidates fit one buffer: nothing is split");
+    assert_eq!(gpu::preprocess::sample_patches(&small, &pts, &keypoints, radius, n, s).unwrap(), want, "split");
 }
 
 /// A device cloud's estimated normals (its own kNN grid, cells sized from the point density) against the twins
