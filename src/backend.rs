@@ -1,6 +1,7 @@
 //! The backend seam: the learned and massively parallel stages of the pipeline, implemented by the CPU
-//! reference (`CpuBackend`) and the WGSL kernels (`gpu::GpuBackend`). Geometry that is cheap or sequential
-//! (normals, keypoints, patch gathering, the final rigid fit) stays on the CPU for every backend.
+//! reference (`CpuBackend`) and the WGSL kernels (`gpu::GpuBackend`). A scan's cloud is prepared where the
+//! backend describes it ([`Backend::start_scan`]: the host for the CPU backend, the device for the GPU backend:
+//! patches, normals and gathering there); keypoint selection, ICP and the final rigid fit stay on the host.
 
 use crate::cpu::codeword_distance::codeword_distance;
 use crate::cpu::gemm::Precision;
@@ -13,8 +14,13 @@ use crate::preprocess::GatheredPatches;
 use crate::settings::MatchMode;
 use std::sync::Arc;
 
+mod scan;
 mod steps;
 pub use crate::pipeline::PoseRows;
+pub use scan::{
+    DescribedKeypoints, HostScanCloud, Lap, ScanCloud, ScanSettings, check_points, downsample, host_start_scan,
+    kept_positions, normalise_usable_normals,
+};
 pub use steps::{
     HostRows, HostScanRows, MatchedRows, MatchedSide, PatchBatch, RankedHypothesis, RowMatch, ScanRows, Verified,
     check_restored, host_correspond, host_describe, host_pose_features, host_rows, host_verify, rank,
@@ -70,6 +76,18 @@ pub trait Backend: Send + Sync {
 
     /// The model the backend runs.
     fn model(&self) -> &Model;
+
+    /// Prepares a validated `cloud` for description on this backend: the preprocessed cloud on the host (what
+    /// the pipeline keeps of the scan) and the backend's [`ScanCloud`], which describes keypoints of it. The
+    /// provided version is the host's ([`host_start_scan`]); `lap` marks the `downsample` and `index` stages.
+    fn start_scan(
+        &self,
+        cloud: &crate::cloud::PointCloud,
+        settings: &ScanSettings,
+        lap: Lap<'_>,
+    ) -> Result<(crate::cloud::PointCloud, Box<dyn ScanCloud>)> {
+        host_start_scan(cloud, settings, lap)
+    }
 
     /// An empty store for a scan's rows; `capacity` rows (the scan's whole keypoint order) are expected.
     fn new_scan_rows(&self, capacity: usize) -> Result<Arc<dyn ScanRows>> {

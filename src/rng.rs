@@ -52,16 +52,23 @@ impl Rng {
         (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
     }
 
-    /// `k` distinct indices from `0..n` (k <= n), in the order drawn (partial Fisher-Yates).
+    /// `k` distinct indices from `0..n` (k <= n), in the order drawn: a partial Fisher-Yates shuffle of
+    /// `0..n` whose pool is sparse (only the swapped slots are stored), so it costs O(k) time and memory
+    /// whatever `n`, and draws exactly the sequence of the dense shuffle.
     pub fn sample_without_replacement(&mut self, n: usize, k: usize) -> Vec<usize> {
         debug_assert!(k <= n);
-        let mut pool: Vec<usize> = (0..n).collect();
+        // Slot -> value where it differs from the identity.
+        let mut moved: std::collections::HashMap<usize, usize> = std::collections::HashMap::with_capacity(2 * k);
+        let mut out = Vec::with_capacity(k);
         for i in 0..k {
             let j = i + self.below(n - i);
-            pool.swap(i, j);
+            let at_j = moved.get(&j).copied().unwrap_or(j);
+            let at_i = moved.get(&i).copied().unwrap_or(i);
+            moved.insert(j, at_i);
+            moved.remove(&i);
+            out.push(at_j);
         }
-        pool.truncate(k);
-        pool
+        out
     }
 
     /// A uniformly random unit quaternion `[w, x, y, z]` (Shoemake), i.e. a uniform rotation.
@@ -109,6 +116,29 @@ mod tests {
         s.sort_unstable();
         s.dedup();
         assert_eq!(s.len(), 60);
+    }
+
+    /// The dense partial Fisher-Yates shuffle the sparse one replaces (the oracle of its draws).
+    fn dense_sample(r: &mut Rng, n: usize, k: usize) -> Vec<usize> {
+        let mut pool: Vec<usize> = (0..n).collect();
+        for i in 0..k {
+            let j = i + r.below(n - i);
+            pool.swap(i, j);
+        }
+        pool.truncate(k);
+        pool
+    }
+
+    #[test]
+    fn sparse_sample_draws_exactly_the_dense_sequence() {
+        for (seed, n, k) in [(1, 100, 60), (2, 10, 10), (3, 1, 1), (4, 5, 0), (5, 100_000, 5000), (6, 7, 6)] {
+            let (mut a, mut b) = (Rng::new(seed), Rng::new(seed));
+            assert_eq!(a.sample_without_replacement(n, k), dense_sample(&mut b, n, k), "n {n}, k {k}");
+            assert_eq!(a.next_u64(), b.next_u64(), "same draws consumed");
+        }
+        // A huge population costs nothing beyond k.
+        let s = Rng::new(9).sample_without_replacement(usize::MAX / 2, 3);
+        assert_eq!(s.len(), 3);
     }
 
     #[test]

@@ -7,7 +7,10 @@
 //! GPU tests print `SKIPPED (no GPU adapter)` and return without one (they fail instead with `CI=true` or
 //! `DPR_GPU_REQUIRE_ADAPTER=1`).
 
-use dpr_gpu::backend::{Backend, MatchedRows, PatchBatch, RotationInputs, RowMatch, ScanRows, Verified};
+use dpr_gpu::backend::{
+    Backend, DescribedKeypoints, Lap, MatchedRows, PatchBatch, RotationInputs, RowMatch, ScanCloud, ScanRows,
+    ScanSettings, Verified,
+};
 use dpr_gpu::cli::bench::{self, Args};
 use dpr_gpu::cpu::hypotheses::Hypothesis;
 use dpr_gpu::cpu::mutual_knn::Match;
@@ -111,13 +114,67 @@ fn expected_stage_bytes(stage: &str, config: &Value) -> (u64, u64) {
 /// uploads the gathered patches and reads nothing back; matching reads back three K_MAX lists per source row;
 /// pose features upload the indices of the rows they compute (each row once per scan); verifying uploads the
 /// matched normals and points (per rotation candidate for the hypotheses) and reads back a score per
-/// hypothesis and the kept hypotheses.
+/// hypothesis and the kept hypotheses. A scan stays on the device ([`CountingScan`]): its points (and file normals)
+/// go up once, with two words of each cell table's state (one table, or two when normals are estimated), whose
+/// grid words and status come back.
 struct CountingBackend {
     inner: GpuBackend,
     /// (host to device, device to host), shared with the test.
     bytes: Arc<Mutex<(u64, u64)>>,
     /// (scan rows, row) whose pose feature has been computed.
     computed: Mutex<HashSet<(usize, u32)>>,
+}
+
+/// A device scan, counted per call: sampling a round uploads its keypoint indices, then reads back the
+/// candidate counts per keypoint and search-block cell (64 words each); with a kept patch it uploads the
+/// per-cell offsets and the kept patches' table (16 bytes each, once to sample and once to describe) and reads
+/// back the kept keypoints' positions and normals.
+struct CountingScan {
+    inner: Box<dyn ScanCloud>,
+    bytes: Arc<Mutex<(u64, u64)>>,
+}
+
+impl ScanCloud for CountingScan {
+    fn describe_keypoints(
+        &mut self,
+        backend: &dyn Backend,
+        cloud: &mut dpr_gpu::PointCloud,
+        keypoints: &[usize],
+        seed: u64,
+        rows: &dyn ScanRows,
+        lap: Lap<'_>,
+    ) -> dpr_gpu::Result<DescribedKeypoints> {
+        let out = self.inner.describe_keypoints(backend, cloud, keypoints, seed, rows, lap)?;
+        let (k, p) = (keypoints.len() as u64, out.kept.len() as u64);
+        let block = dpr_gpu::cpu::patch_sample::BLOCK_CELLS as u64;
+        let offsets = if p > 0 { 4 * block * k } else { 0 };
+        let mut b = self.bytes.lock().unwrap();
+        b.0 += 4 * k + offsets + 2 * 16 * p;
+        b.1 += 4 * block * k + 24 * p;
+        Ok(out)
+    }
+
+    fn farthest_points(&self, cloud: &dpr_gpu::PointCloud, count: usize, start: usize) -> dpr_gpu::Result<Vec<usize>> {
+        let out = self.inner.farthest_points(cloud, count, start)?;
+        // The chosen indices: initialised up, read back.
+        let mut b = self.bytes.lock().unwrap();
+        b.0 += 4 * count as u64;
+        b.1 += 4 * count as u64;
+        Ok(out)
+    }
+
+    fn complete_normals(&mut self, cloud: &mut dpr_gpu::PointCloud) -> dpr_gpu::Result<()> {
+        let before = self.inner.normals_complete();
+        self.inner.complete_normals(cloud)?;
+        if !before && self.inner.normals_complete() {
+            self.bytes.lock().unwrap().1 += 12 * cloud.len() as u64;
+        }
+        Ok(())
+    }
+
+    fn normals_complete(&self) -> bool {
+        self.inner.normals_complete()
+    }
 }
 
 impl CountingBackend {
@@ -146,6 +203,21 @@ impl Backend for CountingBackend {
 
     fn new_scan_rows(&self, capacity: usize) -> dpr_gpu::Result<Arc<dyn ScanRows>> {
         self.inner.new_scan_rows(capacity)
+    }
+
+    fn start_scan(
+        &self,
+        cloud: &dpr_gpu::PointCloud,
+        settings: &ScanSettings,
+        lap: Lap<'_>,
+    ) -> dpr_gpu::Result<(dpr_gpu::PointCloud, Box<dyn ScanCloud>)> {
+        assert!(settings.voxel.is_none(), "the count below is for scans that are not downsampled");
+        let (host, inner) = self.inner.start_scan(cloud, settings, lap)?;
+        let n = host.len();
+        // File normals go up with the points; estimated ones need a second cell table.
+        let (normals, tables) = if host.normals.is_some() { (12 * n, 1) } else { (0, 2) };
+        self.add(12 * n + normals + tables * (32 + 4), tables * (32 + 4));
+        Ok((host, Box::new(CountingScan { inner, bytes: Arc::clone(&self.bytes) })))
     }
 
     fn describe(&self, batch: PatchBatch<'_>, rows: &dyn ScanRows) -> dpr_gpu::Result<()> {

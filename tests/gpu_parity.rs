@@ -902,7 +902,10 @@ fn register_matches_cpu_with(g: Arc<Gpu>, s: u64) {
         seed: s,
         ..Default::default()
     };
+    // Normals from the "file" (the CPU path's estimates): both backends then sample and featurise the same
+    // patches, so only the networks' rounding differs. Estimated normals: `device_register_matches_cpu_register`.
     let (source, target, _) = common::room_pair(s, 4_000);
+    let (source, target) = (with_host_normals(&source), with_host_normals(&target));
     let on_gpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(gpu_b)).unwrap();
     let on_cpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(cpu_b)).unwrap();
     let (gs, gt) = (on_gpu.describe(&source, 0).unwrap(), on_gpu.describe(&target, 1).unwrap());
@@ -1111,7 +1114,9 @@ fn pair_steps_read_back_only_small_results() {
         seed: s,
         ..Default::default()
     };
+    // File normals: the device and host descriptions (compared below) then see the same patches.
     let (source, target, _) = common::room_pair(s, 3_000);
+    let (source, target) = (with_host_normals(&source), with_host_normals(&target));
     let r = dpr_gpu::Registrar::with_backend(&settings, Box::new(backend)).unwrap();
     let (fs, ft) = (r.describe(&source, 0).unwrap(), r.describe(&target, 1).unwrap());
     let before = g.context.transfers();
@@ -1244,6 +1249,157 @@ fn every_registered_kernel_has_a_parity_test() {
     }
 }
 
+/// `cloud` with the CPU path's normals (facing a viewpoint inside the room of `common::room_pair`), as if
+/// read from its file.
+fn with_host_normals(cloud: &dpr_gpu::PointCloud) -> dpr_gpu::PointCloud {
+    let index = dpr_gpu::spatial::PointIndex::new(&cloud.points).unwrap();
+    let normals = dpr_gpu::preprocess::estimate_normals(&cloud.points, &index, 16, ROOM_VIEWPOINT);
+    dpr_gpu::PointCloud { points: cloud.points.clone(), normals: Some(normals) }
+}
+
+/// A viewpoint inside `common::room_pair`'s room, off its walls (the default viewpoint, the origin, lies in
+/// all three wall planes: the orientation of their normals would be decided by rounding).
+const ROOM_VIEWPOINT: [f32; 3] = [1.0, 0.9, 0.7];
+
+/// A GPU `register` keeps each scan on the device: normals estimated there, patches sampled, gathered and
+/// described there. Against the CPU `register` on the shipped example pair with its normals dropped (so both
+/// estimate them, facing each scan's sensor at its origin: the same neighbourhoods, PCA in f32 Jacobi sweeps
+/// vs nalgebra f64, equal to rounding where well conditioned, possibly not on edges, which changes a few
+/// patches): the same keypoints are kept (same order, same patch rule), both register the pair (against its
+/// exact ground truth), and the poses agree within what two fits to inlier sets of residual <= tau (the inlier
+/// threshold) can differ by: 2 tau in translation and 2 tau / L radians in rotation, L the scene's half
+/// extent.
+fn device_register_matches_cpu_register() {
+    let Some(g) = gpu() else { return };
+    let s = seed(75);
+    let weights = Weights::built_in().unwrap();
+    let (gpu_b, cpu_b) = backends_for(g, Model::from_weights(&weights).unwrap());
+    let settings = dpr_gpu::RegistrationSettings {
+        keypoints: 250,
+        estimator: dpr_gpu::Estimator::Ransac,
+        seed: s,
+        ..Default::default()
+    };
+    let pair = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/pair");
+    let load = |name: &str| {
+        let cloud = dpr_gpu::io::read_cloud(&pair.join(name), &Default::default()).unwrap().0;
+        dpr_gpu::PointCloud::from_points(cloud.points)
+    };
+    let (source, target) = (load("cloud_bin_1.ply"), load("cloud_bin_0.ply"));
+    let truth = nalgebra::Matrix4::from_row_slice(&[
+        0.8249374759465605,
+        0.021196035911689073,
+        -0.5648264236387563,
+        0.5109733910578623,
+        -0.16826266813936608,
+        0.9631996801883057,
+        -0.20960450996046517,
+        -0.27075264472254146,
+        0.5395978458903807,
+        0.2679498164708749,
+        0.7981460145635543,
+        0.9388456291136249,
+        0.0,
+        0.0,
+        0.0,
+        1.0,
+    ]);
+    let on_gpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(gpu_b)).unwrap();
+    let on_cpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(cpu_b)).unwrap();
+    let tau = f64::from(on_cpu.inlier_threshold());
+    let g_res = on_gpu.register_detailed(&source, &target).unwrap();
+    let c_res = on_cpu.register_detailed(&source, &target).unwrap();
+    assert_eq!(g_res.source.keypoints, c_res.source.keypoints, "seed {s}");
+    assert_eq!(g_res.target.keypoint_ranks, c_res.target.keypoint_ranks, "seed {s}");
+    let (lo, hi) = source.points.iter().fold(([f32::MAX; 3], [f32::MIN; 3]), |(lo, hi), p| {
+        ([0, 1, 2].map(|a| lo[a].min(p[a])), [0, 1, 2].map(|a| hi[a].max(p[a])))
+    });
+    let half_extent = 0.5 * f64::from((0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f32>().sqrt());
+    let (rot_tol, shift_tol) = ((2.0 * tau / half_extent).to_degrees(), 2.0 * tau);
+    for (name, r) in [("gpu", &g_res), ("cpu", &c_res)] {
+        let t = &r.result.estimate.target_from_source;
+        let angle = dpr_gpu::pose::rotation_error_deg(t, &truth);
+        let shift = dpr_gpu::pose::translation_error(t, &truth);
+        assert!(angle < rot_tol && shift < shift_tol, "{name} misses the known pose: {angle} deg, {shift} (seed {s})");
+    }
+    let (gp, cp) = (&g_res.result.estimate.target_from_source, &c_res.result.estimate.target_from_source);
+    let angle = dpr_gpu::pose::rotation_error_deg(gp, cp);
+    let shift = dpr_gpu::pose::translation_error(gp, cp);
+    assert!(angle < rot_tol && shift < shift_tol, "poses differ by {angle} deg and {shift} (seed {s})");
+    eprintln!(
+        "device register: {} vs {} correspondences, poses {angle:.3} deg / {shift:.4} apart (tolerances {rot_tol:.2} \
+         deg / {shift_tol:.3}; seed {s})",
+        g_res.result.correspondences, c_res.result.correspondences
+    );
+}
+
+/// A GPU `register` reads back no per-point data: per scan and round only per-keypoint arrays (the candidate
+/// counts per keypoint and search-block cell, the kept keypoints' positions and normals) and the grid words,
+/// then the pair steps' small results. The bound below is counted from those sizes, with no term in the cloud
+/// size, and the clouds are large enough that one readback of a cloud's points or normals would exceed it.
+/// Up, each cloud's points cross once (normals are estimated on the device), plus per-keypoint arrays.
+fn device_register_reads_back_no_per_point_data() {
+    let Some(g) = gpu() else { return };
+    let s = seed(76);
+    let model = small_model(s);
+    let backend = GpuBackend::with_gpu(Arc::clone(&g), model).unwrap();
+    let (k, n_points) = (40u64, 12_000);
+    let settings = dpr_gpu::RegistrationSettings {
+        keypoints: k as usize,
+        first_keypoints: None,
+        estimator: dpr_gpu::Estimator::Ransac,
+        icp: None,
+        viewpoint: ROOM_VIEWPOINT,
+        seed: s,
+        ..Default::default()
+    };
+    let (source, target, _) = common::room_pair(s, n_points);
+    let r = dpr_gpu::Registrar::with_backend(&settings, Box::new(backend)).unwrap();
+    let before = g.context.transfers();
+    let result = r.register(&source, &target).unwrap();
+    let moved = g.context.transfers().since(before);
+    let n = (source.len() + target.len()) as u64;
+    let block = dpr_gpu::cpu::patch_sample::BLOCK_CELLS as u64;
+    let k_max = dpr_gpu::gpu::mutual_knn::K_MAX as u64;
+    // Per scan: grid words and status of two cell tables (radius cells; kNN cells for the normals).
+    let meta = 2 * (32 + 4);
+    let down_bound = 2 * (meta + k * (4 * block + 24)) + 3 * 4 * k_max * k;
+    let up_bound = 12 * n + 2 * (2 * (32 + 4) + k * (4 + 4 * block + 2 * 16));
+    assert!(result.correspondences >= 3, "seed {s}");
+    assert!(moved.device_to_host_bytes <= down_bound, "{} bytes down, bound {down_bound}", moved.device_to_host_bytes);
+    assert!(down_bound < 12 * source.len().min(target.len()) as u64, "the clouds are too small to tell");
+    assert!(moved.host_to_device_bytes <= up_bound, "{} bytes up, bound {up_bound}", moved.host_to_device_bytes);
+    eprintln!(
+        "device register of {n} points, {k} keypoints per scan: {} bytes up (points: {}), {} bytes down",
+        moved.host_to_device_bytes,
+        12 * n,
+        moved.device_to_host_bytes
+    );
+}
+
+/// Uniform keypoints (farthest-point sampling) drawn on the device: the same keypoint order as the CPU path,
+/// hence the same kept keypoints and ranks.
+fn device_uniform_keypoints_match_cpu() {
+    let Some(g) = gpu() else { return };
+    let s = seed(77);
+    let (gpu_b, cpu_b) = backends(g, s);
+    let settings = dpr_gpu::RegistrationSettings {
+        keypoints: 60,
+        keypoint_mode: dpr_gpu::settings::KeypointMode::Uniform,
+        viewpoint: ROOM_VIEWPOINT,
+        seed: s,
+        ..Default::default()
+    };
+    let (source, _, _) = common::room_pair(s, 3_000);
+    let source = with_host_normals(&source);
+    let on_gpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(gpu_b)).unwrap();
+    let on_cpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(cpu_b)).unwrap();
+    let (gs, cs) = (on_gpu.describe(&source, 0).unwrap(), on_cpu.describe(&source, 0).unwrap());
+    assert_eq!(gs.keypoints, cs.keypoints, "seed {s}");
+    assert_eq!(gs.keypoint_ranks, cs.keypoint_ranks, "seed {s}");
+    assert_eq!(gs.cloud.normals, cs.cloud.normals, "file normals, normalised alike (seed {s})");
+}
+
 fn main() -> std::process::ExitCode {
     dpr_gpu::gpu::testing::run_tests(&[TESTS, gpu_preprocess::TESTS].concat())
 }
@@ -1279,6 +1435,9 @@ const TESTS: &[dpr_gpu::gpu::testing::GpuTest] = &[
     ("pose_feature_matches_cpu_scattered", pose_feature_matches_cpu_scattered),
     ("device_steps_match_cpu_steps", device_steps_match_cpu_steps),
     ("pair_steps_read_back_only_small_results", pair_steps_read_back_only_small_results),
+    ("device_register_matches_cpu_register", device_register_matches_cpu_register),
+    ("device_register_reads_back_no_per_point_data", device_register_reads_back_no_per_point_data),
+    ("device_uniform_keypoints_match_cpu", device_uniform_keypoints_match_cpu),
     (
         "register_with_relativenet_matches_cpu_on_a_generated_pair",
         register_with_relativenet_matches_cpu_on_a_generated_pair,

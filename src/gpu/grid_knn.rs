@@ -98,15 +98,8 @@ pub fn run(gpu: &Gpu, grid: &CellGrid, queries: &[u32], k: usize) -> Result<(Vec
         return Ok((Vec::new(), Vec::new()));
     }
     let ctx = &gpu.context;
-    let b = &grid.bounds;
-    let words =
-        [b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2], 0, to_u32(grid.cells.len(), "cells")? as i32];
-    let pb = GpuBuffer::from_slice(ctx, "knn_points", &grid.points)?;
+    let up = upload_grid(gpu, grid)?;
     let qb = GpuBuffer::from_slice(ctx, "knn_queries", queries)?;
-    let gb = GpuBuffer::from_slice(ctx, "knn_grid", &words)?;
-    let kb = GpuBuffer::from_slice(ctx, "knn_keys", &grid.sorted)?;
-    let sb = GpuBuffer::from_slice(ctx, "knn_starts", &grid.cells.starts)?;
-    let rb = GpuBuffer::from_slice(ctx, "knn_run_keys", &grid.cells.keys)?;
     let slots = queries.len() * k;
     let oi = GpuBuffer::from_slice(ctx, "knn_out_index", &vec![0xDEAD_BEEFu32; slots])?;
     let od = GpuBuffer::from_slice(ctx, "knn_out_d2", &vec![f32::NAN; slots])?;
@@ -116,10 +109,47 @@ pub fn run(gpu: &Gpu, grid: &CellGrid, queries: &[u32], k: usize) -> Result<(Vec
         inv_cell: grid.inv_cell,
         all_points: 0,
     };
-    let g = GridBuffers { points: pb.raw(), grid: gb.raw(), keys: kb.raw(), starts: sb.raw(), run_keys: rb.raw() };
+    let g = up.buffers();
     let mut rec = Recorder::new(gpu, "grid_knn");
     record(&mut rec, &params, &g, qb.raw(), [oi.raw(), od.raw()])?;
     let (ri, rd) = (rec.read(oi.raw(), 0, (slots * 4) as u64), rec.read(od.raw(), 0, (slots * 4) as u64));
     let out = rec.finish()?;
     Ok((bytemuck::pod_collect_to_vec(&out[ri]), bytemuck::pod_collect_to_vec(&out[rd])))
+}
+
+/// A cell table uploaded from the twin's [`CellGrid`] (parity tests).
+pub struct UploadedGrid {
+    points: wgpu::Buffer,
+    grid: wgpu::Buffer,
+    keys: wgpu::Buffer,
+    starts: wgpu::Buffer,
+    run_keys: wgpu::Buffer,
+}
+
+impl UploadedGrid {
+    /// The buffers as the kernels bind them.
+    pub fn buffers(&self) -> GridBuffers<'_> {
+        GridBuffers {
+            points: &self.points,
+            grid: &self.grid,
+            keys: &self.keys,
+            starts: &self.starts,
+            run_keys: &self.run_keys,
+        }
+    }
+}
+
+/// Uploads `grid`'s points and cell table (grid words, sorted keys, runs).
+pub fn upload_grid(gpu: &Gpu, grid: &CellGrid) -> Result<UploadedGrid> {
+    let ctx = &gpu.context;
+    let b = &grid.bounds;
+    let words =
+        [b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2], 0, to_u32(grid.cells.len(), "cells")? as i32];
+    Ok(UploadedGrid {
+        points: GpuBuffer::from_slice(ctx, "grid_points", &grid.points)?.raw().clone(),
+        grid: GpuBuffer::from_slice(ctx, "grid_words", &words)?.raw().clone(),
+        keys: GpuBuffer::from_slice(ctx, "grid_keys", &grid.sorted)?.raw().clone(),
+        starts: GpuBuffer::from_slice(ctx, "grid_starts", &grid.cells.starts)?.raw().clone(),
+        run_keys: GpuBuffer::from_slice(ctx, "grid_run_keys", &grid.cells.keys)?.raw().clone(),
+    })
 }

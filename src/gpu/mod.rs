@@ -20,6 +20,7 @@ pub mod context;
 pub mod dense;
 pub mod dense_coop_f16;
 pub mod dense_fast;
+pub mod farthest_point;
 pub mod gemm;
 pub mod grid_knn;
 pub mod hypotheses;
@@ -28,6 +29,8 @@ pub mod max_pool;
 pub mod mutual_knn;
 pub mod nets;
 pub mod patch_features;
+pub mod patch_gather;
+pub mod patch_sample;
 pub mod pca_normals;
 pub mod pose_feature;
 pub mod prefix_scan;
@@ -36,6 +39,7 @@ pub mod recorder;
 pub mod registry;
 pub mod rotation_head;
 pub mod rows;
+pub mod scan;
 pub mod score_hypotheses;
 pub mod segments;
 pub mod testing;
@@ -165,9 +169,9 @@ impl Gpu {
 /// across calls.
 pub struct GpuBackend {
     gpu: Arc<Gpu>,
-    model: Model,
-    weights: GpuModel,
-    workspace: Mutex<Workspace>,
+    model: Arc<Model>,
+    weights: Arc<GpuModel>,
+    workspace: Arc<Mutex<Workspace>>,
     /// Identity of this backend: the scan rows it makes are only read by it.
     owner: u64,
 }
@@ -186,7 +190,25 @@ impl GpuBackend {
     /// Uploads `model`'s weights to an existing (possibly shared) device.
     pub fn with_gpu(gpu: Arc<Gpu>, model: Model) -> Result<GpuBackend> {
         let weights = gpu.context.scoped("uploading weights", || GpuModel::upload(&gpu.context, &model))??;
-        Ok(GpuBackend { gpu, model, weights, workspace: Mutex::new(Workspace::default()), owner: rows::new_owner() })
+        Ok(GpuBackend {
+            gpu,
+            model: Arc::new(model),
+            weights: Arc::new(weights),
+            workspace: Arc::new(Mutex::new(Workspace::default())),
+            owner: rows::new_owner(),
+        })
+    }
+
+    /// Another handle on this backend: the same device, weights, workspace and identity (rows it describes
+    /// are this backend's).
+    pub(crate) fn handle(&self) -> GpuBackend {
+        GpuBackend {
+            gpu: Arc::clone(&self.gpu),
+            model: Arc::clone(&self.model),
+            weights: Arc::clone(&self.weights),
+            workspace: Arc::clone(&self.workspace),
+            owner: self.owner,
+        }
     }
 
     /// One line describing the adapter.
@@ -323,6 +345,15 @@ impl Backend for GpuBackend {
 
     fn model(&self) -> &Model {
         &self.model
+    }
+
+    fn start_scan(
+        &self,
+        cloud: &crate::cloud::PointCloud,
+        settings: &crate::backend::ScanSettings,
+        lap: crate::backend::Lap<'_>,
+    ) -> Result<(crate::cloud::PointCloud, Box<dyn crate::backend::ScanCloud>)> {
+        self.start_device_scan(cloud, settings, lap)
     }
 
     fn new_scan_rows(&self, capacity: usize) -> Result<Arc<dyn ScanRows>> {

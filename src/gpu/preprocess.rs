@@ -3,16 +3,20 @@
 //! a sequential per-cell sum, so results are deterministic, and each matches its CPU twin in [`crate::cpu`]
 //! ([`crate::cpu::voxel_average::voxel_downsample`] is the definition the CPU path uses too).
 //!
-//! Not wired into the pipeline yet: these are host-level entry points for the backend to call.
+//! [`DeviceCloud`] keeps a scan on the device for description: its points, unit normals (given, or estimated
+//! on the device) and the cell table of the patch radius, on which [`DeviceCloud::sample`] draws patches
+//! (`patch_sample`, `bitonic_sort`, `patch_gather`; [`crate::cpu::patch_sample`]'s definition).
 
 use super::buffer::{GpuBuffer, storage_buffer};
 use super::cell_bounds::{self, GRID_CELLS, GRID_INIT};
 use super::recorder::Recorder;
 use super::segments::SegmentBuffers;
-use super::{Gpu, bitonic_sort, cell_keys, voxel_average};
+use super::{Gpu, bitonic_sort, cell_keys, patch_gather, patch_sample, voxel_average};
 use crate::cloud::PointCloud;
 use crate::cpu::cell_bounds::{CellBox, check_inv_cell};
+use crate::cpu::patch_gather::PatchEntry;
 use crate::error::{Error, Result};
+use crate::preprocess::Patches;
 
 /// A point set's cell table on the GPU: grid words (box, invalid flag, cell count), the sorted keys and the
 /// runs of equal keys (one per occupied cell, in key order).
@@ -276,4 +280,281 @@ pub fn downsample_and_normals(
         points: bytemuck::pod_collect_to_vec(&out[rp]),
         normals: Some(bytemuck::pod_collect_to_vec(&out[rn])),
     })
+}
+
+/// Where a [`DeviceCloud`]'s normals come from.
+#[derive(Clone, Copy, Debug)]
+pub enum NormalSource<'a> {
+    /// One unit normal per point.
+    Given(&'a [[f32; 3]]),
+    /// PCA normals of the `max(k, 3)` nearest neighbours facing `viewpoint`, estimated on the device for every
+    /// point ([`crate::cpu::pca_normals`]'s definition).
+    Estimate {
+        /// Neighbours.
+        k: usize,
+        /// Where the sensor was.
+        viewpoint: [f32; 3],
+    },
+}
+
+/// A scan on the device: points, unit normals and the cell table of cells one patch radius wide. Nothing
+/// per point comes back from it.
+pub struct DeviceCloud {
+    n: usize,
+    radius: f32,
+    normals: wgpu::Buffer,
+    table: CellTable,
+}
+
+/// Patches drawn on a [`DeviceCloud`]: the ranked candidates stay on the device; the host holds the
+/// per-keypoint table and the kept keypoints' positions and normals (small readbacks).
+pub struct SampledPatches {
+    /// Slot (in the keypoints asked) of each kept patch, ascending.
+    pub kept: Vec<usize>,
+    /// Slots whose patch is empty.
+    pub empty: Vec<usize>,
+    /// `[keypoint, start, count, 0]` per kept patch.
+    pub table: Vec<PatchEntry>,
+    /// Kept keypoints' positions.
+    pub centers: Vec<[f32; 3]>,
+    /// Kept keypoints' unit normals.
+    pub center_normals: Vec<[f32; 3]>,
+    /// Sorted candidate keys (device).
+    candidates: Option<wgpu::Buffer>,
+}
+
+impl DeviceCloud {
+    /// Uploads `points` and builds the cloud (see [`DeviceCloud::from_buffer`]).
+    pub fn new(gpu: &Gpu, points: &[[f32; 3]], normals: NormalSource<'_>, radius: f32) -> Result<DeviceCloud> {
+        if points.is_empty() {
+            return Err(Error::invalid("device cloud: no points"));
+        }
+        let pb = GpuBuffer::from_slice(&gpu.context, "cloud_points", points)?.raw().clone();
+        DeviceCloud::from_buffer(gpu, pb, points.len(), normals, radius)
+    }
+
+    /// The cloud of the `n` points already in `points` (e.g. downsampled on the device): the cell table of
+    /// cells `radius` wide and the normals (uploaded, or estimated on the device on a second grid whose cells
+    /// suit the neighbour count). Reads back only the grid words.
+    pub fn from_buffer(
+        gpu: &Gpu,
+        points: wgpu::Buffer,
+        n: usize,
+        normals: NormalSource<'_>,
+        radius: f32,
+    ) -> Result<DeviceCloud> {
+        crate::cpu::patch_sample::check_radius(radius)?;
+        let mut rec = Recorder::new(gpu, "device cloud");
+        let table = CellTable::record(gpu, &mut rec, points, n, 1.0 / radius)?;
+        let (rg, rs) = table.read_meta(&mut rec);
+        let out = rec.finish()?;
+        let (_, cells) = table.check(&out[rg], &out[rs])?;
+        let normals = match normals {
+            NormalSource::Given(ns) => {
+                if ns.len() != n {
+                    return Err(Error::invalid(format!("device cloud: {} normals for {n} points", ns.len())));
+                }
+                GpuBuffer::from_slice(&gpu.context, "cloud_normals", ns)?.raw().clone()
+            }
+            NormalSource::Estimate { k, viewpoint } => {
+                let k = k.max(3);
+                super::grid_knn::check_k(k)?;
+                // Point spacing of a surface with this many points per radius-wide cell: only speed depends on it.
+                let spacing = radius / (n as f32 / cells as f32).max(1.0).sqrt();
+                let mut rec = Recorder::new(gpu, "device normals");
+                let grid = CellTable::record(gpu, &mut rec, table.points.clone(), n, 1.0 / knn_cell(spacing, k))?;
+                let nb = record_knn_normals(gpu, &mut rec, &grid, k, Some(viewpoint))?;
+                let (rg, rs) = grid.read_meta(&mut rec);
+                let out = rec.finish()?;
+                grid.check(&out[rg], &out[rs])?;
+                nb.normals
+            }
+        };
+        Ok(DeviceCloud { n, radius, normals, table })
+    }
+
+    /// Points.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    /// The patch radius (the cell size of its table).
+    pub fn radius(&self) -> f32 {
+        self.radius
+    }
+
+    /// Always false (a device cloud has points).
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    /// `count` points by farthest-point sampling from `start` ([`super::farthest_point`]); only the chosen
+    /// indices come back.
+    pub fn farthest_points(&self, gpu: &Gpu, count: usize, start: usize) -> Result<Vec<usize>> {
+        super::farthest_point::sample(gpu, &self.table.points, self.n, count, start)
+    }
+
+    /// The normals, read back (every point's: a per-point readback, for callers that ask for the whole cloud).
+    pub fn read_normals(&self, gpu: &Gpu) -> Result<Vec<[f32; 3]>> {
+        let bytes = super::buffer::read_bytes(&gpu.context, &self.normals, 0, (self.n * 12) as u64)?;
+        Ok(bytemuck::pod_collect_to_vec(&bytes))
+    }
+
+    fn grid_buffers(&self) -> super::grid_knn::GridBuffers<'_> {
+        super::grid_knn::GridBuffers {
+            points: &self.table.points,
+            grid: &self.table.grid,
+            keys: &self.table.keys,
+            starts: &self.table.runs.starts,
+            run_keys: &self.table.runs.run_keys,
+        }
+    }
+
+    /// The patches of `keypoints` (cloud indices) ranked with `seed`: two submissions (count; write, sort and
+    /// gather the centres); the per-(keypoint, cell) counts and the kept centres come back. `None` when their
+    /// candidates (16 bytes each, padded to a power of two) would not fit one buffer: the caller splits the
+    /// keypoints.
+    pub fn sample(&self, gpu: &Gpu, keypoints: &[u32], seed: u64) -> Result<Option<SampledPatches>> {
+        let params = patch_sample::params(keypoints.len(), self.table.inv_cell, self.radius, seed)?;
+        let mut out = SampledPatches {
+            kept: Vec::new(),
+            empty: Vec::new(),
+            table: Vec::new(),
+            centers: Vec::new(),
+            center_normals: Vec::new(),
+            candidates: None,
+        };
+        if keypoints.is_empty() {
+            return Ok(Some(out));
+        }
+        if let Some(&bad) = keypoints.iter().find(|&&k| k as usize >= self.n) {
+            return Err(Error::invalid(format!("patch_sample: keypoint {bad} of a cloud of {} points", self.n)));
+        }
+        let ctx = &gpu.context;
+        let kb = GpuBuffer::from_slice(ctx, "ps_keypoints", keypoints)?;
+        let count_bytes = (keypoints.len() * crate::cpu::patch_sample::BLOCK_CELLS * 4) as u64;
+        let counts = storage_buffer(ctx, "ps_counts", count_bytes)?;
+        let g = self.grid_buffers();
+        let mut rec = Recorder::new(gpu, "patch_sample count");
+        patch_sample::record_count(&mut rec, &params, &g, kb.raw(), &gpu.dummy, &counts)?;
+        let r = rec.read(&counts, 0, count_bytes);
+        let counts: Vec<u32> = bytemuck::pod_collect_to_vec(&rec.finish()?[r]);
+        let (per_slot, offsets, total) = patch_sample::offsets(&counts, keypoints, &params)?;
+        let mut start = 0u32;
+        for (slot, &count) in per_slot.iter().enumerate() {
+            if count == 0 {
+                out.empty.push(slot);
+            } else {
+                out.kept.push(slot);
+                out.table.push([keypoints[slot], start, count, 0]);
+            }
+            start += count;
+        }
+        if out.table.is_empty() {
+            return Ok(Some(out));
+        }
+        let padded = cell_keys::padded_len(total)?;
+        if (padded * 16) as u64 > ctx.max_buffer_bytes() {
+            if keypoints.len() == 1 {
+                return Err(Error::Gpu(format!(
+                    "patch_sample: keypoint {} has {total} points within radius {}, more than one buffer holds",
+                    keypoints[0], self.radius
+                )));
+            }
+            return Ok(None);
+        }
+        let ob = GpuBuffer::from_slice(ctx, "ps_offsets", &offsets)?;
+        let cands = storage_buffer(ctx, "ps_candidates", (padded * 16) as u64)?;
+        let p = out.table.len();
+        let tb = GpuBuffer::from_slice(ctx, "ps_table", &out.table)?;
+        let (ci, cp, cn) = (
+            storage_buffer(ctx, "ps_center_index", (p * 4) as u64)?,
+            storage_buffer(ctx, "ps_centers", (p * 12) as u64)?,
+            storage_buffer(ctx, "ps_center_normals", (p * 12) as u64)?,
+        );
+        let mut rec = Recorder::new(gpu, "patch_sample write");
+        patch_sample::record_write_and_sort(&mut rec, &params, &g, kb.raw(), ob.raw(), &cands, total, padded)?;
+        self.record_gather(&mut rec, &cands, tb.raw(), (p, 1, true), [&ci, &cp, &cn])?;
+        let (rp, rn) = (rec.read(&cp, 0, (p * 12) as u64), rec.read(&cn, 0, (p * 12) as u64));
+        let bytes = rec.finish()?;
+        out.centers = bytemuck::pod_collect_to_vec(&bytes[rp]);
+        out.center_normals = bytemuck::pod_collect_to_vec(&bytes[rn]);
+        out.candidates = Some(cands);
+        Ok(Some(out))
+    }
+
+    /// [`DeviceCloud::sample`], splitting `keypoints` in halves until each part's candidates fit a buffer;
+    /// `each` receives every part's patches in order with the position of its first keypoint.
+    pub fn sample_in_parts(
+        &self,
+        gpu: &Gpu,
+        keypoints: &[u32],
+        seed: u64,
+        first: usize,
+        each: &mut dyn FnMut(usize, SampledPatches) -> Result<()>,
+    ) -> Result<()> {
+        match self.sample(gpu, keypoints, seed)? {
+            Some(sampled) => each(first, sampled),
+            None => {
+                let half = keypoints.len() / 2;
+                self.sample_in_parts(gpu, &keypoints[..half], seed, first, each)?;
+                self.sample_in_parts(gpu, &keypoints[half..], seed, first + half, each)
+            }
+        }
+    }
+
+    /// Records the gather of the patches of `table` (a device copy of entries of `sampled.table`): `n` rows
+    /// each, or their centres, into `[index, points, normals]`.
+    pub fn record_gather(
+        &self,
+        rec: &mut Recorder<'_>,
+        candidates: &wgpu::Buffer,
+        table: &wgpu::Buffer,
+        shape: (usize, usize, bool),
+        out: [&wgpu::Buffer; 3],
+    ) -> Result<()> {
+        patch_gather::record(rec, shape, [&self.table.points, &self.normals, candidates, table], out)
+    }
+}
+
+impl SampledPatches {
+    /// The sorted candidates on the device (none when every patch is empty).
+    pub fn candidates(&self) -> Option<&wgpu::Buffer> {
+        self.candidates.as_ref()
+    }
+}
+
+/// Patches of `keypoints` sampled entirely on the GPU (cell table, search, sort, gather), read back as the CPU
+/// path's [`Patches`]: the same patches as [`crate::preprocess::extract_patches`].
+pub fn sample_patches(
+    gpu: &Gpu,
+    points: &[[f32; 3]],
+    keypoints: &[u32],
+    radius: f32,
+    points_per_patch: usize,
+    seed: u64,
+) -> Result<Patches> {
+    // The points stand in for normals: only indices are read back.
+    let cloud = DeviceCloud::new(gpu, points, NormalSource::Given(points), radius)?;
+    let n = points_per_patch;
+    let mut out = Patches { points_per_patch: n, ..Patches::default() };
+    cloud.sample_in_parts(gpu, keypoints, seed, 0, &mut |first, sampled| {
+        out.keypoints.extend(sampled.kept.iter().map(|&s| keypoints[first + s] as usize));
+        out.empty.extend(sampled.empty.iter().map(|&s| keypoints[first + s] as usize));
+        let rows = sampled.table.len() * n;
+        let Some(cands) = sampled.candidates().filter(|_| rows > 0) else { return Ok(()) };
+        let ctx = &gpu.context;
+        let tb = GpuBuffer::from_slice(ctx, "sp_table", &sampled.table)?;
+        let (oi, op, on) = (
+            storage_buffer(ctx, "sp_index", (rows * 4) as u64)?,
+            storage_buffer(ctx, "sp_points", (rows * 12) as u64)?,
+            storage_buffer(ctx, "sp_normals", (rows * 12) as u64)?,
+        );
+        let mut rec = Recorder::new(gpu, "sample_patches");
+        cloud.record_gather(&mut rec, cands, tb.raw(), (sampled.table.len(), n, false), [&oi, &op, &on])?;
+        let r = rec.read(&oi, 0, (rows * 4) as u64);
+        out.neighbors.extend(bytemuck::pod_collect_to_vec::<u8, u32>(&rec.finish()?[r]));
+        Ok(())
+    })?;
+    Ok(out)
 }

@@ -14,12 +14,15 @@ use super::context::GpuContext;
 use super::dense::Dense;
 use super::dense_coop_f16::DenseCoopF16;
 use super::dense_fast::DenseFast;
+use super::farthest_point::FarthestPoint;
 use super::grid_knn::GridKnn;
 use super::hypotheses::Hypotheses;
 use super::kernel::{GpuKernel, Kernel, KernelSpec};
 use super::max_pool::MaxPool;
 use super::mutual_knn::MutualKnn;
 use super::patch_features::PatchFeatures;
+use super::patch_gather::PatchGather;
+use super::patch_sample::PatchSample;
 use super::pca_normals::PcaNormals;
 use super::pose_feature::PoseFeature;
 use super::prefix_scan::PrefixScan;
@@ -39,6 +42,9 @@ pub const KERNELS: &[KernelSpec] = &[
     VoxelAverage::SPEC,
     GridKnn::SPEC,
     PcaNormals::SPEC,
+    FarthestPoint::SPEC,
+    PatchSample::SPEC,
+    PatchGather::SPEC,
     PatchFeatures::SPEC,
     Dense::SPEC,
     DenseFast::SPEC,

@@ -6,6 +6,7 @@
 
 use super::buffer::{self, storage_buffer};
 use super::nets::{self, items_per_chunk};
+use super::preprocess::{DeviceCloud, SampledPatches};
 use super::recorder::Recorder;
 use super::{Gpu, GpuBackend, hypotheses, pose_feature, score_hypotheses, to_u32};
 use crate::backend::{MatchedRows, PatchBatch, RankedHypothesis, RowMatch, ScanRows, Verified, check_restored, rank};
@@ -253,6 +254,75 @@ impl GpuBackend {
                 self.record_patch_features(
                     &mut rec,
                     batch.radius(),
+                    cp,
+                    [&centers, &center_normals, &points, &normals],
+                    [&ppf, &pc],
+                )?;
+                let codewords = nets::record_encode(&mut rec, gpu, ws, &self.weights.ppf, &ppf, (cp, n))?;
+                rec.copy(&codewords, 0, &s.codewords, ((start + c0) * cw * 4) as u64, (cp * cw * 4) as u64);
+                pending.push(rec.submit()?);
+                segments.push(Segment { first: start + c0, rows: cp, buffer: pc });
+            }
+            for pend in pending {
+                pend.wait(gpu)?;
+            }
+            s.segments.extend(segments);
+            s.rows = start + p;
+            s.ready.resize(start + p, false);
+            Ok(())
+        })
+    }
+
+    /// Patches sampled on a device cloud, gathered, featurised and encoded on the device and appended to
+    /// `rows` by offset (nothing is read back): [`GpuBackend::describe_on_device`] without the uploads.
+    pub(super) fn describe_sampled(
+        &self,
+        cloud: &DeviceCloud,
+        sampled: &SampledPatches,
+        rows: &dyn ScanRows,
+    ) -> Result<()> {
+        let store = self.own(rows, "describe")?;
+        let p = sampled.table.len();
+        let Some(candidates) = sampled.candidates().filter(|_| p > 0) else { return Ok(()) };
+        let n = self.model.config.points_per_patch;
+        let cw = store.codeword;
+        let radius = cloud.radius();
+        let gpu = &self.gpu;
+        let ctx = &gpu.context;
+        self.run("describe", |ws| {
+            let mut s = store.lock();
+            let start = s.rows;
+            store.reserve(&mut s, start + p)?;
+            let chunk = items_per_chunk(ctx, (n * 16) as u64, "patch's features")?.min(nets::encoder_chunk(
+                ctx,
+                &self.weights.ppf,
+                n,
+            )?);
+            let mut pending = Vec::new();
+            let mut segments = Vec::new();
+            for c0 in (0..p).step_by(chunk) {
+                let cp = chunk.min(p - c0);
+                let table = ws.upload(ctx, "pf_table", &sampled.table[c0..c0 + cp])?;
+                let center_index = ws.buffer(ctx, "pf_center_index", (cp * 4) as u64)?;
+                let centers = ws.buffer(ctx, "pf_centers", (cp * 12) as u64)?;
+                let center_normals = ws.buffer(ctx, "pf_center_normals", (cp * 12) as u64)?;
+                let index = ws.buffer(ctx, "pf_index", (cp * n * 4) as u64)?;
+                let points = ws.buffer(ctx, "pf_points", (cp * n * 12) as u64)?;
+                let normals = ws.buffer(ctx, "pf_normals", (cp * n * 12) as u64)?;
+                let ppf = ws.buffer(ctx, "pf_ppf", (cp * n * 16) as u64)?;
+                let pc = storage_buffer(ctx, "scan pc inputs", (cp * n * 12) as u64)?;
+                let mut rec = Recorder::new(gpu, "describe");
+                cloud.record_gather(
+                    &mut rec,
+                    candidates,
+                    &table,
+                    (cp, 1, true),
+                    [&center_index, &centers, &center_normals],
+                )?;
+                cloud.record_gather(&mut rec, candidates, &table, (cp, n, false), [&index, &points, &normals])?;
+                self.record_patch_features(
+                    &mut rec,
+                    radius,
                     cp,
                     [&centers, &center_normals, &points, &normals],
                     [&ppf, &pc],

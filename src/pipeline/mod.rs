@@ -2,13 +2,13 @@
 //! estimate the pose. `register` runs it all; `Registrar` exposes the steps for evaluation tools and keeps the
 //! model and backend loaded across pairs.
 
-use crate::backend::{Backend, CpuBackend, MatchedRows, MatchedSide, PatchBatch, RowMatch};
+use crate::backend::{Backend, CpuBackend, MatchedRows, MatchedSide, RowMatch, ScanSettings};
 use crate::cloud::PointCloud;
 use crate::cpu::gemm::Precision;
 use crate::error::{Error, Result};
 use crate::estimate::{icp_point_to_plane, ransac, refine_best};
 use crate::model::{Model, Weights};
-use crate::preprocess::{estimate_normals_at, extract_patches, gather, select_keypoints, voxel_downsample};
+use crate::preprocess::{estimate_normals_at, select_keypoints, voxel_downsample};
 use crate::rng::Rng;
 use crate::settings::*;
 use crate::spatial::PointIndex;
@@ -18,7 +18,7 @@ use std::time::Instant;
 mod scan;
 mod stages;
 
-use scan::{DescribingScan, MissingNormals};
+use scan::DescribingScan;
 pub use scan::{PoseRows, ScanFeatures};
 pub use stages::{Round, keypoint_stages};
 
@@ -219,13 +219,27 @@ impl Registrar {
         let mut clock = Stopwatch::new(self.progress_for(stream));
         let mut scan = self.start_description(cloud, stream, viewpoint, &mut clock)?;
         self.extend_description(&mut scan, self.settings.keypoints, &mut clock)?;
-        self.complete_normals(&mut scan);
+        self.complete_normals(&mut scan)?;
         clock.lap("remaining_normals");
         scan.features.timings = clock.timings;
         Ok(scan.features)
     }
 
-    /// Preprocesses `cloud` (downsampling, normals) and fixes its keypoint order; no keypoint is described yet.
+    /// What the backend's scan preparation and description need of the settings.
+    fn scan_settings(&self, viewpoint: [f32; 3]) -> ScanSettings {
+        let s = &self.settings;
+        ScanSettings {
+            voxel: s.voxel,
+            radius: self.radius(),
+            points_per_patch: self.backend.model().config.points_per_patch,
+            normal_neighbors: s.normal_neighbors,
+            viewpoint,
+            min_points: MIN_POINTS,
+        }
+    }
+
+    /// Preprocesses `cloud` where the backend describes it (downsampling, normals) and fixes its keypoint
+    /// order; no keypoint is described yet.
     fn start_description(
         &self,
         cloud: &PointCloud,
@@ -235,34 +249,17 @@ impl Registrar {
     ) -> Result<DescribingScan> {
         let s = &self.settings;
         cloud.validate("cloud")?;
-        let mut cloud = match s.voxel {
-            Some(v) => voxel_downsample(cloud, v)?,
-            None => cloud.clone(),
-        };
-        if cloud.len() < MIN_POINTS {
-            return Err(Error::invalid(format!(
-                "cloud has {} points after preprocessing; at least {MIN_POINTS} are needed",
-                cloud.len()
-            )));
-        }
-        clock.lap("downsample");
-        let index = PointIndex::new(&cloud.points)?;
-        clock.lap("index");
-        let usable_normals =
-            cloud.normals.as_ref().is_some_and(|ns| ns.iter().all(|n| n[0] * n[0] + n[1] * n[1] + n[2] * n[2] > 1e-12));
-        // Estimated normals are computed where patches need them (`extend_description`).
-        let missing_normals = if usable_normals {
-            for n in cloud.normals.as_mut().expect("checked") {
-                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-                *n = n.map(|c| c / len);
-            }
-            None
-        } else {
-            cloud.normals = Some(vec![[f32::NAN; 3]; cloud.len()]);
-            Some(MissingNormals { ready: vec![false; cloud.len()], viewpoint })
-        };
+        let (cloud, scan_cloud) =
+            self.backend.start_scan(cloud, &self.scan_settings(viewpoint), &mut |stage| clock.lap(stage))?;
         let mut rng = Rng::derived(s.seed, 2 * stream);
-        let order = select_keypoints(&cloud.points, s.keypoints, s.keypoint_mode, &mut rng);
+        let order = match s.keypoint_mode {
+            // Farthest-point sampling where the backend keeps the cloud (the same start draw as on the host).
+            KeypointMode::Uniform if s.keypoints < cloud.len() => {
+                let start = rng.below(cloud.len());
+                scan_cloud.farthest_points(&cloud, s.keypoints, start)?
+            }
+            _ => select_keypoints(&cloud.points, s.keypoints, s.keypoint_mode, &mut rng),
+        };
         clock.lap("keypoints");
         let features = ScanFeatures {
             cloud,
@@ -275,7 +272,7 @@ impl Registrar {
             timings: Vec::new(),
         };
         let patch_seed = Rng::derived(s.seed, 2 * stream + 1).next_u64();
-        Ok(DescribingScan { features, index, order, patch_seed, missing_normals })
+        Ok(DescribingScan { features, cloud: scan_cloud, order, patch_seed })
     }
 
     /// Describes the keypoints of `scan`'s order up to the first `candidates` (patches, network inputs, PPF
@@ -291,70 +288,33 @@ impl Registrar {
         if from >= to {
             return Ok(());
         }
-        let config = &self.backend.model().config;
-        let radius = self.radius();
         let f = &mut scan.features;
-        let patches =
-            extract_patches(&f.cloud.points, &scan.index, &scan.order[from..to], radius, config.points_per_patch, {
-                scan.patch_seed
-            });
-        clock.lap("patches");
-        let mut needed: Vec<usize> = patches.keypoints.clone();
-        needed.extend(patches.neighbors.iter().map(|&j| j as usize));
-        self.fill_normals(&mut f.cloud, &scan.index, &mut scan.missing_normals, needed);
-        let normals = f.cloud.normals.as_ref().expect("normals set when the description started");
-        let gathered = gather(&f.cloud.points, normals, &patches);
-        clock.lap("normals");
-        self.backend.describe(PatchBatch::new(&gathered, config.points_per_patch, radius)?, f.rows.as_ref())?;
-        clock.lap("ppf_encoder");
-        // Ranks of the kept keypoints: patches keep the order of `scan.order[from..to]`.
-        let mut kept = patches.keypoints.iter().peekable();
-        for (rank, &k) in scan.order[from..to].iter().enumerate() {
-            if kept.peek() == Some(&&k) {
-                kept.next();
-                f.keypoint_ranks.push((from + rank) as u32);
-            }
-        }
-        f.keypoints.extend(gathered.centers);
-        f.keypoint_normals.extend(gathered.center_normals);
-        f.empty_patches += patches.empty.len();
+        let described = scan.cloud.describe_keypoints(
+            self.backend.as_ref(),
+            &mut f.cloud,
+            &scan.order[from..to],
+            scan.patch_seed,
+            f.rows.as_ref(),
+            &mut |stage| clock.lap(stage),
+        )?;
+        // Ranks of the kept keypoints: their positions in `scan.order[from..to]`.
+        f.keypoint_ranks.extend(described.kept.iter().map(|&pos| (from + pos) as u32));
+        f.keypoints.extend(described.centers);
+        f.keypoint_normals.extend(described.center_normals);
+        f.empty_patches += described.empty;
         f.candidates = to;
         if to == scan.order.len() && f.keypoints.is_empty() {
             return Err(Error::invalid(format!(
-                "no keypoint has a neighbour within radius {radius}: is the radius right for the cloud's units?"
+                "no keypoint has a neighbour within radius {}: is the radius right for the cloud's units?",
+                self.radius()
             )));
         }
         Ok(())
     }
 
-    /// Estimates the normals of the points `ids` of `cloud` that are still missing (`missing` is `None` when
-    /// the cloud came with normals, or once all are computed).
-    fn fill_normals(
-        &self,
-        cloud: &mut PointCloud,
-        index: &PointIndex,
-        missing: &mut Option<MissingNormals>,
-        mut ids: Vec<usize>,
-    ) {
-        let Some(m) = missing.as_mut() else { return };
-        ids.retain(|&i| !m.ready[i]);
-        ids.sort_unstable();
-        ids.dedup();
-        let computed = estimate_normals_at(&cloud.points, index, &ids, self.settings.normal_neighbors, m.viewpoint);
-        let normals = cloud.normals.as_mut().expect("placeholders set when the description started");
-        for (&i, n) in ids.iter().zip(computed) {
-            normals[i] = n;
-            m.ready[i] = true;
-        }
-        if m.ready.iter().all(|&r| r) {
-            *missing = None;
-        }
-    }
-
     /// Computes every normal of `scan`'s cloud that is still missing.
-    fn complete_normals(&self, scan: &mut DescribingScan) {
-        let all = (0..scan.features.cloud.len()).collect();
-        self.fill_normals(&mut scan.features.cloud, &scan.index, &mut scan.missing_normals, all);
+    fn complete_normals(&self, scan: &mut DescribingScan) -> Result<()> {
+        scan.cloud.complete_normals(&mut scan.features.cloud)
     }
 
     /// The pose features (PC-FoldNet codeword minus PPF-FoldNet codeword) of `rows` of `scan`, in that order,
@@ -579,7 +539,7 @@ impl Registrar {
         }
         let round = outcome.finish()?;
         for scan in [&mut src, &mut tgt] {
-            if scan.missing_normals.is_some() {
+            if !scan.cloud.normals_complete() {
                 // Normals were estimated only where patches needed them.
                 scan.features.cloud.normals = None;
             }

@@ -6,10 +6,9 @@
 //! K at once: the keypoint order is a prefix-stable seeded sample, each patch draws from its own stream (derived
 //! from its keypoint), and every network row depends only on its own patch.
 
-use crate::backend::ScanRows;
+use crate::backend::{ScanCloud, ScanRows};
 use crate::cloud::PointCloud;
 use crate::settings::StageTime;
-use crate::spatial::PointIndex;
 use std::sync::Arc;
 
 /// Per-scan output of the description stages.
@@ -72,20 +71,10 @@ pub struct PoseRows {
 pub(crate) struct DescribingScan {
     /// The features of the keypoints described so far (`features.cloud` is the preprocessed cloud).
     pub features: ScanFeatures,
-    /// Spatial index over `features.cloud.points`.
-    pub index: PointIndex,
+    /// The cloud where the backend describes it.
+    pub cloud: Box<dyn ScanCloud>,
     /// Cloud indices of the keypoints, in description order.
     pub order: Vec<usize>,
     /// Seed of the patch sampling streams.
     pub patch_seed: u64,
-    /// Normals still to estimate (`None` when the cloud came with normals or all are computed).
-    pub missing_normals: Option<MissingNormals>,
-}
-
-/// Which estimated normals a cloud still lacks (placeholders until then), and where they face.
-pub(crate) struct MissingNormals {
-    /// Whether each point's normal is computed.
-    pub ready: Vec<bool>,
-    /// The viewpoint estimated normals face (scan frame).
-    pub viewpoint: [f32; 3],
 }

@@ -1,5 +1,6 @@
 //! Keypoint selection: seeded random points, or spatially uniform farthest-point sampling.
 
+use crate::cpu::farthest_point::farthest_point;
 use crate::rng::Rng;
 use crate::settings::KeypointMode;
 
@@ -11,30 +12,8 @@ pub fn select_keypoints(points: &[[f32; 3]], count: usize, mode: KeypointMode, r
     }
     match mode {
         KeypointMode::Random => rng.sample_without_replacement(n, count),
-        KeypointMode::Uniform => farthest_point_sampling(points, count, rng.below(n)),
+        KeypointMode::Uniform => farthest_point(points, count, rng.below(n)),
     }
-}
-
-/// Greedy farthest-point sampling from `start`; ties go to the lower index.
-fn farthest_point_sampling(points: &[[f32; 3]], count: usize, start: usize) -> Vec<usize> {
-    let d2 = |a: &[f32; 3], b: &[f32; 3]| (0..3).map(|i| (a[i] - b[i]) * (a[i] - b[i])).sum::<f32>();
-    let mut nearest = vec![f32::INFINITY; points.len()];
-    let mut chosen = Vec::with_capacity(count);
-    let mut current = start;
-    for _ in 0..count {
-        chosen.push(current);
-        let c = points[current];
-        let mut best = (0, -1.0f32);
-        for (i, p) in points.iter().enumerate() {
-            let d = d2(p, &c).min(nearest[i]);
-            nearest[i] = d;
-            if d > best.1 {
-                best = (i, d);
-            }
-        }
-        current = best.0;
-    }
-    chosen
 }
 
 #[cfg(test)]

@@ -1,9 +1,15 @@
-//! Local patches: the points within radius r of each keypoint (the keypoint itself excluded), N sampled
-//! without replacement when there are enough, with replacement otherwise.
+//! Local patches: the points within radius r of each keypoint (the keypoint itself excluded), N of them
+//! sampled by the rule of [`crate::cpu::patch_sample`] (distinct when there are enough, every candidate
+//! repeated in ranking order otherwise): the same definition the GPU kernels implement, so both paths pick the
+//! same neighbours.
 
-use crate::rng::Rng;
+use crate::cpu::patch_sample::{in_patch, radius_squared, rank_candidates, stream_key, take_cyclic};
 use crate::spatial::PointIndex;
 use rayon::prelude::*;
+
+/// Relative widening of the k-d tree query, so that it returns every point the exact `d2 <= r2` test of
+/// [`in_patch`] keeps (the tree rounds its distances its own way; f32 rounding is far below this).
+const QUERY_SLACK: f32 = 1e-4;
 
 /// Sampled neighbourhoods of the keypoints that have at least one neighbour.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -18,8 +24,8 @@ pub struct Patches {
     pub empty: Vec<usize>,
 }
 
-/// Gathers and samples one patch per keypoint. Patch `i` uses its own random stream derived from `seed` and
-/// the keypoint's cloud index, so the result does not depend on thread scheduling.
+/// Gathers and samples one patch per keypoint. Patch `i`'s ranking is keyed by `seed` and the keypoint's cloud
+/// index, so the result depends neither on thread scheduling nor on the batch that holds the keypoint.
 pub fn extract_patches(
     points: &[[f32; 3]],
     index: &PointIndex,
@@ -28,34 +34,28 @@ pub fn extract_patches(
     points_per_patch: usize,
     seed: u64,
 ) -> Patches {
-    let sampled: Vec<Option<Vec<u32>>> = keypoints
+    let key = stream_key(seed);
+    let r2 = radius_squared(radius);
+    let sampled: Vec<Vec<u32>> = keypoints
         .par_iter()
         .map(|&k| {
-            let candidates: Vec<u32> =
-                index.within(&points[k], radius).iter().filter(|n| n.index != k).map(|n| n.index as u32).collect();
-            if candidates.is_empty() {
-                return None;
-            }
-            let mut rng = Rng::derived(seed, k as u64);
-            let picked = if candidates.len() >= points_per_patch {
-                rng.sample_without_replacement(candidates.len(), points_per_patch)
-                    .into_iter()
-                    .map(|i| candidates[i])
-                    .collect()
-            } else {
-                (0..points_per_patch).map(|_| candidates[rng.below(candidates.len())]).collect()
-            };
-            Some(picked)
+            let q = &points[k];
+            let candidates: Vec<u32> = index
+                .within(q, radius * (1.0 + QUERY_SLACK))
+                .iter()
+                .filter(|n| n.index != k && in_patch(&points[n.index], q, r2))
+                .map(|n| n.index as u32)
+                .collect();
+            take_cyclic(&rank_candidates(&candidates, k as u32, key), points_per_patch)
         })
         .collect();
     let mut out = Patches { points_per_patch, ..Patches::default() };
-    for (&k, s) in keypoints.iter().zip(sampled) {
-        match s {
-            Some(nbrs) => {
-                out.keypoints.push(k);
-                out.neighbors.extend(nbrs);
-            }
-            None => out.empty.push(k),
+    for (&k, nbrs) in keypoints.iter().zip(sampled) {
+        if nbrs.is_empty() {
+            out.empty.push(k);
+        } else {
+            out.keypoints.push(k);
+            out.neighbors.extend(nbrs);
         }
     }
     out
@@ -87,5 +87,34 @@ mod tests {
         let q = extract_patches(&pts, &index, &[0], 0.025, 8, 3);
         assert!(q.neighbors.iter().all(|&j| j == 1 || j == 2));
         assert_eq!(p, extract_patches(&pts, &index, &[0, 25, 50], 0.1, 8, 3));
+    }
+
+    #[test]
+    fn patches_are_the_twins_on_a_grid() {
+        use crate::cpu::grid_knn::CellGrid;
+        use crate::cpu::patch_gather::patch_gather;
+        use crate::cpu::patch_sample::patch_sample;
+        let mut rng = crate::rng::Rng::new(8);
+        let pts: Vec<[f32; 3]> = (0..2000).map(|_| [0; 3].map(|_: i32| rng.uniform(-1.0, 1.0) as f32)).collect();
+        let index = PointIndex::new(&pts).unwrap();
+        let keypoints: Vec<usize> = (0..2000).step_by(13).collect();
+        let (radius, n, seed) = (0.12, 24, 77);
+        let p = extract_patches(&pts, &index, &keypoints, radius, n, seed);
+        let grid = CellGrid::new(&pts, 1.0 / radius).unwrap();
+        let ks: Vec<u32> = keypoints.iter().map(|&k| k as u32).collect();
+        let c = patch_sample(&grid, &ks, radius, seed).unwrap();
+        let (mut table, mut start, mut empty) = (Vec::new(), 0, Vec::new());
+        for (slot, &count) in c.counts.iter().enumerate() {
+            if count == 0 {
+                empty.push(keypoints[slot]);
+            } else {
+                table.push([ks[slot], start, count, 0]);
+            }
+            start += count;
+        }
+        let (idx, _, _) = patch_gather(&pts, &pts, &c.sorted, &table, n, false).unwrap();
+        assert_eq!(idx, p.neighbors);
+        assert_eq!(empty, p.empty);
+        assert!(p.keypoints.len() > 100 && c.counts.iter().any(|&c| (c as usize) < n));
     }
 }

@@ -409,6 +409,168 @@ fn normals_and_downsampling_match_cpu() {
     assert!(check_normals("downsample_and_normals", s, &down.points, &lists, k, view, (&got, &want)) > down.len() / 2);
 }
 
+/// A scene for patch sampling: a lattice (exact distances: many points exactly at the radius), a random
+/// cluster, points on a shell at the radius up to rounding around one keypoint (where an FMA would flip the
+/// boundary test), an isolated point (0 neighbours), a pair (1 neighbour) and a sparse line (< N).
+fn patch_scene(rng: &mut Rng) -> (Vec<[f32; 3]>, Vec<u32>, f32) {
+    let radius = 0.25f32;
+    let mut pts: Vec<[f32; 3]> =
+        (0..512).map(|i| [(i % 8) as f32 * 0.125, ((i / 8) % 8) as f32 * 0.125, (i / 64) as f32 * 0.125]).collect();
+    pts.extend(cloud(rng, 1500, 0.3, 2.0));
+    let centre = [5.3f32, -1.7, 0.9];
+    let shell_at = pts.len() as u32;
+    pts.push(centre);
+    for _ in 0..400 {
+        let u = super::unit(rng);
+        let scale = 1.0 + (rng.uniform(-2.0, 2.0) as f32) * EPS;
+        pts.push([0, 1, 2].map(|a| centre[a] + radius * scale * u[a]));
+    }
+    let isolated = pts.len() as u32;
+    pts.push([-6.0, 6.0, 6.0]);
+    pts.extend_from_slice(&[[9.0, 9.0, 9.0], [9.1, 9.0, 9.0]]);
+    let line_at = pts.len() as u32;
+    pts.extend((0..6).map(|i| [-4.0 + i as f32 * 0.1, 0.0, 0.0]));
+    let mut keypoints: Vec<u32> = (0..512).step_by(5).chain((512..2012).step_by(11)).collect();
+    keypoints.extend([shell_at, isolated, isolated + 1, line_at + 2, 0, 511]);
+    (pts, keypoints, radius)
+}
+
+fn patch_sample_matches_cpu() {
+    use dpr_gpu::cpu::grid_knn::CellGrid;
+    use dpr_gpu::cpu::patch_sample::patch_sample;
+    let Some(g) = gpu() else { return };
+    let s = seed(111);
+    let mut rng = Rng::new(s);
+    let (pts, keypoints, radius) = patch_scene(&mut rng);
+    for cell in [radius, 1.7 * radius] {
+        let grid = CellGrid::new(&pts, 1.0 / cell).unwrap();
+        let want = patch_sample(&grid, &keypoints, radius, s).unwrap();
+        let got = gpu::patch_sample::run(&g, &grid, &keypoints, radius, s).unwrap();
+        assert_eq!(got.counts, want.counts, "counts, cell {cell} (seed {s})");
+        assert_eq!(got.sorted, want.sorted, "ranked candidates, cell {cell} (seed {s})");
+        // The cases the scene is built for are there.
+        let count = |k: u32| want.counts[keypoints.iter().position(|&x| x == k).unwrap()];
+        assert_eq!(count(*keypoints.iter().rev().nth(4).unwrap()), 0, "isolated keypoint");
+        assert_eq!(count(*keypoints.iter().rev().nth(3).unwrap()), 1, "pair");
+        let shell = count(*keypoints.iter().rev().nth(5).unwrap());
+        assert!(shell > 50 && shell < 400, "shell: {shell} of 400 at the radius up to rounding are in");
+    }
+    // Cells narrower than the radius, a keypoint that is not a point: the twin's errors.
+    let grid = CellGrid::new(&pts, 1.0 / (radius / 3.0)).unwrap();
+    let want = patch_sample(&grid, &keypoints[..3], radius, s).unwrap_err().to_string();
+    assert_eq!(gpu::patch_sample::run(&g, &grid, &keypoints[..3], radius, s).unwrap_err().to_string(), want);
+    let grid = CellGrid::new(&pts, 1.0 / radius).unwrap();
+    assert!(gpu::patch_sample::run(&g, &grid, &[pts.len() as u32], radius, s).is_err());
+}
+
+fn patch_gather_matches_cpu() {
+    use dpr_gpu::cpu::grid_knn::CellGrid;
+    use dpr_gpu::cpu::patch_gather::patch_gather;
+    use dpr_gpu::cpu::patch_sample::patch_sample;
+    let Some(g) = gpu() else { return };
+    let s = seed(112);
+    let mut rng = Rng::new(s);
+    let (pts, keypoints, radius) = patch_scene(&mut rng);
+    let normals: Vec<[f32; 3]> = (0..pts.len()).map(|_| super::unit(&mut rng)).collect();
+    let c = patch_sample(&CellGrid::new(&pts, 1.0 / radius).unwrap(), &keypoints, radius, s).unwrap();
+    let (mut table, mut start) = (Vec::new(), 0);
+    for (slot, &count) in c.counts.iter().enumerate() {
+        if count > 0 {
+            table.push([keypoints[slot], start, count, 0]);
+        }
+        start += count;
+    }
+    for (n, centers) in [(16, false), (1, false), (40, false), (16, true)] {
+        let want = patch_gather(&pts, &normals, &c.sorted, &table, n, centers).unwrap();
+        let got = gpu::patch_gather::run(&g, &pts, &normals, &c.sorted, &table, n, centers).unwrap();
+        assert_eq!(got, want, "n {n}, centers {centers} (seed {s})");
+    }
+    assert!(gpu::patch_gather::run(&g, &pts, &normals, &c.sorted, &[[0, 0, 0, 0]], 4, false).is_err());
+}
+
+/// The composed GPU sampling (cell table, search, sort, gather on the device) against the CPU path's
+/// `extract_patches` and brute force: the same patches, every sampled point within the radius and not the
+/// keypoint, distinct when there are at least N candidates, all candidates taken when fewer, empty patches
+/// reported.
+fn sample_patches_matches_cpu_and_brute_force() {
+    use dpr_gpu::cpu::patch_sample::{in_patch, radius_squared};
+    let Some(g) = gpu() else { return };
+    let s = seed(113);
+    let mut rng = Rng::new(s);
+    let (pts, keypoints, radius) = patch_scene(&mut rng);
+    let n = 24;
+    let ks: Vec<usize> = keypoints.iter().map(|&k| k as usize).collect();
+    let index = dpr_gpu::spatial::PointIndex::new(&pts).unwrap();
+    let want = dpr_gpu::preprocess::extract_patches(&pts, &index, &ks, radius, n, s);
+    let got = gpu::preprocess::sample_patches(&g, &pts, &keypoints, radius, n, s).unwrap();
+    assert_eq!(got, want, "seed {s}");
+    let r2 = radius_squared(radius);
+    for (p, &k) in got.keypoints.iter().enumerate() {
+        let all: Vec<u32> =
+            (0..pts.len()).filter(|&j| j != k && in_patch(&pts[j], &pts[k], r2)).map(|j| j as u32).collect();
+        let mut nb = got.neighbors[p * n..(p + 1) * n].to_vec();
+        assert!(nb.iter().all(|j| all.binary_search(j).is_ok()), "keypoint {k}: a point outside the patch");
+        nb.sort_unstable();
+        nb.dedup();
+        assert_eq!(nb.len(), all.len().min(n), "keypoint {k}: distinct when enough, all when fewer");
+    }
+    for &k in &got.empty {
+        assert!((0..pts.len()).all(|j| j == k || !in_patch(&pts[j], &pts[k], r2)), "empty {k}");
+    }
+    assert!(!got.empty.is_empty() && got.keypoints.len() > 100);
+    // Candidates that do not fit one buffer (64 KiB: the cell table fits, the ~60,000 candidates do not): the
+    // keypoints are split, with the same result.
+    let Some(small) = dpr_gpu::gpu::testing::new_gpu_or_skip() else { return };
+    small.context.set_max_buffer_bytes(64 * 1024);
+    let grid = dpr_gpu::cpu::grid_knn::CellGrid::new(&pts, 1.0 / radius).unwrap();
+    let total: u32 =
+        dpr_gpu::cpu::patch_sample::patch_sample(&grid, &keypoints, radius, s).unwrap().counts.iter().sum();
+    assert!(u64::from(total) * 16 > 64 * 1024, "{total} candidates fit one buffer: nothing is split");
+    assert_eq!(gpu::preprocess::sample_patches(&small, &pts, &keypoints, radius, n, s).unwrap(), want, "split");
+}
+
+/// A device cloud's estimated normals (its own kNN grid, cells sized from the point density) against the twins
+/// (grid_knn + pca_normals): the definition of the GPU path's normals.
+fn device_cloud_normals_match_cpu() {
+    use dpr_gpu::cpu::grid_knn::{CellGrid, grid_knn};
+    use dpr_gpu::cpu::pca_normals::pca_normals;
+    let Some(g) = gpu() else { return };
+    let s = seed(114);
+    let mut rng = Rng::new(s);
+    let pts = knn_scene(&mut rng, 1500, false);
+    let (k, view) = (12, [20.0, 0.0, 3.0]);
+    let source = gpu::preprocess::NormalSource::Estimate { k, viewpoint: view };
+    let cloud = gpu::preprocess::DeviceCloud::new(&g, &pts, source, 0.3).unwrap();
+    let got = cloud.read_normals(&g).unwrap();
+    let grid = CellGrid::new(&pts, 1.0 / 0.1).unwrap();
+    let queries: Vec<u32> = (0..pts.len() as u32).collect();
+    let (lists, _) = grid_knn(&grid, &queries, k).unwrap();
+    let want = pca_normals(&pts, &queries, &lists, k, view).unwrap();
+    assert!(check_normals("device cloud normals", s, &pts, &lists, k, view, (&got, &want)) > pts.len() / 2);
+}
+
+/// farthest_point: the same indices as the twin (the CPU path's definition), on random points, on a lattice
+/// (many exactly tied distances: ties go to the lower index), with duplicates, past one workgroup of partials,
+/// and drawing every point.
+fn farthest_point_matches_cpu() {
+    use dpr_gpu::cpu::farthest_point::farthest_point;
+    let Some(g) = gpu() else { return };
+    let s = seed(115);
+    let mut rng = Rng::new(s);
+    let lattice: Vec<[f32; 3]> =
+        (0..343).map(|i| [(i % 7) as f32 * 0.25, ((i / 7) % 7) as f32 * 0.25, (i / 49) as f32 * 0.25]).collect();
+    let mut dup = cloud(&mut rng, 300, 1.0, 5.0);
+    dup.extend_from_slice(&dup.clone()[..50]);
+    let cases =
+        [(cloud(&mut rng, 5000, 2.0, -1.0), 70), (lattice, 343), (dup, 120), (cloud(&mut rng, 70_000, 1.0, 0.0), 9)];
+    for (pts, count) in &cases {
+        let start = rng.below(pts.len());
+        let want = farthest_point(pts, *count, start);
+        assert_eq!(gpu::farthest_point::run(&g, pts, *count, start).unwrap(), want, "n {} (seed {s})", pts.len());
+    }
+    assert!(gpu::farthest_point::run(&g, &cases[0].0[..3], 4, 0).is_err());
+}
+
 /// Every test of this module.
 pub const TESTS: &[dpr_gpu::gpu::testing::GpuTest] = &[
     ("cell_bounds_matches_cpu", cell_bounds_matches_cpu),
@@ -421,4 +583,9 @@ pub const TESTS: &[dpr_gpu::gpu::testing::GpuTest] = &[
     ("grid_knn_matches_cpu", grid_knn_matches_cpu),
     ("pca_normals_matches_cpu", pca_normals_matches_cpu),
     ("normals_and_downsampling_match_cpu", normals_and_downsampling_match_cpu),
+    ("patch_sample_matches_cpu", patch_sample_matches_cpu),
+    ("patch_gather_matches_cpu", patch_gather_matches_cpu),
+    ("sample_patches_matches_cpu_and_brute_force", sample_patches_matches_cpu_and_brute_force),
+    ("device_cloud_normals_match_cpu", device_cloud_normals_match_cpu),
+    ("farthest_point_matches_cpu", farthest_point_matches_cpu),
 ];

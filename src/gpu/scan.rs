@@ -1,0 +1,105 @@
+//! The GPU backend's scan cloud: the cloud is uploaded once per scan ([`DeviceCloud`]: points, normals given
+//! or estimated on the device for every point, the cell table of the patch radius), and each description round
+//! samples its keypoints' patches (and, in uniform keypoint mode, the keypoint order is drawn there too), gathers them, computes their features and PPF-FoldNet codewords on the
+//! device. Per round only per-keypoint data crosses the bus: the keypoint indices and the per-(keypoint, cell)
+//! candidate offsets up, the candidate counts and the kept keypoints' positions and normals down. Voxel
+//! downsampling runs on the device ([`super::preprocess::voxel_downsample`]); its result is read back because
+//! the pipeline keeps the scan's cloud on the host (keypoint selection, ICP).
+
+use super::GpuBackend;
+use super::preprocess::{DeviceCloud, NormalSource};
+use crate::backend::{
+    Backend, DescribedKeypoints, Lap, ScanCloud, ScanRows, ScanSettings, check_points, normalise_usable_normals,
+};
+use crate::cloud::PointCloud;
+use crate::error::{Error, Result};
+
+/// A scan kept on the device; see the module docs.
+pub struct GpuScanCloud {
+    backend: GpuBackend,
+    cloud: DeviceCloud,
+    /// Whether the normals were estimated (not in the host cloud until [`ScanCloud::complete_normals`]).
+    estimated: bool,
+    /// Whether the host cloud holds every normal.
+    complete: bool,
+}
+
+impl GpuBackend {
+    /// [`Backend::start_scan`] on the device.
+    pub(super) fn start_device_scan(
+        &self,
+        cloud: &PointCloud,
+        settings: &ScanSettings,
+        lap: Lap<'_>,
+    ) -> Result<(PointCloud, Box<dyn ScanCloud>)> {
+        let gpu = &self.gpu;
+        let mut host = match settings.voxel {
+            Some(v) => self.run("voxel_downsample", |_| super::preprocess::voxel_downsample(gpu, cloud, v))?,
+            None => cloud.clone(),
+        };
+        check_points(&host, settings)?;
+        lap("downsample");
+        let given = normalise_usable_normals(&mut host);
+        let source = match (&host.normals, given) {
+            (Some(ns), true) => NormalSource::Given(ns),
+            _ => NormalSource::Estimate { k: settings.normal_neighbors, viewpoint: settings.viewpoint },
+        };
+        let device = self.run("start_scan", |_| DeviceCloud::new(gpu, &host.points, source, settings.radius))?;
+        if !given {
+            host.normals = None;
+        }
+        lap("index");
+        let scan = GpuScanCloud { backend: self.handle(), cloud: device, estimated: !given, complete: given };
+        Ok((host, Box::new(scan)))
+    }
+}
+
+impl ScanCloud for GpuScanCloud {
+    fn describe_keypoints(
+        &mut self,
+        _backend: &dyn Backend,
+        _cloud: &mut PointCloud,
+        keypoints: &[usize],
+        seed: u64,
+        rows: &dyn ScanRows,
+        lap: Lap<'_>,
+    ) -> Result<DescribedKeypoints> {
+        let b = &self.backend;
+        let ks = keypoints
+            .iter()
+            .map(|&k| u32::try_from(k).map_err(|_| Error::invalid(format!("keypoint {k} does not fit 32 bits"))))
+            .collect::<Result<Vec<u32>>>()?;
+        // Normals were estimated for every point when the scan started; sampling, gathering and describing run
+        // as one pass per part, timed as the encoder stage.
+        lap("patches");
+        lap("normals");
+        let mut out = DescribedKeypoints::default();
+        // Parts of the keypoints whose candidates fit a buffer, sampled and described in order.
+        self.cloud.sample_in_parts(&b.gpu, &ks, seed, 0, &mut |first, sampled| {
+            b.describe_sampled(&self.cloud, &sampled, rows)?;
+            out.kept.extend(sampled.kept.iter().map(|&s| first + s));
+            out.empty += sampled.empty.len();
+            out.centers.extend(sampled.centers);
+            out.center_normals.extend(sampled.center_normals);
+            Ok(())
+        })?;
+        lap("ppf_encoder");
+        Ok(out)
+    }
+
+    fn farthest_points(&self, _cloud: &PointCloud, count: usize, start: usize) -> Result<Vec<usize>> {
+        self.backend.run("farthest_point", |_| self.cloud.farthest_points(&self.backend.gpu, count, start))
+    }
+
+    fn complete_normals(&mut self, cloud: &mut PointCloud) -> Result<()> {
+        if self.estimated && !self.complete {
+            cloud.normals = Some(self.backend.run("normals", |_| self.cloud.read_normals(&self.backend.gpu))?);
+            self.complete = true;
+        }
+        Ok(())
+    }
+
+    fn normals_complete(&self) -> bool {
+        self.complete
+    }
+}
