@@ -61,8 +61,13 @@ impl PointIndex {
 
     /// Every indexed point with distance <= `radius`, nearest first.
     pub fn within(&self, query: &[f32; 3], radius: f32) -> Vec<Neighbor> {
+        sort(self.within_unsorted(query, radius))
+    }
+
+    /// [`PointIndex::within`] in no particular order (for callers whose result does not depend on it).
+    pub fn within_unsorted(&self, query: &[f32; 3], radius: f32) -> Vec<Neighbor> {
         let r = self.tree.query(query).within::<SquaredEuclidean<f32>>(radius * radius).unsorted().execute();
-        sort(r.into_iter().map(|n| Neighbor { index: n.item as usize, distance_squared: n.distance }).collect())
+        r.into_iter().map(|n| Neighbor { index: n.item as usize, distance_squared: n.distance }).collect()
     }
 }
 

@@ -77,6 +77,19 @@ pub fn rank_candidates(candidates: &[u32], keypoint: u32, key: [u32; 2]) -> Vec<
     ranked.into_iter().map(|(_, j)| j).collect()
 }
 
+/// `take_cyclic(&rank_candidates(candidates, keypoint, key), n)` without ranking more than the first `n`
+/// (a selection, then a sort of those): what the CPU path runs.
+pub fn sample_candidates(candidates: &[u32], keypoint: u32, key: [u32; 2], n: usize) -> Vec<u32> {
+    let mut ranked: Vec<(u32, u32)> = candidates.iter().map(|&j| (candidate_hash(key, keypoint, j), j)).collect();
+    if n > 0 && ranked.len() > n {
+        ranked.select_nth_unstable(n - 1);
+        ranked.truncate(n);
+    }
+    ranked.sort_unstable();
+    let ranked: Vec<u32> = ranked.into_iter().map(|(_, j)| j).collect();
+    take_cyclic(&ranked, n)
+}
+
 /// The `n` sampled neighbours of a patch from its ranked candidates: slot `s` takes rank `s mod count`
 /// (empty when there is no candidate).
 pub fn take_cyclic(ranked: &[u32], n: usize) -> Vec<u32> {
@@ -214,6 +227,18 @@ mod tests {
         assert!(patch_sample(&fine, &[0], radius, 1).is_err());
         assert!(patch_sample(&grid, &[9999], radius, 1).is_err());
         assert!(patch_sample(&grid, &[0], 0.0, 1).is_err());
+    }
+
+    #[test]
+    fn partial_ranking_samples_exactly_what_the_full_ranking_samples() {
+        let mut rng = crate::rng::Rng::new(12);
+        for (len, n) in [(0, 5), (1, 5), (4, 5), (5, 5), (6, 5), (300, 7), (1000, 256), (257, 256), (40, 0)] {
+            let candidates: Vec<u32> = (0..len).map(|_| rng.below(1 << 20) as u32).collect();
+            let key = stream_key(rng.next_u64());
+            let k = rng.below(1 << 20) as u32;
+            let want = take_cyclic(&rank_candidates(&candidates, k, key), n);
+            assert_eq!(sample_candidates(&candidates, k, key, n), want, "{len} candidates, {n} slots");
+        }
     }
 
     #[test]

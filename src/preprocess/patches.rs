@@ -3,7 +3,7 @@
 //! repeated in ranking order otherwise): the same definition the GPU kernels implement, so both paths pick the
 //! same neighbours.
 
-use crate::cpu::patch_sample::{in_patch, radius_squared, rank_candidates, stream_key, take_cyclic};
+use crate::cpu::patch_sample::{in_patch, radius_squared, sample_candidates, stream_key};
 use crate::spatial::PointIndex;
 use rayon::prelude::*;
 
@@ -40,13 +40,14 @@ pub fn extract_patches(
         .par_iter()
         .map(|&k| {
             let q = &points[k];
+            // Unsorted: the ranking by (hash, index) does not depend on the query's order.
             let candidates: Vec<u32> = index
-                .within(q, radius * (1.0 + QUERY_SLACK))
+                .within_unsorted(q, radius * (1.0 + QUERY_SLACK))
                 .iter()
                 .filter(|n| n.index != k && in_patch(&points[n.index], q, r2))
                 .map(|n| n.index as u32)
                 .collect();
-            take_cyclic(&rank_candidates(&candidates, k as u32, key), points_per_patch)
+            sample_candidates(&candidates, k as u32, key, points_per_patch)
         })
         .collect();
     let mut out = Patches { points_per_patch, ..Patches::default() };
