@@ -367,11 +367,26 @@ fn bench_json_on_the_test_adapter_is_consistent() {
 
     let gemm = r["gemm"].as_array().expect("gemm");
     let variants: Vec<&str> = gemm.iter().map(|v| v["variant"].as_str().unwrap()).collect();
-    let selected = format!("cpu_gemm_{}", r["cpu"]["gemm_path"].as_str().unwrap());
+    // The CPU layer the backend runs: the bf16 one where the encoders run at bf16, else the f32 micro-kernel.
+    let cpu_precision = r["cpu"]["precision"].as_str().expect("cpu.precision");
+    let want_precision = dpr_gpu::cpu::gemm::Precision::from_env().unwrap().0.name();
+    assert_eq!(cpu_precision, want_precision, "the bench times the precision the CPU backend picks");
+    let selected = match cpu_precision {
+        "bf16" => "cpu_gemm_bf16".to_string(),
+        _ => format!("cpu_gemm_{}", r["cpu"]["gemm_path"].as_str().unwrap()),
+    };
     // The GPU GEMM the backend runs is the device's (the same selection in this process and the bench's).
     assert_eq!(g["gemm_variant"], gpu.gemm_variant().name());
     let gpu_selected = format!("gpu_dense_{}", gpu.gemm_variant());
-    for want in [selected.as_str(), "cpu_gemm_portable", "cpu_twin", "gpu_dense_portable", gpu_selected.as_str()] {
+    let f32_selected = format!("cpu_gemm_{}", r["cpu"]["gemm_path"].as_str().unwrap());
+    for want in [
+        selected.as_str(),
+        f32_selected.as_str(),
+        "cpu_gemm_portable",
+        "cpu_twin",
+        "gpu_dense_portable",
+        gpu_selected.as_str(),
+    ] {
         assert!(variants.contains(&want), "{want} missing from {variants:?}");
     }
     // Every GPU variant is either measured or listed as unavailable with the adapter's reason, never both.
@@ -399,7 +414,11 @@ fn bench_json_on_the_test_adapter_is_consistent() {
         let on_gpu = v["device"] == "gpu";
         assert_eq!(v["clock"], if on_gpu { clock } else { "host_wall" }, "{name}");
         assert_eq!(v["used_by_backend"], name == selected || name == gpu_selected, "{name}");
-        let precision = if name == "gpu_dense_coop_f16" { "f16" } else { "f32" };
+        let precision = match name {
+            "gpu_dense_coop_f16" => "f16",
+            "cpu_gemm_bf16" => "bf16",
+            _ => "f32",
+        };
         assert_eq!(v["precision"], precision, "{name}");
         if on_gpu {
             assert_rel(num(&v["peak_fraction"], "peak"), gf / peak_gflops, name);

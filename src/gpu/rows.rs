@@ -4,7 +4,7 @@
 //! stay, and hypothesize-and-verify gathers its rows by device copies and returns only the scores and the best
 //! hypotheses.
 
-use super::buffer::{self, storage_buffer};
+use super::buffer::{self, Workspace, storage_buffer};
 use super::nets::{self, items_per_chunk};
 use super::preprocess::{DeviceCloud, SampledPatches};
 use super::recorder::Recorder;
@@ -221,55 +221,17 @@ impl GpuBackend {
     /// as they were computed.
     pub(super) fn describe_on_device(&self, batch: PatchBatch<'_>, rows: &dyn ScanRows) -> Result<()> {
         let store = self.own(rows, "describe")?;
-        let p = batch.len();
-        if p == 0 {
-            return Ok(());
-        }
         let patches = batch.patches();
         let n = self.model.config.points_per_patch;
-        let cw = store.codeword;
-        let gpu = &self.gpu;
-        let ctx = &gpu.context;
-        self.run("describe", |ws| {
-            let mut s = store.lock();
-            let start = s.rows;
-            store.reserve(&mut s, start + p)?;
-            let chunk = items_per_chunk(ctx, (n * 16) as u64, "patch's features")?.min(nets::encoder_chunk(
-                ctx,
-                &self.weights.ppf,
-                n,
-            )?);
-            let mut pending = Vec::new();
-            let mut segments = Vec::new();
-            for c0 in (0..p).step_by(chunk) {
-                let cp = chunk.min(p - c0);
-                let pts = c0 * n..(c0 + cp) * n;
-                let centers = ws.upload(ctx, "pf_centers", &patches.centers[c0..c0 + cp])?;
-                let center_normals = ws.upload(ctx, "pf_center_normals", &patches.center_normals[c0..c0 + cp])?;
-                let points = ws.upload(ctx, "pf_points", &patches.points[pts.clone()])?;
-                let normals = ws.upload(ctx, "pf_normals", &patches.normals[pts])?;
-                let ppf = ws.buffer(ctx, "pf_ppf", (cp * n * 16) as u64)?;
-                let pc = storage_buffer(ctx, "scan pc inputs", (cp * n * 12) as u64)?;
-                let mut rec = Recorder::new(gpu, "describe");
-                self.record_patch_features(
-                    &mut rec,
-                    batch.radius(),
-                    cp,
-                    [&centers, &center_normals, &points, &normals],
-                    [&ppf, &pc],
-                )?;
-                let codewords = nets::record_encode(&mut rec, gpu, ws, &self.weights.ppf, &ppf, (cp, n))?;
-                rec.copy(&codewords, 0, &s.codewords, ((start + c0) * cw * 4) as u64, (cp * cw * 4) as u64);
-                pending.push(rec.submit()?);
-                segments.push(Segment { first: start + c0, rows: cp, buffer: pc });
-            }
-            for pend in pending {
-                pend.wait(gpu)?;
-            }
-            s.segments.extend(segments);
-            s.rows = start + p;
-            s.ready.resize(start + p, false);
-            Ok(())
+        let ctx = &self.gpu.context;
+        self.describe_chunks(store, batch.len(), batch.radius(), |_, ws, c0, cp| {
+            let pts = c0 * n..(c0 + cp) * n;
+            Ok([
+                ws.upload(ctx, "pf_centers", &patches.centers[c0..c0 + cp])?,
+                ws.upload(ctx, "pf_center_normals", &patches.center_normals[c0..c0 + cp])?,
+                ws.upload(ctx, "pf_points", &patches.points[pts.clone()])?,
+                ws.upload(ctx, "pf_normals", &patches.normals[pts])?,
+            ])
         })
     }
 
@@ -285,8 +247,36 @@ impl GpuBackend {
         let p = sampled.table.len();
         let Some(candidates) = sampled.candidates().filter(|_| p > 0) else { return Ok(()) };
         let n = self.model.config.points_per_patch;
+        let ctx = &self.gpu.context;
+        self.describe_chunks(store, p, cloud.radius(), |rec, ws, c0, cp| {
+            let table = ws.upload(ctx, "pf_table", &sampled.table[c0..c0 + cp])?;
+            let center_index = ws.buffer(ctx, "pf_center_index", (cp * 4) as u64)?;
+            let centers = ws.buffer(ctx, "pf_centers", (cp * 12) as u64)?;
+            let center_normals = ws.buffer(ctx, "pf_center_normals", (cp * 12) as u64)?;
+            let index = ws.buffer(ctx, "pf_index", (cp * n * 4) as u64)?;
+            let points = ws.buffer(ctx, "pf_points", (cp * n * 12) as u64)?;
+            let normals = ws.buffer(ctx, "pf_normals", (cp * n * 12) as u64)?;
+            cloud.record_gather(rec, candidates, &table, (cp, 1, true), [&center_index, &centers, &center_normals])?;
+            cloud.record_gather(rec, candidates, &table, (cp, n, false), [&index, &points, &normals])?;
+            Ok([centers, center_normals, points, normals])
+        })
+    }
+
+    /// Appends `p` patches to `store`, in chunks that fit the device: `inputs` records (or uploads) the patch
+    /// features' inputs `[centers, center normals, points, normals]` of patches `c0..c0 + cp`; patch features
+    /// and PPF-FoldNet follow in the same submission, and the codewords land in the store by row offset.
+    fn describe_chunks(
+        &self,
+        store: &GpuScanRows,
+        p: usize,
+        radius: f32,
+        mut inputs: impl FnMut(&mut Recorder<'_>, &mut Workspace, usize, usize) -> Result<[wgpu::Buffer; 4]>,
+    ) -> Result<()> {
+        if p == 0 {
+            return Ok(());
+        }
+        let n = self.model.config.points_per_patch;
         let cw = store.codeword;
-        let radius = cloud.radius();
         let gpu = &self.gpu;
         let ctx = &gpu.context;
         self.run("describe", |ws| {
@@ -302,24 +292,10 @@ impl GpuBackend {
             let mut segments = Vec::new();
             for c0 in (0..p).step_by(chunk) {
                 let cp = chunk.min(p - c0);
-                let table = ws.upload(ctx, "pf_table", &sampled.table[c0..c0 + cp])?;
-                let center_index = ws.buffer(ctx, "pf_center_index", (cp * 4) as u64)?;
-                let centers = ws.buffer(ctx, "pf_centers", (cp * 12) as u64)?;
-                let center_normals = ws.buffer(ctx, "pf_center_normals", (cp * 12) as u64)?;
-                let index = ws.buffer(ctx, "pf_index", (cp * n * 4) as u64)?;
-                let points = ws.buffer(ctx, "pf_points", (cp * n * 12) as u64)?;
-                let normals = ws.buffer(ctx, "pf_normals", (cp * n * 12) as u64)?;
+                let mut rec = Recorder::new(gpu, "describe");
+                let [centers, center_normals, points, normals] = inputs(&mut rec, ws, c0, cp)?;
                 let ppf = ws.buffer(ctx, "pf_ppf", (cp * n * 16) as u64)?;
                 let pc = storage_buffer(ctx, "scan pc inputs", (cp * n * 12) as u64)?;
-                let mut rec = Recorder::new(gpu, "describe");
-                cloud.record_gather(
-                    &mut rec,
-                    candidates,
-                    &table,
-                    (cp, 1, true),
-                    [&center_index, &centers, &center_normals],
-                )?;
-                cloud.record_gather(&mut rec, candidates, &table, (cp, n, false), [&index, &points, &normals])?;
                 self.record_patch_features(
                     &mut rec,
                     radius,

@@ -128,6 +128,17 @@ fn dense_layer_into(
     }
 }
 
+/// `layers` one after another over `rows` rows from `input`, each with its bias and ReLU, into `outs[i]`
+/// (their allocations reused).
+fn chain_into(precision: Precision, layers: &[Linear], input: &[f32], rows: usize, outs: &mut [Vec<f32>]) {
+    for (i, layer) in layers.iter().enumerate() {
+        let (done, rest) = outs.split_at_mut(i);
+        let x = done.last().map_or(input, |v| v.as_slice());
+        let segment = [(x, layer.in_dim, 0)];
+        dense_layer_into(precision, layer, &segment, (rows, rows.max(1)), &layer.bias, true, &mut rest[0]);
+    }
+}
+
 /// Whether `segments` go through the bf16 layer as one input: bf16 asked for and available, at least
 /// [`BF16_MIN_IN_DIM`] wide, the first weight row even and the segments' rows consecutive with even widths
 /// (but the last), so they are rows of the layer's packed weight.
@@ -262,19 +273,7 @@ impl FoldNet {
         let rows = patches * points;
         (tape.patches, tape.points) = (patches, points);
         tape.encoder.resize_with(self.encoder.len(), Vec::new);
-        for (i, layer) in self.encoder.iter().enumerate() {
-            let (done, rest) = tape.encoder.split_at_mut(i);
-            let x = done.last().map_or(input, |v| v.as_slice());
-            dense_layer_into(
-                precision,
-                layer,
-                &[(x, layer.in_dim, 0)],
-                (rows, rows.max(1)),
-                &layer.bias,
-                true,
-                &mut rest[0],
-            );
-        }
+        chain_into(precision, &self.encoder, input, rows, &mut tape.encoder);
         let last_w = self.encoder.last().map_or(0, |l| l.out_dim);
         tape.global = max_pool(tape.encoder.last().map_or(&[], Vec::as_slice), patches, points, last_w);
         let mut segments = Vec::with_capacity(tape.encoder.len());
@@ -295,19 +294,8 @@ impl FoldNet {
             false,
         );
         dense_layer_into(precision, head0, &segments, (rows, points), &group_term, true, &mut tape.head[0]);
-        for (i, layer) in self.head.iter().enumerate().skip(1) {
-            let (done, rest) = tape.head.split_at_mut(i);
-            let x = &done[i - 1];
-            dense_layer_into(
-                precision,
-                layer,
-                &[(x, layer.in_dim, 0)],
-                (rows, rows.max(1)),
-                &layer.bias,
-                true,
-                &mut rest[0],
-            );
-        }
+        let (first, rest) = tape.head.split_at_mut(1);
+        chain_into(precision, &self.head[1..], &first[0], rows, rest);
         tape.codeword = max_pool(tape.head.last().expect("head has layers"), patches, points, self.codeword_len());
     }
 
