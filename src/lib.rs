@@ -10,15 +10,9 @@
 //! size and thresholds scale together, so other units work by setting `radius`.
 //!
 //! ```
-//! use dpr_gpu::model::{ModelConfig, Weights};
-//! use dpr_gpu::{Estimator, IcpSettings, PointCloud, RegistrationSettings, register};
+//! use dpr_gpu::{IcpSettings, PointCloud, RegistrationSettings, register};
 //!
 //! # fn main() -> dpr_gpu::Result<()> {
-//! // A small model with seeded random weights (use trained weights for real scans).
-//! let weights = std::env::temp_dir().join(format!("dpr-doc-{}.safetensors", std::process::id()));
-//! let config = ModelConfig { points_per_patch: 32, ..ModelConfig::default() };
-//! Weights::init(&config, 0)?.save(&weights)?;
-//!
 //! // Three faces of a box, and the same surfaces after a known motion.
 //! let mut points = Vec::new();
 //! for i in 0..40 {
@@ -33,9 +27,7 @@
 //! let target = source.transformed(&truth);
 //!
 //! let settings = RegistrationSettings {
-//!     weights: Some(weights),
-//!     keypoints: 200,
-//!     estimator: Estimator::Ransac,
+//!     keypoints: 200, // with the built-in trained weights
 //!     icp: Some(IcpSettings { max_correspondence_distance: Some(0.05), max_iterations: 30 }),
 //!     ..RegistrationSettings::default()
 //! };

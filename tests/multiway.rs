@@ -241,14 +241,16 @@ fn multiway_cli_recovers_a_small_scene_and_resumes_to_the_same_trajectory() {
     let out = scene.parent().unwrap().join("multiway");
     let (scene_s, out_s) = (scene.to_str().unwrap(), out.to_str().unwrap());
     let options =
-        ["--pairs", "all", "--keypoints", "250", "--voxel", "0.025", "--estimator", "ransac", "--fused", "0.05"];
+        ["--pairs", "all", "--keypoints", "500", "--voxel", "0.025", "--estimator", "ransac", "--fused", "0.05"];
     let first = dpr(&[&["multiway", scene_s, "--out", out_s][..], &options].concat());
     assert!(first.contains("4 described, 0 pairs reused"), "{first}");
     let trajectory = Trajectory::read_log(&out.join("trajectory.log")).unwrap();
     let truth = Trajectory::read_poses(&scene.join("poses.txt")).unwrap();
     assert!((trajectory.world_from_scan[0] - Matrix4::identity()).abs().max() < 1e-12);
     let errors = trajectory_errors(&trajectory, &truth).unwrap();
-    assert!(errors.ate_rmse < 0.10, "{errors:?}");
+    // About 1 mm with trusted odometry edges (13-25 inliers at 500 keypoints; at 250 they fell below the
+    // verdict's 12 and the trajectory hung on ICP from poor starts).
+    assert!(errors.ate_rmse < 0.02, "{errors:?}");
     let edges_text = std::fs::read(out.join("edges.json")).unwrap();
     let edges: serde_json::Value = serde_json::from_slice(&edges_text).unwrap();
     assert_eq!(edges["edges"].as_array().unwrap().len(), 6);
@@ -270,7 +272,7 @@ fn multiway_cli_recovers_a_small_scene_and_resumes_to_the_same_trajectory() {
 
     let report = dpr(&["eval-trajectory", out.join("trajectory.log").to_str().unwrap(), scene_s, "--json"]);
     let report: serde_json::Value = serde_json::from_str(report.trim()).unwrap();
-    assert!(report["trajectory"]["ate_rmse"].as_f64().unwrap() < 0.10, "{report}");
+    assert!(report["trajectory"]["ate_rmse"].as_f64().unwrap() < 0.02, "{report}");
     assert!(report["loop_closures"]["false_kept"].as_u64() == Some(0), "{report}");
 }
 

@@ -235,7 +235,7 @@ fn a_moved_scan_described_from_its_moved_sensor_gets_the_moved_normals() {
     assert!(flipped(&left_behind) > 0.05, "{}", flipped(&left_behind));
 }
 
-/// The bf16 encoders (`DPR_GPU_CPU_PRECISION=bf16` or `auto`; opt-in, see `Precision::from_env`) against the
+/// The bf16 encoders (the default where the CPU has AVX-512 BF16, see `Precision::choose`) against the
 /// f32 ones on the shipped example pair with the shipped weights: codewords within the rounding the encoders'
 /// four bf16 layers can add (each rounds both factors of every product to 8 significant bits, a relative
 /// 2 x 2^-8 at most, so 4 x 2 x 2^-8 ~ 0.031 without cancellation), nearly the same correspondences, and after

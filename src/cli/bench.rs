@@ -126,8 +126,8 @@ pub struct CpuInfo {
     pub threads: usize,
     /// The GEMM micro-kernel the CPU backend uses (`avx512`, `avx2`, `portable`).
     pub gemm_path: &'static str,
-    /// The encoders' arithmetic on the CPU (`f32`, or `bf16` where the CPU has AVX-512 BF16; set with
-    /// `DPR_GPU_CPU_PRECISION`).
+    /// The encoders' arithmetic on the CPU (`bf16` where the CPU has AVX-512 BF16, else `f32`;
+    /// `DPR_GPU_CPU_PRECISION=f32` or `bf16` overrides it).
     pub precision: &'static str,
 }
 

@@ -333,26 +333,26 @@ impl Precision {
         }
     }
 
-    /// The precision [`CPU_PRECISION_ENV`] asks for (unset or `f32`: f32; `bf16`: bf16, an error where this CPU
-    /// lacks AVX-512 BF16; `auto`: bf16 where this CPU has it, else f32), and why. f32 is the default: bf16
-    /// registers the shipped weights' real scans as f32 does, but changes results where codewords are close
-    /// (random weights, one multiway test scene), so it is opt-in until that is understood.
+    /// The precision [`CPU_PRECISION_ENV`] asks for, and why: see [`Precision::choose`].
     pub fn from_env() -> crate::error::Result<(Precision, String)> {
-        match std::env::var(CPU_PRECISION_ENV).ok().as_deref().map(str::trim) {
-            None | Some("" | "f32") => Ok((Precision::F32, "f32 encoders".to_string())),
-            Some("auto") if Precision::Bf16.is_available() => {
-                Ok((Precision::Bf16, format!("bf16 encoders: {CPU_PRECISION_ENV}=auto and AVX-512 BF16")))
+        Precision::choose(std::env::var(CPU_PRECISION_ENV).ok().as_deref(), Precision::Bf16.is_available())
+    }
+
+    /// The precision a value of [`CPU_PRECISION_ENV`] asks for on a CPU with or without AVX-512 BF16, and why.
+    /// Unset, empty or `auto`: bf16 where the CPU has it, else f32 (the default: the encoders take half the
+    /// time, and on the shipped weights bf16 registers the same pairs as f32, see the README's speed section);
+    /// `f32`: f32 (bit-identical on every CPU); `bf16`: bf16, an error where the CPU lacks it.
+    pub fn choose(value: Option<&str>, bf16_available: bool) -> crate::error::Result<(Precision, String)> {
+        let invalid = |why: String| Err(crate::error::Error::invalid(why));
+        match value.map(str::trim) {
+            None | Some("" | "auto") if bf16_available => {
+                Ok((Precision::Bf16, "bf16 encoders: this CPU has AVX-512 BF16 (DPR_GPU_CPU_PRECISION=f32 for f32)".into()))
             }
-            Some("auto") => Ok((Precision::F32, format!("f32 encoders: {CPU_PRECISION_ENV}=auto, no AVX-512 BF16"))),
-            Some("bf16") if Precision::Bf16.is_available() => {
-                Ok((Precision::Bf16, format!("bf16 encoders: {CPU_PRECISION_ENV}=bf16")))
-            }
-            Some("bf16") => {
-                Err(crate::error::Error::invalid(format!("{CPU_PRECISION_ENV}=bf16, but this CPU has no AVX-512 BF16")))
-            }
-            Some(other) => {
-                Err(crate::error::Error::invalid(format!("{CPU_PRECISION_ENV}='{other}': expected f32, bf16 or auto")))
-            }
+            None | Some("" | "auto") => Ok((Precision::F32, "f32 encoders: this CPU has no AVX-512 BF16".into())),
+            Some("f32") => Ok((Precision::F32, format!("f32 encoders: {CPU_PRECISION_ENV}=f32"))),
+            Some("bf16") if bf16_available => Ok((Precision::Bf16, format!("bf16 encoders: {CPU_PRECISION_ENV}=bf16"))),
+            Some("bf16") => invalid(format!("{CPU_PRECISION_ENV}=bf16, but this CPU has no AVX-512 BF16")),
+            Some(other) => invalid(format!("{CPU_PRECISION_ENV}='{other}': expected f32, bf16 or auto")),
         }
     }
 

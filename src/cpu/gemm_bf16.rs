@@ -220,13 +220,14 @@ mod x86 {
     pub(super) fn body(shape: &DenseShape, a: &[u32], b: &[u32], group_term: &[f32], out: &mut [f32]) {
         let (m, n, kp) = (shape.rows, shape.out_dim, shape.in_dim.div_ceil(2));
         let rpg = shape.rows_per_group.max(1);
-        let mut b_pad = vec![0u32; kp * NR];
-        let mut a_pad = vec![0u32; MR * kp];
+        // Zero-padded copies for partial tiles, allocated only when a layer has one.
+        let (mut b_pad, mut a_pad) = (Vec::new(), Vec::new());
         for c0 in (0..n).step_by(NR) {
             let cn = NR.min(n - c0);
             let (b_strip, b_stride) = if cn == NR {
                 (&b[c0..], n)
             } else {
+                b_pad.resize(kp * NR, 0u32);
                 for p in 0..kp {
                     b_pad[p * NR..][..cn].copy_from_slice(&b[p * n + c0..][..cn]);
                 }
@@ -269,7 +270,8 @@ mod x86 {
                 let a_tile = if rn == MR {
                     &a[r0 * kp..]
                 } else {
-                    a_pad.fill(0);
+                    a_pad.clear();
+                    a_pad.resize(MR * kp, 0u32);
                     a_pad[..rn * kp].copy_from_slice(&a[r0 * kp..][..rn * kp]);
                     &a_pad[..]
                 };
