@@ -99,9 +99,10 @@ pub fn pair_terms(m: &[f32; 3], q: &[f32; 3], n: &[f32; 3]) -> Terms {
 fn tree(lanes: &mut [Terms]) -> Terms {
     let mut s = WG_SIZE / 2;
     while s > 0 {
-        for l in 0..s {
-            for t in 0..TERMS {
-                lanes[l][t] += lanes[l + s][t];
+        let (low, high) = lanes.split_at_mut(s);
+        for (a, b) in low.iter_mut().zip(&high[..s]) {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x += *y;
             }
         }
         s /= 2;
@@ -147,7 +148,7 @@ pub fn check(target: &IcpTarget<'_>, stride: usize, max_distance: f32) -> Result
     if !(max_distance.is_finite() && max_distance > 0.0) {
         return Err(Error::invalid(format!("icp_normal_equations: max distance {max_distance} must be positive")));
     }
-    if !(max_distance * target.grid.inv_cell <= 1.0) {
+    if max_distance * target.grid.inv_cell > 1.0 {
         return Err(Error::invalid(format!(
             "icp_normal_equations: cells of {} are narrower than the max distance {max_distance}",
             1.0 / target.grid.inv_cell
@@ -193,8 +194,8 @@ pub fn icp_normal_equations(
     let mut lanes = [[0.0f32; TERMS]; WG_SIZE];
     for (l, lane) in lanes.iter_mut().enumerate() {
         for p in partials.iter().skip(l).step_by(WG_SIZE) {
-            for t in 0..TERMS {
-                lane[t] += p[t];
+            for (x, y) in lane.iter_mut().zip(p) {
+                *x += *y;
             }
         }
     }
