@@ -26,7 +26,7 @@ use std::sync::Arc;
 /// Relative margin of the ICP grid's cells over the max distance: a pair within the distance then lies less
 /// than `1 - 2^-8` cells apart per axis, so the f32 rounding of `floor(p / cell)` (relative 2^-24 of the cell
 /// coordinate) cannot put it two cells apart for coordinates below 2^15 cells.
-const CELL_MARGIN: f32 = 1.0 / 256.0;
+pub const CELL_MARGIN: f32 = 1.0 / 256.0;
 
 /// A scan's points on a device ([`HeldPoints`] of the GPU backend): the buffer its description used.
 #[derive(Debug)]
