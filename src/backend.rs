@@ -1,7 +1,8 @@
 //! The backend seam: the learned and massively parallel stages of the pipeline, implemented by the CPU
 //! reference (`CpuBackend`) and the WGSL kernels (`gpu::GpuBackend`). A scan's cloud is prepared where the
 //! backend describes it ([`Backend::start_scan`]: the host for the CPU backend, the device for the GPU backend:
-//! patches, normals and gathering there); keypoint selection, ICP and the final rigid fit stay on the host.
+//! patches, normals and gathering there); ICP's per-point sums run there too ([`Backend::refine_icp`]); keypoint
+//! selection, ICP's 6x6 solves and the final rigid fit stay on the host.
 
 use crate::cpu::codeword_distance::codeword_distance;
 use crate::cpu::gemm::Precision;
@@ -18,8 +19,8 @@ mod scan;
 mod steps;
 pub use crate::pipeline::PoseRows;
 pub use scan::{
-    DescribedKeypoints, HostScanCloud, Lap, ScanCloud, ScanSettings, check_points, downsample, host_start_scan,
-    kept_positions, normalise_usable_normals,
+    DescribedKeypoints, HeldPoints, HostScanCloud, Lap, ScanCloud, ScanSettings, check_points, downsample,
+    host_start_scan, kept_positions, normalise_usable_normals,
 };
 pub use steps::{
     HostRows, HostScanRows, MatchedRows, MatchedSide, PatchBatch, RankedHypothesis, RowMatch, ScanRows, Verified,
@@ -139,6 +140,20 @@ pub trait Backend: Send + Sync {
     /// best hypotheses and their scores come back (the rotations too when asked).
     fn verify(&self, request: MatchedRows<'_>) -> Result<Verified> {
         host_verify(self, request)
+    }
+
+    /// Point-to-plane ICP of `source` onto `target` from `initial` (target_from_source): the target's
+    /// downsampled copy, its normals and the per-iteration normal equations where this backend keeps the
+    /// scans; the solves and stopping rules of [`crate::estimate::icp::iterate`]. The provided version runs
+    /// on the host clouds ([`crate::estimate::icp::refine_on_host`]).
+    fn refine_icp(
+        &self,
+        source: &crate::pipeline::ScanFeatures,
+        target: &crate::pipeline::ScanFeatures,
+        initial: nalgebra::Matrix4<f64>,
+        problem: &crate::estimate::icp::IcpProblem,
+    ) -> Result<nalgebra::Matrix4<f64>> {
+        crate::estimate::icp::refine_on_host(&source.cloud, &target.cloud, initial, problem)
     }
 
     /// PPF (P x N x 4) and PC (P x N x 3) network inputs of gathered patches.

@@ -42,6 +42,7 @@ use dpr_gpu::settings::MatchMode;
 use std::sync::Arc;
 
 mod common;
+mod gpu_icp;
 mod gpu_preprocess;
 
 const EPS: f32 = f32::EPSILON;
@@ -896,9 +897,12 @@ fn register_matches_cpu_with(g: Arc<Gpu>, s: u64) {
     let variant = g.gemm_variant();
     let s_msg = format!("seed {s}, GEMM {variant}");
     let (gpu_b, cpu_b) = backends_for(g, small_model(s));
+    // ICP off: RANSAC's poses are compared to f64 noise here; ICP runs on the device with f32 sums, compared
+    // with the host's in `device_icp_converges_like_the_host` and end to end in `device_register_matches_cpu_register`.
     let settings = dpr_gpu::RegistrationSettings {
         keypoints: 120,
         estimator: dpr_gpu::Estimator::Ransac,
+        icp: None,
         seed: s,
         ..Default::default()
     };
@@ -1242,7 +1246,7 @@ fn every_registered_kernel_has_a_parity_test() {
     for spec in KERNELS {
         let prefix = format!("{}_matches_cpu", spec.name);
         assert!(
-            TESTS.iter().chain(gpu_preprocess::TESTS).any(|(name, _)| name.starts_with(&prefix)),
+            TESTS.iter().chain(gpu_preprocess::TESTS).chain(gpu_icp::TESTS).any(|(name, _)| name.starts_with(&prefix)),
             "kernel '{}' is registered in gpu::registry::KERNELS but has no parity test named {prefix}*",
             spec.name
         );
@@ -1335,9 +1339,11 @@ fn device_register_matches_cpu_register() {
 
 /// A GPU `register` reads back no per-point data: per scan and round only per-keypoint arrays (the candidate
 /// counts per keypoint and search-block cell, the kept keypoints' positions and normals) and the grid words,
-/// then the pair steps' small results. The bound below is counted from those sizes, with no term in the cloud
-/// size, and the clouds are large enough that one readback of a cloud's points or normals would exceed it.
-/// Up, each cloud's points cross once (normals are estimated on the device), plus per-keypoint arrays.
+/// then the pair steps' small results, and ICP (on, the default) per round the grid words of the target's
+/// two tables and the 28-term normal equations per iteration. The bound below is counted from those sizes,
+/// with no term in the cloud size, and the clouds are large enough that one readback of a cloud's points or
+/// normals would exceed it. Up, each cloud's points cross once (normals are estimated on the device, ICP
+/// reads the points the scans left there), plus per-keypoint arrays and grid words.
 fn device_register_reads_back_no_per_point_data() {
     let Some(g) = gpu() else { return };
     let s = seed(76);
@@ -1348,11 +1354,11 @@ fn device_register_reads_back_no_per_point_data() {
         keypoints: k as usize,
         first_keypoints: None,
         estimator: dpr_gpu::Estimator::Ransac,
-        icp: None,
         viewpoint: ROOM_VIEWPOINT,
         seed: s,
         ..Default::default()
     };
+    let icp = settings.icp.expect("ICP is on by default");
     let (source, target, _) = common::room_pair(s, n_points);
     let r = dpr_gpu::Registrar::with_backend(&settings, Box::new(backend)).unwrap();
     let before = g.context.transfers();
@@ -1363,8 +1369,10 @@ fn device_register_reads_back_no_per_point_data() {
     let k_max = dpr_gpu::gpu::mutual_knn::K_MAX as u64;
     // Per scan: grid words and status of two cell tables (radius cells; kNN cells for the normals).
     let meta = 2 * (32 + 4);
-    let down_bound = 2 * (meta + k * (4 * block + 24)) + 3 * 4 * k_max * k;
-    let up_bound = 12 * n + 2 * (2 * (32 + 4) + k * (4 + 4 * block + 2 * 16));
+    // ICP, once (one round): grid words of the target's two tables, then 28 f32 sums per iteration.
+    let (icp_down, icp_up) = (meta + 4 * 28 * icp.max_iterations as u64, 2 * (32 + 4));
+    let down_bound = 2 * (meta + k * (4 * block + 24)) + 3 * 4 * k_max * k + icp_down;
+    let up_bound = 12 * n + 2 * (2 * (32 + 4) + k * (4 + 4 * block + 2 * 16)) + icp_up;
     assert!(result.correspondences >= 3, "seed {s}");
     assert!(moved.device_to_host_bytes <= down_bound, "{} bytes down, bound {down_bound}", moved.device_to_host_bytes);
     assert!(down_bound < 12 * source.len().min(target.len()) as u64, "the clouds are too small to tell");
@@ -1401,7 +1409,7 @@ fn device_uniform_keypoints_match_cpu() {
 }
 
 fn main() -> std::process::ExitCode {
-    dpr_gpu::gpu::testing::run_tests(&[TESTS, gpu_preprocess::TESTS].concat())
+    dpr_gpu::gpu::testing::run_tests(&[TESTS, gpu_preprocess::TESTS, gpu_icp::TESTS].concat())
 }
 
 /// Every test of this binary.

@@ -144,6 +144,7 @@ impl DescribedScan {
             candidates,
             empty_patches,
             rows,
+            held_points: None,
             timings,
         };
         Ok(DescribedScan { features: Arc::new(features), index, origin, key, pooled, prepared: OnceLock::new() })

@@ -45,6 +45,14 @@ pub struct DescribedKeypoints {
 /// Called with a stage name as each stage of a scan's preparation or description ends (the pipeline's clock).
 pub type Lap<'a> = &'a mut dyn FnMut(&str);
 
+/// A scan's preprocessed points as the backend that prepared it holds them (the GPU backend: a device
+/// buffer), kept with the described scan ([`crate::pipeline::ScanFeatures::held_points`]) so that stages after
+/// description (ICP) read them where they are.
+pub trait HeldPoints: Send + Sync + std::fmt::Debug {
+    /// The concrete type, for the backend that made it.
+    fn as_any(&self) -> &dyn std::any::Any;
+}
+
 /// A scan's preprocessed cloud where its backend describes it.
 pub trait ScanCloud: Send + Sync {
     /// Describes `keypoints` (cloud indices, in order) with patches ranked by `seed`, appending the kept ones'
@@ -63,6 +71,12 @@ pub trait ScanCloud: Send + Sync {
     /// ([`crate::cpu::farthest_point`]'s definition); the provided version runs on the host cloud.
     fn farthest_points(&self, cloud: &PointCloud, count: usize, start: usize) -> Result<Vec<usize>> {
         Ok(crate::cpu::farthest_point::farthest_point(&cloud.points, count, start))
+    }
+
+    /// The scan's points where the backend holds them, to keep after description; `None` (the provided
+    /// version) when they are only the host cloud's.
+    fn held_points(&self) -> Option<std::sync::Arc<dyn HeldPoints>> {
+        None
     }
 
     /// Fills every normal of `cloud` (estimating or reading back those not in it yet).

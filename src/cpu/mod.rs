@@ -15,6 +15,7 @@ pub mod gemm;
 pub mod gemm_bf16;
 pub mod grid_knn;
 pub mod hypotheses;
+pub mod icp_normal_equations;
 pub mod max_pool;
 pub mod mutual_knn;
 pub mod patch_features;

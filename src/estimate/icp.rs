@@ -1,9 +1,12 @@
 //! Point-to-plane ICP: optional refinement of a final pose (the pipeline runs it against a voxel-downsampled
-//! copy of the target, see `Registrar::estimate`).
+//! copy of the target, see `Registrar::estimate`). The loop ([`iterate`]: solve, update, stopping rules) is
+//! shared; the per-point sums run where the backend keeps the clouds ([`crate::backend::Backend::refine_icp`]:
+//! [`icp_point_to_plane`] on the host, the `icp_normal_equations` kernel on a GPU).
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::pose::{matrix_from_parts, transform_point, v3};
+use crate::preprocess::{estimate_normals_at, voxel_downsample};
 use crate::spatial::PointIndex;
 use nalgebra::{Matrix4, Matrix6, Rotation3, Vector3, Vector6};
 use rayon::prelude::*;
@@ -17,6 +20,61 @@ pub const CONVERGED_ROTATION: f64 = 1e-6;
 /// See [`CONVERGED_ROTATION`].
 pub const CONVERGED_TRANSLATION: f64 = 1e-6;
 
+/// What a point-to-plane ICP refinement of a pair needs besides the clouds and the initial pose.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IcpProblem {
+    /// Pairs further apart than this (cloud units) are ignored; the target is downsampled at half of it.
+    pub max_distance: f32,
+    /// Iteration limit.
+    pub max_iterations: usize,
+    /// Neighbours of the PCA normals estimated on the downsampled target (facing the origin).
+    pub normal_neighbors: usize,
+}
+
+/// The sums of one ICP iteration: `ata = sum J J^T`, `atb = -sum J r` over the `used` pairs within the
+/// distance, `J = [m x n, n]` and `r = n . (m - q)` for a moved source point `m`, its nearest target point `q`
+/// and that point's normal `n`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NormalEquations {
+    /// `sum J J^T`.
+    pub ata: Matrix6<f64>,
+    /// `-sum J r`.
+    pub atb: Vector6<f64>,
+    /// Pairs summed.
+    pub used: usize,
+}
+
+/// The stride of the source points ICP uses: every `stride`-th point, at most [`MAX_ICP_POINTS`] of them.
+pub fn source_stride(points: usize) -> usize {
+    points.div_ceil(MAX_ICP_POINTS).max(1)
+}
+
+/// The ICP loop shared by every backend: from `initial`, asks `sums` for the normal equations at the current
+/// pose, solves the 6x6 system (Cholesky, f64), applies the small-angle update on the left, and stops after
+/// `max_iterations`, when fewer than six pairs are used, when the system is singular, or when the update falls
+/// below [`CONVERGED_ROTATION`] and [`CONVERGED_TRANSLATION`].
+pub fn iterate(
+    initial: Matrix4<f64>,
+    max_iterations: usize,
+    mut sums: impl FnMut(&Matrix4<f64>) -> Result<NormalEquations>,
+) -> Result<Matrix4<f64>> {
+    let mut pose = initial;
+    for _ in 0..max_iterations {
+        let NormalEquations { ata, atb, used } = sums(&pose)?;
+        if used < 6 {
+            break;
+        }
+        let Some(x) = ata.cholesky().map(|ch| ch.solve(&atb)) else { break };
+        let omega = Vector3::new(x[0], x[1], x[2]);
+        let delta = matrix_from_parts(&Rotation3::new(omega).into_inner(), &Vector3::new(x[3], x[4], x[5]));
+        pose = delta * pose;
+        if omega.norm() < CONVERGED_ROTATION && Vector3::new(x[3], x[4], x[5]).norm() < CONVERGED_TRANSLATION {
+            break;
+        }
+    }
+    Ok(pose)
+}
+
 /// Refines `target_from_source` by minimising point-to-plane distances to the target's normals, ignoring
 /// pairs further apart than `max_distance` (cloud units), for at most `max_iterations` iterations.
 pub fn icp_point_to_plane(
@@ -28,11 +86,10 @@ pub fn icp_point_to_plane(
     max_iterations: usize,
 ) -> Result<Matrix4<f64>> {
     let normals = target.normals.as_ref().ok_or_else(|| Error::invalid("point-to-plane ICP needs target normals"))?;
-    let stride = source.len().div_ceil(MAX_ICP_POINTS).max(1);
+    let stride = source_stride(source.len());
     let max_d2 = max_distance * max_distance;
     let used_points: Vec<[f32; 3]> = source.points.iter().step_by(stride).copied().collect();
-    let mut pose = initial;
-    for _ in 0..max_iterations {
+    iterate(initial, max_iterations, |pose| {
         // Normal equations summed per fixed chunk in parallel, then the chunks in order: the same sums for
         // any thread count.
         let partial: Vec<(Matrix6<f64>, Vector6<f64>, usize)> = used_points
@@ -40,7 +97,7 @@ pub fn icp_point_to_plane(
             .map(|chunk| {
                 let (mut ata, mut atb, mut used) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros(), 0);
                 for p in chunk {
-                    let moved = transform_point(&pose, *p);
+                    let moved = transform_point(pose, *p);
                     let nn = target_index.nearest_one(&moved);
                     if nn.distance_squared > max_d2 {
                         continue;
@@ -63,18 +120,25 @@ pub fn icp_point_to_plane(
             atb += b;
             used += u;
         }
-        if used < 6 {
-            break;
-        }
-        let Some(x) = ata.cholesky().map(|ch| ch.solve(&atb)) else { break };
-        let omega = Vector3::new(x[0], x[1], x[2]);
-        let delta = matrix_from_parts(&Rotation3::new(omega).into_inner(), &Vector3::new(x[3], x[4], x[5]));
-        pose = delta * pose;
-        if omega.norm() < CONVERGED_ROTATION && Vector3::new(x[3], x[4], x[5]).norm() < CONVERGED_TRANSLATION {
-            break;
-        }
-    }
-    Ok(pose)
+        Ok(NormalEquations { ata, atb, used })
+    })
+}
+
+/// Point-to-plane ICP from `initial` on the host (what a backend runs unless it overrides
+/// [`crate::backend::Backend::refine_icp`]): `target` voxel-downsampled at half the distance, PCA normals of
+/// the copy facing the origin, then [`icp_point_to_plane`] of every `source` point (strided).
+pub fn refine_on_host(
+    source: &PointCloud,
+    target: &PointCloud,
+    initial: Matrix4<f64>,
+    problem: &IcpProblem,
+) -> Result<Matrix4<f64>> {
+    let voxel = problem.max_distance / 2.0;
+    let mut small = voxel_downsample(&PointCloud::from_points(target.points.clone()), voxel)?;
+    let index = PointIndex::new(&small.points)?;
+    let ids: Vec<usize> = (0..small.len()).collect();
+    small.normals = Some(estimate_normals_at(&small.points, &index, &ids, problem.normal_neighbors, [0.0; 3]));
+    icp_point_to_plane(source, &small, &index, initial, problem.max_distance, problem.max_iterations)
 }
 
 #[cfg(test)]

@@ -24,6 +24,8 @@ pub mod farthest_point;
 pub mod gemm;
 pub mod grid_knn;
 pub mod hypotheses;
+pub mod icp;
+pub mod icp_normal_equations;
 pub mod kernel;
 pub mod max_pool;
 pub mod mutual_knn;
@@ -390,6 +392,16 @@ impl Backend for GpuBackend {
 
     fn verify(&self, request: MatchedRows<'_>) -> Result<Verified> {
         self.verify_on_device(request)
+    }
+
+    fn refine_icp(
+        &self,
+        source: &crate::pipeline::ScanFeatures,
+        target: &crate::pipeline::ScanFeatures,
+        initial: nalgebra::Matrix4<f64>,
+        problem: &crate::estimate::icp::IcpProblem,
+    ) -> Result<nalgebra::Matrix4<f64>> {
+        self.refine_icp_on_device(source, target, initial, problem)
     }
 
     fn patch_features(&self, patches: &GatheredPatches, radius: f32) -> Result<(Vec<f32>, Vec<f32>)> {

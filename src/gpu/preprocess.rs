@@ -128,15 +128,16 @@ pub fn knn_cell(voxel: f32, k: usize) -> f32 {
 }
 
 /// Neighbour lists and normals of every point of a [`CellTable`], recorded.
-struct NormalBuffers {
+pub(crate) struct NormalBuffers {
     knn_index: wgpu::Buffer,
     knn_d2: wgpu::Buffer,
-    normals: wgpu::Buffer,
+    /// Unit normals (n x 3), when a viewpoint was given.
+    pub(crate) normals: wgpu::Buffer,
 }
 
 /// Records the k nearest neighbours (itself included) of every point of `table` and, with a viewpoint, their
 /// normals.
-fn record_knn_normals(
+pub(crate) fn record_knn_normals(
     gpu: &Gpu,
     rec: &mut Recorder<'_>,
     table: &CellTable,
@@ -249,10 +250,29 @@ pub fn downsample_and_normals(
     if !(voxel.is_finite() && voxel > 0.0) {
         return Err(Error::invalid(format!("voxel size must be positive, got {voxel}")));
     }
-    let ctx = &gpu.context;
-    let n = cloud.len();
-    let points = GpuBuffer::from_slice(ctx, "voxel_points", &cloud.points)?.raw().clone();
-    let out_points = storage_buffer(ctx, "voxel_out_points", (n * 12) as u64)?;
+    let points = GpuBuffer::from_slice(&gpu.context, "voxel_points", &cloud.points)?.raw().clone();
+    let (out_points, cells) = downsample_buffer(gpu, points, cloud.len(), voxel)?;
+    let mut rec = Recorder::new(gpu, "normals");
+    let grid = CellTable::record(gpu, &mut rec, out_points.clone(), cells, 1.0 / knn_cell(voxel, k))?;
+    let nb = record_knn_normals(gpu, &mut rec, &grid, k, Some(viewpoint))?;
+    let (rg, rs) = grid.read_meta(&mut rec);
+    let (rp, rn) = (rec.read(&out_points, 0, (cells * 12) as u64), rec.read(&nb.normals, 0, (cells * 12) as u64));
+    let out = rec.finish()?;
+    grid.check(&out[rg], &out[rs])?;
+    Ok(PointCloud {
+        points: bytemuck::pod_collect_to_vec(&out[rp]),
+        normals: Some(bytemuck::pod_collect_to_vec(&out[rn])),
+    })
+}
+
+/// Voxel downsampling of the `n` points in `points` on the device ([`voxel_downsample`]'s definition), the
+/// result left there: a buffer of the voxel averages (sized for `n`) and how many there are. Reads back only
+/// the grid words.
+pub fn downsample_buffer(gpu: &Gpu, points: wgpu::Buffer, n: usize, voxel: f32) -> Result<(wgpu::Buffer, usize)> {
+    if !(voxel.is_finite() && voxel > 0.0) {
+        return Err(Error::invalid(format!("voxel size must be positive, got {voxel}")));
+    }
+    let out_points = storage_buffer(&gpu.context, "voxel_out_points", (n * 12) as u64)?;
     let mut rec = Recorder::new(gpu, "voxel_downsample");
     let table = CellTable::record(gpu, &mut rec, points, n, 1.0 / voxel)?;
     let b = voxel_average::VoxelAverageBuffers {
@@ -268,18 +288,7 @@ pub fn downsample_and_normals(
     let (rg, rs) = table.read_meta(&mut rec);
     let out = rec.finish()?;
     let (_, cells) = table.check(&out[rg], &out[rs])?;
-    drop(table);
-    let mut rec = Recorder::new(gpu, "normals");
-    let grid = CellTable::record(gpu, &mut rec, out_points.clone(), cells, 1.0 / knn_cell(voxel, k))?;
-    let nb = record_knn_normals(gpu, &mut rec, &grid, k, Some(viewpoint))?;
-    let (rg, rs) = grid.read_meta(&mut rec);
-    let (rp, rn) = (rec.read(&out_points, 0, (cells * 12) as u64), rec.read(&nb.normals, 0, (cells * 12) as u64));
-    let out = rec.finish()?;
-    grid.check(&out[rg], &out[rs])?;
-    Ok(PointCloud {
-        points: bytemuck::pod_collect_to_vec(&out[rp]),
-        normals: Some(bytemuck::pod_collect_to_vec(&out[rn])),
-    })
+    Ok((out_points, cells))
 }
 
 /// Where a [`DeviceCloud`]'s normals come from.
@@ -376,6 +385,11 @@ impl DeviceCloud {
     /// Points.
     pub fn len(&self) -> usize {
         self.n
+    }
+
+    /// The points (n x 3 f32) on the device.
+    pub fn points(&self) -> &wgpu::Buffer {
+        &self.table.points
     }
 
     /// The patch radius (the cell size of its table).

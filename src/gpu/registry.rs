@@ -17,6 +17,7 @@ use super::dense_fast::DenseFast;
 use super::farthest_point::FarthestPoint;
 use super::grid_knn::GridKnn;
 use super::hypotheses::Hypotheses;
+use super::icp_normal_equations::IcpNormalEquations;
 use super::kernel::{GpuKernel, Kernel, KernelSpec};
 use super::max_pool::MaxPool;
 use super::mutual_knn::MutualKnn;
@@ -56,6 +57,7 @@ pub const KERNELS: &[KernelSpec] = &[
     RotationHead::SPEC,
     Hypotheses::SPEC,
     ScoreHypotheses::SPEC,
+    IcpNormalEquations::SPEC,
 ];
 
 /// Every pipeline of [`KERNELS`] the device can run, compiled once per device.

@@ -4,15 +4,19 @@
 //! device. Per round only per-keypoint data crosses the bus: the keypoint indices and the per-(keypoint, cell)
 //! candidate offsets up, the candidate counts and the kept keypoints' positions and normals down. Voxel
 //! downsampling runs on the device ([`super::preprocess::voxel_downsample`]); its result is read back because
-//! the pipeline keeps the scan's cloud on the host (keypoint selection, ICP).
+//! the pipeline keeps the scan's cloud on the host (keypoint selection); the points' buffer stays with the described
+//! scan ([`DevicePoints`]) for ICP on the device ([`super::icp`]).
 
 use super::GpuBackend;
+use super::icp::DevicePoints;
 use super::preprocess::{DeviceCloud, NormalSource};
 use crate::backend::{
-    Backend, DescribedKeypoints, Lap, ScanCloud, ScanRows, ScanSettings, check_points, normalise_usable_normals,
+    Backend, DescribedKeypoints, HeldPoints, Lap, ScanCloud, ScanRows, ScanSettings, check_points,
+    normalise_usable_normals,
 };
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
+use std::sync::Arc;
 
 /// A scan kept on the device; see the module docs.
 pub struct GpuScanCloud {
@@ -89,6 +93,14 @@ impl ScanCloud for GpuScanCloud {
 
     fn farthest_points(&self, _cloud: &PointCloud, count: usize, start: usize) -> Result<Vec<usize>> {
         self.backend.run("farthest_point", |_| self.cloud.farthest_points(&self.backend.gpu, count, start))
+    }
+
+    fn held_points(&self) -> Option<Arc<dyn HeldPoints>> {
+        Some(Arc::new(DevicePoints {
+            gpu: std::sync::Arc::clone(self.backend.gpu_arc()),
+            buffer: self.cloud.points().clone(),
+            n: self.cloud.len(),
+        }))
     }
 
     fn complete_normals(&mut self, cloud: &mut PointCloud) -> Result<()> {

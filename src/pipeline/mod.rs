@@ -6,12 +6,12 @@ use crate::backend::{Backend, CpuBackend, MatchedRows, MatchedSide, RowMatch, Sc
 use crate::cloud::PointCloud;
 use crate::cpu::gemm::Precision;
 use crate::error::{Error, Result};
-use crate::estimate::{icp_point_to_plane, ransac, refine_best};
+use crate::estimate::icp::IcpProblem;
+use crate::estimate::{ransac, refine_best};
 use crate::model::{Model, Weights};
-use crate::preprocess::{estimate_normals_at, select_keypoints, voxel_downsample};
+use crate::preprocess::select_keypoints;
 use crate::rng::Rng;
 use crate::settings::*;
-use crate::spatial::PointIndex;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -269,6 +269,7 @@ impl Registrar {
             candidates: 0,
             empty_patches: 0,
             rows: self.backend.new_scan_rows(order.len())?,
+            held_points: scan_cloud.held_points(),
             timings: Vec::new(),
         };
         let patch_seed = Rng::derived(s.seed, 2 * stream + 1).next_u64();
@@ -424,7 +425,8 @@ impl Registrar {
 
     /// Point-to-plane ICP from `initial` on a voxel-downsampled copy of the target (voxel: half the largest
     /// point-pair distance, by default radius / 6; normals estimated on the copy), so it needs no normal of the
-    /// full clouds and costs little next to description.
+    /// full clouds and costs little next to description. It runs where the backend keeps the clouds
+    /// ([`Backend::refine_icp`]).
     fn refine_by_icp(
         &self,
         source: &ScanFeatures,
@@ -432,14 +434,12 @@ impl Registrar {
         initial: nalgebra::Matrix4<f64>,
         icp: &IcpSettings,
     ) -> Result<nalgebra::Matrix4<f64>> {
-        let distance = icp.max_correspondence_distance.unwrap_or(self.radius() / 6.0);
-        let voxel = distance / 2.0;
-        let mut small = voxel_downsample(&PointCloud::from_points(target.cloud.points.clone()), voxel)?;
-        let index = PointIndex::new(&small.points)?;
-        let ids: Vec<usize> = (0..small.len()).collect();
-        small.normals =
-            Some(estimate_normals_at(&small.points, &index, &ids, self.settings.normal_neighbors, [0.0; 3]));
-        icp_point_to_plane(&source.cloud, &small, &index, initial, distance, icp.max_iterations)
+        let problem = IcpProblem {
+            max_distance: icp.max_correspondence_distance.unwrap_or(self.radius() / 6.0),
+            max_iterations: icp.max_iterations,
+            normal_neighbors: self.settings.normal_neighbors,
+        };
+        self.backend.refine_icp(source, target, initial, &problem)
     }
 
     /// Whether `estimate` (computed from `correspondences`) can be trusted, by the settings' verdict thresholds.
