@@ -1385,6 +1385,40 @@ fn device_register_reads_back_no_per_point_data() {
     );
 }
 
+/// `--voxel` on the device: the scan is described from the downsampling's output buffer in place, bit for bit
+/// as if its read-back copy were uploaded and described without `--voxel` (the same keypoints, normals and
+/// codewords), and the input's points cross the bus once: the downsampled points are not uploaded again.
+fn device_voxel_scan_is_described_in_place() {
+    let Some(g) = gpu() else { return };
+    let s = seed(78);
+    let model = small_model(s);
+    let settings = |voxel| dpr_gpu::RegistrationSettings {
+        keypoints: 40,
+        first_keypoints: None,
+        voxel,
+        viewpoint: ROOM_VIEWPOINT,
+        seed: s,
+        ..Default::default()
+    };
+    let (source, _, _) = common::room_pair(s, 12_000);
+    let backend = || Box::new(GpuBackend::with_gpu(Arc::clone(&g), model.clone()).unwrap());
+    let in_place = dpr_gpu::Registrar::with_backend(&settings(Some(0.05)), backend()).unwrap();
+    let before = g.context.transfers();
+    let a = in_place.describe(&source, 0).unwrap();
+    let up = g.context.transfers().since(before).host_to_device_bytes;
+    assert!(a.cloud.len() < source.len() / 2, "the voxel must thin the cloud ({} of {})", a.cloud.len(), source.len());
+    let again = dpr_gpu::Registrar::with_backend(&settings(None), backend()).unwrap();
+    // Its points only: the described cloud also carries the normals the device estimated.
+    let b = again.describe(&dpr_gpu::PointCloud::from_points(a.cloud.points.clone()), 0).unwrap();
+    assert_eq!(a.keypoints, b.keypoints, "seed {s}");
+    assert_eq!(a.keypoint_normals, b.keypoint_normals, "seed {s}");
+    assert_eq!(a.read_codewords().unwrap(), b.read_codewords().unwrap(), "seed {s}");
+    // Up: the input once, then per-keypoint arrays and grid words, far less than a second copy of the
+    // downsampled points.
+    let input = 12 * source.len() as u64;
+    assert!(up < input + 12 * a.cloud.len() as u64 / 2, "{up} bytes up for {input} bytes of input points");
+}
+
 /// Uniform keypoints (farthest-point sampling) drawn on the device: the same keypoint order as the CPU path,
 /// hence the same kept keypoints and ranks.
 fn device_uniform_keypoints_match_cpu() {
@@ -1416,6 +1450,7 @@ fn main() -> std::process::ExitCode {
 const TESTS: &[dpr_gpu::gpu::testing::GpuTest] = &[
     ("every_registered_kernel_has_a_parity_test", every_registered_kernel_has_a_parity_test),
     ("patch_features_matches_cpu_ragged", patch_features_matches_cpu_ragged),
+    ("device_voxel_scan_is_described_in_place", device_voxel_scan_is_described_in_place),
     ("patch_features_matches_cpu_degenerate", patch_features_matches_cpu_degenerate),
     ("dense_matches_cpu_ragged", dense_matches_cpu_ragged),
     ("dense_fast_matches_cpu_ragged", dense_fast_matches_cpu_ragged),

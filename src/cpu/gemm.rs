@@ -345,9 +345,10 @@ impl Precision {
     pub fn choose(value: Option<&str>, bf16_available: bool) -> crate::error::Result<(Precision, String)> {
         let invalid = |why: String| Err(crate::error::Error::invalid(why));
         match value.map(str::trim) {
-            None | Some("" | "auto") if bf16_available => {
-                Ok((Precision::Bf16, "bf16 encoders: this CPU has AVX-512 BF16 (DPR_GPU_CPU_PRECISION=f32 for f32)".into()))
-            }
+            None | Some("" | "auto") if bf16_available => Ok((
+                Precision::Bf16,
+                "bf16 encoders: this CPU has AVX-512 BF16 (DPR_GPU_CPU_PRECISION=f32 for f32)".into(),
+            )),
             None | Some("" | "auto") => Ok((Precision::F32, "f32 encoders: this CPU has no AVX-512 BF16".into())),
             Some("f32") => Ok((Precision::F32, format!("f32 encoders: {CPU_PRECISION_ENV}=f32"))),
             Some("bf16") if bf16_available => Ok((Precision::Bf16, format!("bf16 encoders: {CPU_PRECISION_ENV}=bf16"))),

@@ -86,8 +86,15 @@ impl CellTable {
 /// Voxel-grid downsampling on the GPU: [`crate::cpu::voxel_average::voxel_downsample`]'s definition (the CPU
 /// path's), with the same voxel membership bit for bit and averages within f32 rounding of the twin's.
 pub fn voxel_downsample(gpu: &Gpu, cloud: &PointCloud, voxel: f32) -> Result<PointCloud> {
+    Ok(voxel_downsample_held(gpu, cloud, voxel)?.0)
+}
+
+/// [`voxel_downsample`], also returning the device buffer whose first `points.len()` entries hold the
+/// downsampled points (`None` for an empty cloud), so that a scan can be described from it without uploading
+/// the points again.
+pub fn voxel_downsample_held(gpu: &Gpu, cloud: &PointCloud, voxel: f32) -> Result<(PointCloud, Option<wgpu::Buffer>)> {
     if let Some(empty) = crate::cpu::voxel_average::check_downsample(cloud, voxel)? {
-        return Ok(empty);
+        return Ok((empty, None));
     }
     let ctx = &gpu.context;
     let n = cloud.len();
@@ -115,10 +122,11 @@ pub fn voxel_downsample(gpu: &Gpu, cloud: &PointCloud, voxel: f32) -> Result<Poi
     let rp = rec.read(&out_points, 0, (cells * 12) as u64);
     let rn = out_normals.as_ref().map(|o| rec.read(o, 0, (cells * 12) as u64));
     let out = rec.finish()?;
-    Ok(PointCloud {
+    let host = PointCloud {
         points: bytemuck::pod_collect_to_vec(&out[rp]),
         normals: rn.map(|r| bytemuck::pod_collect_to_vec(&out[r])),
-    })
+    };
+    Ok((host, Some(out_points)))
 }
 
 /// The grid cell size for k-nearest-neighbour searches on a cloud downsampled at `voxel`: about the radius

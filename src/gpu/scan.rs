@@ -1,11 +1,12 @@
 //! The GPU backend's scan cloud: the cloud is uploaded once per scan ([`DeviceCloud`]: points, normals given
 //! or estimated on the device for every point, the cell table of the patch radius), and each description round
-//! samples its keypoints' patches (and, in uniform keypoint mode, the keypoint order is drawn there too), gathers them, computes their features and PPF-FoldNet codewords on the
-//! device. Per round only per-keypoint data crosses the bus: the keypoint indices and the per-(keypoint, cell)
+//! samples its keypoints' patches (and, in uniform keypoint mode, the keypoint order is drawn there too),
+//! gathers them, computes their features and PPF-FoldNet codewords on the device. Per round only per-keypoint data crosses the bus: the keypoint indices and the per-(keypoint, cell)
 //! candidate offsets up, the candidate counts and the kept keypoints' positions and normals down. Voxel
-//! downsampling runs on the device ([`super::preprocess::voxel_downsample`]); its result is read back because
-//! the pipeline keeps the scan's cloud on the host (keypoint selection); the points' buffer stays with the described
-//! scan ([`DevicePoints`]) for ICP on the device ([`super::icp`]).
+//! downsampling runs on the device ([`super::preprocess::voxel_downsample_held`]) and the scan is described
+//! from its output buffer in place; the result is also read back once, because the described scan carries its
+//! cloud (snapshots, pickling). The points' buffer stays with the described scan ([`DevicePoints`]) for ICP on
+//! the device ([`super::icp`]).
 
 use super::GpuBackend;
 use super::icp::DevicePoints;
@@ -37,9 +38,11 @@ impl GpuBackend {
         lap: Lap<'_>,
     ) -> Result<(PointCloud, Box<dyn ScanCloud>)> {
         let gpu = &self.gpu;
-        let mut host = match settings.voxel {
-            Some(v) => self.run("voxel_downsample", |_| super::preprocess::voxel_downsample(gpu, cloud, v))?,
-            None => cloud.clone(),
+        // Downsampled on the device, the points stay there for the description (the host copy is part of the
+        // described scan, e.g. for snapshots and pickling).
+        let (mut host, held) = match settings.voxel {
+            Some(v) => self.run("voxel_downsample", |_| super::preprocess::voxel_downsample_held(gpu, cloud, v))?,
+            None => (cloud.clone(), None),
         };
         check_points(&host, settings)?;
         lap("downsample");
@@ -48,7 +51,10 @@ impl GpuBackend {
             (Some(ns), true) => NormalSource::Given(ns),
             _ => NormalSource::Estimate { k: settings.normal_neighbors, viewpoint: settings.viewpoint },
         };
-        let device = self.run("start_scan", |_| DeviceCloud::new(gpu, &host.points, source, settings.radius))?;
+        let device = self.run("start_scan", |_| match held {
+            Some(points) => DeviceCloud::from_buffer(gpu, points, host.len(), source, settings.radius),
+            None => DeviceCloud::new(gpu, &host.points, source, settings.radius),
+        })?;
         if !given {
             host.normals = None;
         }
