@@ -119,6 +119,8 @@ fn expected_stage_bytes(stage: &str, config: &Value) -> (u64, u64) {
 /// grid words and status come back.
 struct CountingBackend {
     inner: GpuBackend,
+    /// The inner backend's device (ICP's traffic is checked against its counters).
+    gpu: Arc<dpr_gpu::gpu::Gpu>,
     /// (host to device, device to host), shared with the test.
     bytes: Arc<Mutex<(u64, u64)>>,
     /// (scan rows, row) whose pose feature has been computed.
@@ -174,6 +176,10 @@ impl ScanCloud for CountingScan {
 
     fn normals_complete(&self) -> bool {
         self.inner.normals_complete()
+    }
+
+    fn held_points(&self) -> Option<Arc<dyn dpr_gpu::backend::HeldPoints>> {
+        self.inner.held_points()
     }
 }
 
@@ -249,6 +255,31 @@ impl Backend for CountingBackend {
         let (c, m) = (request.len(), self.inner.model().config.rotation_output.candidates());
         let rotations = if request.wants_rotations() { 36 * c * m } else { 0 };
         self.add(4 * missing + 12 * 2 * c * (2 + m), 8 * c * m + 4 * HYPOTHESIS_FLOATS * out.best.len() + rotations);
+        Ok(out)
+    }
+
+    /// ICP on the device: up, the grid words of two cell tables (the target's voxel copy and its ICP grid);
+    /// down, the same words and the 28 sums of each iteration, whose count only the loop knows: checked to be
+    /// that shape, at most `max_iterations` sums, and counted.
+    fn refine_icp(
+        &self,
+        source: &dpr_gpu::pipeline::ScanFeatures,
+        target: &dpr_gpu::pipeline::ScanFeatures,
+        initial: nalgebra::Matrix4<f64>,
+        problem: &dpr_gpu::estimate::icp::IcpProblem,
+    ) -> dpr_gpu::Result<nalgebra::Matrix4<f64>> {
+        let before = self.gpu.context.transfers();
+        let out = self.inner.refine_icp(source, target, initial, problem)?;
+        let moved = self.gpu.context.transfers().since(before);
+        let (tables, sums) = (2 * (32 + 4), 28 * 4);
+        assert_eq!(moved.host_to_device_bytes, tables, "ICP uploads only grid words (the points are held)");
+        let per_iteration = moved.device_to_host_bytes - tables;
+        assert!(
+            per_iteration % sums == 0 && per_iteration / sums <= problem.max_iterations as u64,
+            "ICP read back {} bytes",
+            moved.device_to_host_bytes
+        );
+        self.add(tables as usize, moved.device_to_host_bytes as usize);
         Ok(out)
     }
 
@@ -433,6 +464,7 @@ fn bench_json_on_the_test_adapter_is_consistent() {
     let counted = Arc::new(Mutex::new((0u64, 0u64)));
     let counting = CountingBackend {
         inner: GpuBackend::with_gpu(Arc::clone(&gpu), model).unwrap(),
+        gpu: Arc::clone(&gpu),
         bytes: Arc::clone(&counted),
         computed: Mutex::new(HashSet::new()),
     };
