@@ -275,7 +275,7 @@ impl Backend for CountingBackend {
         assert_eq!(moved.host_to_device_bytes, tables, "ICP uploads only grid words (the points are held)");
         let per_iteration = moved.device_to_host_bytes - tables;
         assert!(
-            per_iteration % sums == 0 && per_iteration / sums <= problem.max_iterations as u64,
+            per_iteration.is_multiple_of(sums) && per_iteration / sums <= problem.max_iterations as u64,
             "ICP read back {} bytes",
             moved.device_to_host_bytes
         );
