@@ -20,6 +20,7 @@ use dpr_gpu::train::loss::{
 };
 use dpr_gpu::train::{
     DataSettings, LossSettings, PairSample, Sampler, TrainSettings, Trainer, batch_loss, batch_objective,
+    contrast::hardest_negative_loss,
 };
 use nalgebra::{Matrix3, Matrix4, Vector3};
 use std::path::{Path, PathBuf};
@@ -357,6 +358,50 @@ fn feature_loss_matches_finite_differences() {
     assert!(g0.iter().all(|&g| g == 0.0));
 }
 
+#[test]
+fn contrastive_loss_matches_its_definition_and_finite_differences() {
+    let (b, dim, ratio) = (5, 6, 0.5);
+    let mut rng = Rng::new(10);
+    let source = randn(&mut rng, b * dim, 1.0);
+    let mut target = randn(&mut rng, b * dim, 1.0);
+    // Pairs 0 and 1 are near-positives (their hinges inactive unless a negative is nearer still).
+    for k in 0..dim {
+        target[k] = source[k] + 0.01 * target[k];
+        target[dim + k] = source[dim + k] + 0.01 * target[dim + k];
+    }
+    // The definition, written out independently (margin held constant at the unperturbed batch's value).
+    let x0: Vec<f64> = to64(&source).into_iter().chain(to64(&target)).collect();
+    let dist = |x: &[f64], i: usize, j: usize| {
+        (0..dim).map(|k| (x[i * dim + k] - x[(b + j) * dim + k]).powi(2)).sum::<f64>().sqrt()
+    };
+    let off: f64 =
+        (0..b).flat_map(|i| (0..b).filter(move |&j| j != i).map(move |j| (i, j))).map(|(i, j)| dist(&x0, i, j)).sum();
+    let margin = ratio * off / (b * (b - 1)) as f64;
+    let oracle = |x: &[f64]| {
+        (0..b)
+            .map(|i| {
+                let row = (0..b).filter(|&j| j != i).map(|j| dist(x, i, j)).fold(f64::INFINITY, f64::min);
+                let col = (0..b).filter(|&j| j != i).map(|j| dist(x, j, i)).fold(f64::INFINITY, f64::min);
+                0.5 / b as f64 * ((margin + dist(x, i, i) - row).max(0.0) + (margin + dist(x, i, i) - col).max(0.0))
+            })
+            .sum::<f64>()
+    };
+    let (value, d_source, d_target) = hardest_negative_loss(&source, &target, dim, ratio);
+    assert!((value - oracle(&x0)).abs() < 1e-9, "{value} vs {}", oracle(&x0));
+    assert!(value > 0.0, "some hinge must be active for the test to mean anything");
+    let grad: Vec<f32> = d_source.iter().chain(&d_target).copied().collect();
+    let x: Vec<f32> = source.iter().chain(&target).copied().collect();
+    check_all("contrast", &x, &grad, &oracle);
+    // Corresponding codewords equal and every other pair equally far apart (one-hot rows): every hinge is
+    // margin - distance < 0, so no loss and no gradient.
+    let one_hot: Vec<f32> = (0..b * dim).map(|k| if k % dim == k / dim { 3.0 } else { 0.0 }).collect();
+    let (zero, g0, _) = hardest_negative_loss(&one_hot, &one_hot, dim, ratio);
+    assert_eq!(zero, 0.0);
+    assert!(g0.iter().all(|&g| g == 0.0));
+    // One pair has no negatives.
+    assert_eq!(hardest_negative_loss(&source[..dim], &target[..dim], dim, ratio).0, 0.0);
+}
+
 /// A tiny model: widths 4-8, 6 points per patch, 2 x 2 grid.
 fn tiny_config() -> ModelConfig {
     ModelConfig {
@@ -442,11 +487,21 @@ fn whole_model_gradient_matches_finite_differences() {
 fn whole_model_gradient_matches(config: ModelConfig) {
     let weights = weights_with_biases(&config, 21);
     let mut rng = Rng::new(22);
-    let samples: Vec<PairSample> = (0..2).map(|_| random_sample(&config, &mut rng)).collect();
-    // The full gradient: the pose loss also reaches PPF-FoldNet, so every tensor matches the total loss.
-    let settings =
-        LossSettings { lambda_pose: 0.7, lambda_feat: 0.3, pose_trains_ppf: true, ..LossSettings::default() };
-    let (_, grads) = batch_objective(&weights, &samples, &settings).unwrap();
+    let samples: Vec<PairSample> = (0..3).map(|_| random_sample(&config, &mut rng)).collect();
+    // The full gradient: the pose loss also reaches PPF-FoldNet, so every tensor matches the total loss, and the
+    // batch contrastive term joins each pair's own terms (at margin 0: the margin is held constant for the
+    // gradient, so finite differences of a non-zero margin's batch statistic would not agree by design).
+    let settings = LossSettings {
+        lambda_pose: 0.7,
+        lambda_feat: 0.3,
+        pose_trains_ppf: true,
+        contrast: true,
+        lambda_contrast: 0.6,
+        contrast_margin: 0.0,
+        ..LossSettings::default()
+    };
+    let (losses, grads) = batch_objective(&weights, &samples, &settings).unwrap();
+    assert!(losses.contrast > 0.0, "the contrastive term must be active for the check to cover it");
     let specs = tensor_specs(&config);
     let (mut checked, mut agreed) = (0, 0);
     let mut report = Vec::new();

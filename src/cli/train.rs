@@ -81,6 +81,15 @@ pub struct Args {
     /// Drop the feature-consistency loss (ablation).
     #[arg(long)]
     pub no_feat: bool,
+    /// Add the batch contrastive loss on PPF codewords with this weight (lambda3; each pair's codewords closer
+    /// to each other than to the hardest other pair's, by a margin): trains descriptors that match [default:
+    /// off].
+    #[arg(long)]
+    pub lambda_contrast: Option<f64>,
+    /// The contrastive margin, as a fraction of the batch's mean distance between non-corresponding codewords
+    /// [default: 0.5].
+    #[arg(long)]
+    pub contrast_margin: Option<f64>,
     /// Let the pose loss train PPF-FoldNet too (by default the PPF codeword is held constant for it).
     #[arg(long)]
     pub pose_trains_ppf: bool,
@@ -159,6 +168,9 @@ fn fresh_settings(args: &Args) -> TrainSettings {
     s.loss.pose = !args.no_pose;
     s.loss.feat = !args.no_feat;
     s.loss.pose_trains_ppf = args.pose_trains_ppf;
+    s.loss.contrast = args.lambda_contrast.is_some_and(|v| v > 0.0);
+    s.loss.lambda_contrast = args.lambda_contrast.unwrap_or(s.loss.lambda_contrast);
+    s.loss.contrast_margin = args.contrast_margin.unwrap_or(s.loss.contrast_margin);
     s.sampling.voxel = args.voxel.unwrap_or(s.sampling.voxel);
     s.sampling.match_distance = args.match_distance.unwrap_or(s.sampling.match_distance);
     s.sampling.rotate_target = args.rotate_target;
@@ -190,6 +202,9 @@ fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> an
     check("--no-rec", args.no_rec && s.loss.rec);
     check("--no-pose", args.no_pose && s.loss.pose);
     check("--no-feat", args.no_feat && s.loss.feat);
+    let contrast_differs = |v: f64| (v > 0.0) != s.loss.contrast || (v > 0.0 && v != s.loss.lambda_contrast);
+    check("--lambda-contrast", args.lambda_contrast.is_some_and(contrast_differs));
+    check("--contrast-margin", args.contrast_margin.is_some_and(|v| v != s.loss.contrast_margin));
     check("--pose-trains-ppf", args.pose_trains_ppf && !s.loss.pose_trains_ppf);
     check("--voxel", args.voxel.is_some_and(|v| v != s.sampling.voxel));
     check("--match-distance", args.match_distance.is_some_and(|v| v != s.sampling.match_distance));
@@ -207,7 +222,7 @@ fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> an
 /// Opens the CSV log: fresh runs start it (header), resumed runs keep only the rows up to the checkpoint's
 /// step (later rows belong to steps that will be redone) and append.
 fn open_log(path: &Path, resumed_at: Option<u64>) -> anyhow::Result<std::fs::File> {
-    const HEADER: &str = "step,total,rec,pose,feat,lr,seconds";
+    const HEADER: &str = "step,total,rec,pose,feat,lr,seconds,contrast";
     if resumed_at.is_none() {
         let mut file = std::fs::OpenOptions::new()
             .create(true)
@@ -242,6 +257,7 @@ fn mean(losses: &[Losses]) -> Losses {
         rec: a.rec + k * l.rec,
         pose: a.pose + k * l.pose,
         feat: a.feat + k * l.feat,
+        contrast: a.contrast + k * l.contrast,
         total: a.total + k * l.total,
     })
 }
@@ -358,14 +374,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if let Some(f) = log.as_mut() {
             let secs = clock.elapsed().as_secs_f64();
             let (t, r, p, e) = (losses.total, losses.rec, losses.pose, losses.feat);
-            writeln!(f, "{step},{t:.6},{r:.6},{p:.6},{e:.6},{lr:.3e},{secs:.2}").context("writing the log")?;
+            let c = losses.contrast;
+            writeln!(f, "{step},{t:.6},{r:.6},{p:.6},{e:.6},{lr:.3e},{secs:.2},{c:.6}").context("writing the log")?;
         }
         recent.push(losses);
         if recent.len() > 50 {
             recent.remove(0);
         }
         let m = mean(&recent);
-        bar.set_message(format!("loss {:.4} rec {:.4} pose {:.4} feat {:.4}", m.total, m.rec, m.pose, m.feat));
+        bar.set_message(format!(
+            "loss {:.4} rec {:.4} pose {:.4} feat {:.4} contrast {:.4}",
+            m.total, m.rec, m.pose, m.feat, m.contrast
+        ));
         bar.set_position(step);
         if args.checkpoint_every > 0 && step % args.checkpoint_every == 0 {
             trainer.save_checkpoint(&ckpt)?;
@@ -377,7 +397,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let m = mean(&recent);
     let final_losses = serde_json::json!({
         "steps_averaged": recent.len(),
-        "total": m.total, "rec": m.rec, "pose": m.pose, "feat": m.feat,
+        "total": m.total, "rec": m.rec, "pose": m.pose, "feat": m.feat, "contrast": m.contrast,
     });
     weights.notes.insert("dpr_gpu.train.command".into(), std::env::args().collect::<Vec<_>>().join(" "));
     weights.notes.insert("dpr_gpu.train.steps".into(), trainer.step_count().to_string());

@@ -5,6 +5,7 @@
 //!   which keeps every layer's output;
 //! - [`grad`], [`backward`]: backward passes of every layer and of the whole networks;
 //! - [`loss`]: Chamfer distance, the pose losses (quaternion and 6-D) and the feature-consistency loss;
+//! - [`contrast`]: the optional batch contrastive loss on PPF codewords (in-batch hardest negatives);
 //! - [`objective`]: the per-pair loss and the batch gradient (parallel, deterministic);
 //! - [`adam`]: AdamW with an exponentially decaying learning rate;
 //! - [`data`]: training pairs from 3DMatch-layout datasets or pairs files;
@@ -29,6 +30,7 @@
 pub mod adam;
 pub mod backward;
 pub mod checkpoint;
+pub mod contrast;
 pub mod data;
 pub mod grad;
 pub mod loss;

@@ -6,13 +6,16 @@
 //! - `L_pose`: RelativeNet's output on `[f_pc(p) - f_ppf(p) | f_pc(q) - f_ppf(q)]` against the label rotation,
 //!   `min(|q - q*|, |q + q*|)` for the paper's quaternion output or `|R - R*|_F / 2` for the 6-D output
 //!   ([`super::loss::rotation_loss`]);
-//! - `L_feat = |f_ppf(p) - f_ppf(q)|`.
+//! - `L_feat = |f_ppf(p) - f_ppf(q)|`;
+//! - optionally `L_contrast`, over the whole batch: each pair's PPF codewords closer to each other than to the
+//!   hardest other pair's by a margin ([`super::contrast`]), weighted by lambda3.
 //!
 //! The batch loss is the mean over pairs (the paper sums `L_feat` over the correspondences; with a fixed batch
 //! size that is the same up to the scale of lambda2). A term can be dropped (the paper's ablation): its value
 //! is still computed and reported, but it adds nothing to the loss or the gradient.
 
 use super::backward::{Gradients, LayerWeights, decode_backward, encode_backward, relative_backward};
+use super::contrast::hardest_negative_loss;
 use super::loss::{chamfer, feat_loss, rotation_loss};
 use crate::error::{Error, Result};
 use crate::model::params::foldnet_layers;
@@ -52,11 +55,38 @@ pub struct LossSettings {
     /// away from what reconstruction and feature consistency ask of them.
     #[serde(default)]
     pub pose_trains_ppf: bool,
+    /// Train on the batch contrastive loss (off in older runs' settings).
+    #[serde(default)]
+    pub contrast: bool,
+    /// lambda3, the weight of `L_contrast`.
+    #[serde(default = "default_lambda_contrast")]
+    pub lambda_contrast: f64,
+    /// The contrastive margin as a fraction of the batch's mean distance between non-corresponding codewords.
+    #[serde(default = "default_contrast_margin")]
+    pub contrast_margin: f64,
+}
+
+fn default_lambda_contrast() -> f64 {
+    1.0
+}
+
+fn default_contrast_margin() -> f64 {
+    0.5
 }
 
 impl Default for LossSettings {
     fn default() -> Self {
-        LossSettings { rec: true, pose: true, feat: true, lambda_pose: 1.0, lambda_feat: 0.1, pose_trains_ppf: false }
+        LossSettings {
+            rec: true,
+            pose: true,
+            feat: true,
+            lambda_pose: 1.0,
+            lambda_feat: 0.1,
+            pose_trains_ppf: false,
+            contrast: false,
+            lambda_contrast: default_lambda_contrast(),
+            contrast_margin: default_contrast_margin(),
+        }
     }
 }
 
@@ -69,6 +99,8 @@ pub struct Losses {
     pub pose: f64,
     /// `L_feat`.
     pub feat: f64,
+    /// `L_contrast` (a batch term; 0 with fewer than two pairs).
+    pub contrast: f64,
     /// The trained total: the enabled terms, weighted.
     pub total: f64,
 }
@@ -79,13 +111,16 @@ fn bases(model: &Model) -> (usize, usize) {
     (per_net, 2 * per_net)
 }
 
-/// Loss of one pair, and (when `grads` is given) `scale` times its gradient added into `grads`.
+/// Loss of one pair, and (when `grads` is given) `scale` times its gradient added into `grads`. `batch_ppf_cw`
+/// is the gradient of the batch terms w.r.t. this pair's two PPF codewords (source then target, already
+/// weighted), back-propagated with the pair's own terms.
 pub fn sample_objective(
     model: &Model,
     w: &LayerWeights<'_>,
     sample: &PairSample,
     settings: &LossSettings,
     scale: f64,
+    batch_ppf_cw: Option<&[f32]>,
     grads: Option<&mut Gradients>,
 ) -> Result<Losses> {
     let n = model.config.points_per_patch;
@@ -138,7 +173,7 @@ pub fn sample_objective(
     .filter(|t| t.0)
     .map(|t| t.1 * t.2)
     .sum();
-    let losses = Losses { rec, pose, feat, total };
+    let losses = Losses { rec, pose, feat, contrast: 0.0, total };
     let Some(grads) = grads else { return Ok(losses) };
 
     let mut d_ppf_cw = vec![0.0f32; 2 * cw];
@@ -166,6 +201,9 @@ pub fn sample_objective(
             d_ppf_cw[i] += k * g;
             d_ppf_cw[cw + i] -= k * g;
         }
+    }
+    if let Some(extra) = batch_ppf_cw {
+        d_ppf_cw.iter_mut().zip(extra).for_each(|(d, g)| *d += g);
     }
     // An all-zero codeword gradient back-propagates to exactly zero: skip the work.
     if d_ppf_cw.iter().any(|&v| v != 0.0) {
@@ -196,20 +234,26 @@ pub fn batch_objective(
     }
     let model = Model::from_weights(weights)?;
     let w = LayerWeights::new(weights)?;
+    let (contrast, batch_grads) = batch_terms(&model, samples, settings)?;
     let scale = 1.0 / samples.len() as f64;
     let per_group = samples.len().div_ceil(MAX_GROUPS);
-    let groups: Vec<&[PairSample]> = samples.chunks(per_group).collect();
+    let groups: Vec<(usize, &[PairSample])> =
+        samples.chunks(per_group).enumerate().map(|(k, g)| (k * per_group, g)).collect();
     let mut total = Gradients::zeros(&weights.config);
     let mut losses = Losses::default();
     let wave = rayon::current_num_threads().max(1);
     for chunk in groups.chunks(wave) {
         let results: Vec<Result<(Vec<Losses>, Gradients)>> = chunk
             .par_iter()
-            .map(|group| {
+            .map(|&(first, group)| {
                 let mut g = Gradients::zeros(&weights.config);
                 let l = group
                     .iter()
-                    .map(|s| sample_objective(&model, &w, s, settings, scale, Some(&mut g)))
+                    .enumerate()
+                    .map(|(k, s)| {
+                        let extra = batch_grads.get(first + k).map(Vec::as_slice);
+                        sample_objective(&model, &w, s, settings, scale, extra, Some(&mut g))
+                    })
                     .collect::<Result<Vec<_>>>()?;
                 Ok((l, g))
             })
@@ -217,14 +261,12 @@ pub fn batch_objective(
         for r in results {
             let (ls, g) = r?;
             for l in ls {
-                losses.rec += l.rec * scale;
-                losses.pose += l.pose * scale;
-                losses.feat += l.feat * scale;
-                losses.total += l.total * scale;
+                accumulate(&mut losses, &l, scale);
             }
             total.add_assign(&g);
         }
     }
+    add_contrast(&mut losses, contrast, settings);
     Ok((losses, total))
 }
 
@@ -233,12 +275,61 @@ pub fn batch_loss(weights: &Weights, samples: &[PairSample], settings: &LossSett
     let model = Model::from_weights(weights)?;
     let w = LayerWeights::new(weights)?;
     let scale = 1.0 / samples.len().max(1) as f64;
-    let all: Vec<Losses> =
-        samples.par_iter().map(|s| sample_objective(&model, &w, s, settings, scale, None)).collect::<Result<_>>()?;
-    Ok(all.iter().fold(Losses::default(), |a, l| Losses {
-        rec: a.rec + l.rec * scale,
-        pose: a.pose + l.pose * scale,
-        feat: a.feat + l.feat * scale,
-        total: a.total + l.total * scale,
-    }))
+    let all: Vec<Losses> = samples
+        .par_iter()
+        .map(|s| sample_objective(&model, &w, s, settings, scale, None, None))
+        .collect::<Result<_>>()?;
+    let mut losses = Losses::default();
+    all.iter().for_each(|l| accumulate(&mut losses, l, scale));
+    let (contrast, _) = batch_terms(&model, samples, settings)?;
+    add_contrast(&mut losses, contrast, settings);
+    Ok(losses)
+}
+
+/// The batch terms (today the contrastive loss, evaluated only when enabled: it costs a PPF-FoldNet pass over
+/// the batch first): their value and, per sample, the weighted gradient w.r.t. its two PPF codewords (empty
+/// when disabled). The codewords come from the same forward as [`sample_objective`]'s, so the gradient is exact.
+fn batch_terms(model: &Model, samples: &[PairSample], settings: &LossSettings) -> Result<(f64, Vec<Vec<f32>>)> {
+    if !settings.contrast || samples.len() < 2 {
+        return Ok((0.0, Vec::new()));
+    }
+    let n = model.config.points_per_patch;
+    let cw = model.config.codeword();
+    let codewords: Vec<Vec<f32>> = samples
+        .par_iter()
+        .map(|s| {
+            if s.ppf.len() != 2 * n * 4 {
+                return Err(Error::invalid(format!(
+                    "training pair has {} PPF values, expected {}",
+                    s.ppf.len(),
+                    2 * n * 4
+                )));
+            }
+            Ok(model.ppf.encode_tape(&s.ppf, 2, n).codeword)
+        })
+        .collect::<Result<_>>()?;
+    let source: Vec<f32> = codewords.iter().flat_map(|c| c[..cw].iter().copied()).collect();
+    let target: Vec<f32> = codewords.iter().flat_map(|c| c[cw..].iter().copied()).collect();
+    let (value, d_source, d_target) = hardest_negative_loss(&source, &target, cw, settings.contrast_margin);
+    let k = settings.lambda_contrast as f32;
+    let grads = (0..samples.len())
+        .map(|i| d_source[i * cw..][..cw].iter().chain(&d_target[i * cw..][..cw]).map(|g| k * g).collect())
+        .collect();
+    Ok((value, grads))
+}
+
+/// Adds one pair's losses, weighted by `scale`, into the batch's.
+fn accumulate(losses: &mut Losses, l: &Losses, scale: f64) {
+    losses.rec += l.rec * scale;
+    losses.pose += l.pose * scale;
+    losses.feat += l.feat * scale;
+    losses.total += l.total * scale;
+}
+
+/// Records the batch's contrastive loss, and adds it to the total when it is trained.
+fn add_contrast(losses: &mut Losses, contrast: f64, settings: &LossSettings) {
+    losses.contrast = contrast;
+    if settings.contrast {
+        losses.total += settings.lambda_contrast * contrast;
+    }
 }

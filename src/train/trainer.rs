@@ -51,10 +51,11 @@ impl TrainSettings {
             return Err(Error::invalid("batch must be at least 1"));
         }
         let l = &self.loss;
-        if !(l.lambda_pose.is_finite() && l.lambda_pose >= 0.0 && l.lambda_feat.is_finite() && l.lambda_feat >= 0.0) {
+        let usable = |v: f64| v.is_finite() && v >= 0.0;
+        if ![l.lambda_pose, l.lambda_feat, l.lambda_contrast, l.contrast_margin].into_iter().all(usable) {
             return Err(Error::invalid(format!("loss weights must be finite and non-negative: {l:?}")));
         }
-        if !(l.rec || l.pose || l.feat) {
+        if !(l.rec || l.pose || l.feat || l.contrast) {
             return Err(Error::invalid("every loss term is disabled: nothing to train"));
         }
         self.adam.validate()
