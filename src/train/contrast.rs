@@ -21,7 +21,7 @@ pub fn hardest_negative_loss(
     dim: usize,
     margin_ratio: f64,
 ) -> (f64, Vec<f32>, Vec<f32>) {
-    let b = if dim == 0 { 0 } else { source.len() / dim };
+    let b = source.len().checked_div(dim).unwrap_or(0);
     let mut d_source = vec![0.0f32; source.len()];
     let mut d_target = vec![0.0f32; target.len()];
     if b < 2 || target.len() != source.len() {
@@ -46,7 +46,7 @@ pub fn hardest_negative_loss(
     };
     let weight = 0.5 / b as f64;
     let mut value = 0.0;
-    for i in 0..b {
+    for (i, row) in d.iter().enumerate() {
         let others = || (0..b).filter(move |&j| j != i);
         let nearest = |key: &dyn Fn(usize) -> f64| {
             others().fold(None, |best: Option<usize>, j| match best {
@@ -55,12 +55,11 @@ pub fn hardest_negative_loss(
             })
         };
         // Source anchor against the other targets, then target anchor against the other sources.
-        let row_negative = nearest(&|j| d[i][j]).expect("b >= 2");
+        let row_negative = nearest(&|j| row[j]).expect("b >= 2");
         let column_negative = nearest(&|j| d[j][i]).expect("b >= 2");
-        for (negative, (ni, nj)) in
-            [(d[i][row_negative], (i, row_negative)), (d[column_negative][i], (column_negative, i))]
-        {
-            let hinge = margin + d[i][i] - negative;
+        let negatives = [(row[row_negative], (i, row_negative)), (d[column_negative][i], (column_negative, i))];
+        for (negative, (ni, nj)) in negatives {
+            let hinge = margin + row[i] - negative;
             if hinge > 0.0 {
                 value += weight * hinge;
                 add(i, i, weight);
