@@ -77,3 +77,32 @@ fn garbage_and_foreign_files_are_rejected_with_a_reason() {
         assert!(Weights::from_bytes(&bytes[..cut], "cut").is_err(), "truncated at {cut}");
     }
 }
+
+/// Every weights file the project ships loads, fits the 20 MB budget, records how it was trained, and the
+/// work-in-progress angle-bin models carry the head that covers all of SO(3) (normal-frame patches, angle bins)
+/// while the default keeps the paper's head it was trained with.
+#[test]
+fn shipped_weights_files_load_and_describe_themselves() {
+    use dpr_gpu::model::config::{PoseFrame, RotationOutput};
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("weights");
+    let mut seen = Vec::new();
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().and_then(|e| e.to_str()) != Some("safetensors") {
+            continue;
+        }
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        assert!(std::fs::metadata(&path).unwrap().len() <= 20 << 20, "{name} exceeds 20 MB");
+        let w = Weights::load(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(w.notes.contains_key("dpr_gpu.train.steps"), "{name} does not record its training");
+        let bins = matches!(w.config.rotation_output, RotationOutput::AngleBins { .. });
+        if name.starts_with("angle-bins") {
+            assert!(bins && w.config.pose_frame == PoseFrame::Normal, "{name}: {:?}", w.config);
+        }
+        seen.push(name);
+    }
+    seen.sort();
+    assert!(seen.contains(&"default.safetensors".to_string()), "{seen:?}");
+    assert!(seen.contains(&"angle-bins-contrast-wip.safetensors".to_string()), "{seen:?}");
+    assert_eq!(Weights::load(&dir.join("default.safetensors")).unwrap(), Weights::built_in().unwrap());
+}
