@@ -253,13 +253,9 @@ fn open_log(path: &Path, resumed_at: Option<u64>) -> anyhow::Result<std::fs::Fil
 /// Mean of the losses of the last steps.
 fn mean(losses: &[Losses]) -> Losses {
     let k = 1.0 / losses.len().max(1) as f64;
-    losses.iter().fold(Losses::default(), |a, l| Losses {
-        rec: a.rec + k * l.rec,
-        pose: a.pose + k * l.pose,
-        feat: a.feat + k * l.feat,
-        contrast: a.contrast + k * l.contrast,
-        total: a.total + k * l.total,
-    })
+    let mut m = Losses::default();
+    losses.iter().for_each(|l| m.add_scaled(l, k));
+    m
 }
 
 /// Most pairs per step.

@@ -47,13 +47,9 @@ pub fn hardest_negative_loss(
     let weight = 0.5 / b as f64;
     let mut value = 0.0;
     for (i, row) in d.iter().enumerate() {
-        let others = || (0..b).filter(move |&j| j != i);
-        let nearest = |key: &dyn Fn(usize) -> f64| {
-            others().fold(None, |best: Option<usize>, j| match best {
-                Some(k) if key(k) <= key(j) => Some(k),
-                _ => Some(j),
-            })
-        };
+        // `min_by` keeps the first of equal minima: ties pick the lowest index.
+        let nearest =
+            |key: &dyn Fn(usize) -> f64| (0..b).filter(|&j| j != i).min_by(|&j, &k| key(j).total_cmp(&key(k)));
         // Source anchor against the other targets, then target anchor against the other sources.
         let row_negative = nearest(&|j| row[j]).expect("b >= 2");
         let column_negative = nearest(&|j| d[j][i]).expect("b >= 2");

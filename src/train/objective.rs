@@ -12,7 +12,8 @@
 //!
 //! The batch loss is the mean over pairs (the paper sums `L_feat` over the correspondences; with a fixed batch
 //! size that is the same up to the scale of lambda2). A term can be dropped (the paper's ablation): its value
-//! is still computed and reported, but it adds nothing to the loss or the gradient.
+//! is still computed and reported, but it adds nothing to the loss or the gradient. The contrastive term is the
+//! exception: it costs a PPF-FoldNet pass over the batch, so it is evaluated only when trained (0 otherwise).
 
 use super::backward::{Gradients, LayerWeights, decode_backward, encode_backward, relative_backward};
 use super::contrast::hardest_negative_loss;
@@ -111,6 +112,21 @@ fn bases(model: &Model) -> (usize, usize) {
     (per_net, 2 * per_net)
 }
 
+/// Refuses a pair whose patches do not have the model's number of points.
+fn check_sample(model: &Model, sample: &PairSample) -> Result<()> {
+    let n = model.config.points_per_patch;
+    if sample.ppf.len() != 2 * n * 4 || sample.pc.len() != 2 * n * 3 {
+        return Err(Error::invalid(format!(
+            "training pair has {} PPF and {} PC values, expected {} and {} (2 patches of {n} points)",
+            sample.ppf.len(),
+            sample.pc.len(),
+            2 * n * 4,
+            2 * n * 3
+        )));
+    }
+    Ok(())
+}
+
 /// Loss of one pair, and (when `grads` is given) `scale` times its gradient added into `grads`. `batch_ppf_cw`
 /// is the gradient of the batch terms w.r.t. this pair's two PPF codewords (source then target, already
 /// weighted), back-propagated with the pair's own terms.
@@ -124,15 +140,7 @@ pub fn sample_objective(
     grads: Option<&mut Gradients>,
 ) -> Result<Losses> {
     let n = model.config.points_per_patch;
-    if sample.ppf.len() != 2 * n * 4 || sample.pc.len() != 2 * n * 3 {
-        return Err(Error::invalid(format!(
-            "training pair has {} PPF and {} PC values, expected {} and {} (2 patches of {n} points)",
-            sample.ppf.len(),
-            sample.pc.len(),
-            2 * n * 4,
-            2 * n * 3
-        )));
-    }
+    check_sample(model, sample)?;
     let (pc_base, rel_base) = bases(model);
     let ppf_e = model.ppf.encode_tape(&sample.ppf, 2, n);
     let pc_e = model.pc.encode_tape(&sample.pc, 2, n);
@@ -261,7 +269,7 @@ pub fn batch_objective(
         for r in results {
             let (ls, g) = r?;
             for l in ls {
-                accumulate(&mut losses, &l, scale);
+                losses.add_scaled(&l, scale);
             }
             total.add_assign(&g);
         }
@@ -280,7 +288,7 @@ pub fn batch_loss(weights: &Weights, samples: &[PairSample], settings: &LossSett
         .map(|s| sample_objective(&model, &w, s, settings, scale, None, None))
         .collect::<Result<_>>()?;
     let mut losses = Losses::default();
-    all.iter().for_each(|l| accumulate(&mut losses, l, scale));
+    all.iter().for_each(|l| losses.add_scaled(l, scale));
     let (contrast, _) = batch_terms(&model, samples, settings)?;
     add_contrast(&mut losses, contrast, settings);
     Ok(losses)
@@ -298,13 +306,7 @@ fn batch_terms(model: &Model, samples: &[PairSample], settings: &LossSettings) -
     let codewords: Vec<Vec<f32>> = samples
         .par_iter()
         .map(|s| {
-            if s.ppf.len() != 2 * n * 4 {
-                return Err(Error::invalid(format!(
-                    "training pair has {} PPF values, expected {}",
-                    s.ppf.len(),
-                    2 * n * 4
-                )));
-            }
+            check_sample(model, s)?;
             Ok(model.ppf.encode_tape(&s.ppf, 2, n).codeword)
         })
         .collect::<Result<_>>()?;
@@ -318,12 +320,15 @@ fn batch_terms(model: &Model, samples: &[PairSample], settings: &LossSettings) -
     Ok((value, grads))
 }
 
-/// Adds one pair's losses, weighted by `scale`, into the batch's.
-fn accumulate(losses: &mut Losses, l: &Losses, scale: f64) {
-    losses.rec += l.rec * scale;
-    losses.pose += l.pose * scale;
-    losses.feat += l.feat * scale;
-    losses.total += l.total * scale;
+impl Losses {
+    /// Adds `other`, weighted by `scale`, term by term (batch means, running means).
+    pub fn add_scaled(&mut self, other: &Losses, scale: f64) {
+        self.rec += other.rec * scale;
+        self.pose += other.pose * scale;
+        self.feat += other.feat * scale;
+        self.contrast += other.contrast * scale;
+        self.total += other.total * scale;
+    }
 }
 
 /// Records the batch's contrastive loss, and adds it to the total when it is trained.
