@@ -78,9 +78,9 @@ fn garbage_and_foreign_files_are_rejected_with_a_reason() {
     }
 }
 
-/// Every weights file the project ships loads, fits the 20 MB budget, records how it was trained, and the
-/// work-in-progress angle-bin models carry the head that covers all of SO(3) (normal-frame patches, angle bins)
-/// while the default keeps the paper's head it was trained with.
+/// Every weights file the project ships loads, fits the 20 MB budget, records how it was trained; the default
+/// and the angle-bin models carry the head that covers all of SO(3) (normal-frame patches, angle bins), and the
+/// previous default, kept for the ablation, the paper's head (fragment-frame patches, quaternion).
 #[test]
 fn shipped_weights_files_load_and_describe_themselves() {
     use dpr_gpu::model::config::{PoseFrame, RotationOutput};
@@ -96,13 +96,17 @@ fn shipped_weights_files_load_and_describe_themselves() {
         let w = Weights::load(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert!(w.notes.contains_key("dpr_gpu.train.steps"), "{name} does not record its training");
         let bins = matches!(w.config.rotation_output, RotationOutput::AngleBins { .. });
-        if name.starts_with("angle-bins") {
+        if name.starts_with("angle-bins") || name == "default.safetensors" {
             assert!(bins && w.config.pose_frame == PoseFrame::Normal, "{name}: {:?}", w.config);
+        }
+        if name == "paper-head.safetensors" {
+            let paper = w.config.rotation_output == RotationOutput::Quaternion;
+            assert!(paper && w.config.pose_frame == PoseFrame::Fragment, "{name}: {:?}", w.config);
         }
         seen.push(name);
     }
     seen.sort();
     assert!(seen.contains(&"default.safetensors".to_string()), "{seen:?}");
-    assert!(seen.contains(&"angle-bins-contrast-wip.safetensors".to_string()), "{seen:?}");
+    assert!(seen.contains(&"paper-head.safetensors".to_string()), "{seen:?}");
     assert_eq!(Weights::load(&dir.join("default.safetensors")).unwrap(), Weights::built_in().unwrap());
 }

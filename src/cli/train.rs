@@ -112,6 +112,10 @@ pub struct Args {
     /// angle-bin head trains on; the paper's quaternion head did not learn beyond about 45 (weights/README.md)].
     #[arg(long)]
     pub max_rotation: Option<f64>,
+    /// Samples per drawn fragment pair, at keypoints a patch radius apart: patches of one scene side by side in
+    /// a batch are the contrastive loss's hard negatives [default: 1].
+    #[arg(long)]
+    pub patches_per_pair: Option<usize>,
     /// Start from these weights instead of a random initialisation (their config is used).
     #[arg(long)]
     pub init: Option<PathBuf>,
@@ -176,6 +180,7 @@ fn fresh_settings(args: &Args) -> TrainSettings {
     s.sampling.rotate_target = args.rotate_target;
     s.sampling.rotate_source = !args.no_rotate_source;
     s.sampling.max_rotation_deg = args.max_rotation.unwrap_or(s.sampling.max_rotation_deg);
+    s.sampling.patches_per_pair = args.patches_per_pair.unwrap_or(s.sampling.patches_per_pair);
     s
 }
 
@@ -211,6 +216,7 @@ fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> an
     check("--rotate-target", args.rotate_target && !s.sampling.rotate_target);
     check("--no-rotate-source", args.no_rotate_source && s.sampling.rotate_source);
     check("--max-rotation", args.max_rotation.is_some_and(|v| v != s.sampling.max_rotation_deg));
+    check("--patches-per-pair", args.patches_per_pair.is_some_and(|v| v != s.sampling.patches_per_pair));
     check("--init", args.init.is_some());
     if clashes.is_empty() {
         Ok(())

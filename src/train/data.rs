@@ -56,15 +56,25 @@ pub struct DataSettings {
     /// draw uniformly from the rotations up to this angle (uniform SO(3) restricted by rejection).
     #[serde(default = "full_turn")]
     pub max_rotation_deg: f64,
+    /// Samples drawn from each drawn fragment pair (at keypoints at least a patch radius apart in the target
+    /// fragment). More than one puts patches of the same scene side by side in a batch: the hard negatives of
+    /// the contrastive loss (repeated structure in one room), where one per pair mostly contrasts unrelated
+    /// scenes.
+    #[serde(default = "one")]
+    pub patches_per_pair: usize,
 }
 
 fn full_turn() -> f64 {
     180.0
 }
 
+fn one() -> usize {
+    1
+}
+
 impl Default for DataSettings {
     /// 2.5 cm voxels, 30 normal neighbours (as inference), 3 cm matches, at least 32 points per patch,
-    /// source rotation only, uniform over SO(3).
+    /// source rotation only, uniform over SO(3), one sample per drawn pair.
     fn default() -> Self {
         DataSettings {
             voxel: 0.025,
@@ -74,6 +84,7 @@ impl Default for DataSettings {
             rotate_source: true,
             rotate_target: false,
             max_rotation_deg: 180.0,
+            patches_per_pair: 1,
         }
     }
 }
@@ -185,6 +196,13 @@ pub struct Sampler {
 /// Pair draws per sample before giving up (pairs without any match are skipped).
 const MAX_DRAWS: usize = 1000;
 
+/// Largest `DataSettings::patches_per_pair`.
+pub const MAX_PATCHES_PER_PAIR: usize = 64;
+
+/// Match draws per extra sample of a pair while looking for one a patch radius away from those drawn; after
+/// that the nearest-to-separate draw is taken anyway (a small overlap region may not fit them all).
+const SEPARATION_DRAWS: usize = 32;
+
 /// A rotation drawn uniformly from SO(3) restricted to angles up to `max_deg` (by rejection; at most a few
 /// hundred draws for angles down to 20 degrees, and the identity when `max_deg` is tiny and every draw fails).
 fn random_rotation(rng: &mut Rng, max_deg: f64) -> [f64; 4] {
@@ -202,6 +220,10 @@ fn random_rotation(rng: &mut Rng, max_deg: f64) -> [f64; 4] {
     [1.0, 0.0, 0.0, 0.0]
 }
 
+fn squared_distance(a: [f32; 3], b: [f32; 3]) -> f32 {
+    (0..3).map(|k| (a[k] - b[k]) * (a[k] - b[k])).sum()
+}
+
 fn rotate(r: &Matrix3<f64>, v: [f32; 3]) -> [f32; 3] {
     let w = r * Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64);
     [w.x as f32, w.y as f32, w.z as f32]
@@ -216,7 +238,8 @@ impl Sampler {
         let voxel_ok = settings.voxel.is_finite() && settings.voxel >= 0.0;
         let match_ok = settings.match_distance.is_finite() && settings.match_distance > 0.0;
         let angle_ok = settings.max_rotation_deg.is_finite() && settings.max_rotation_deg > 0.0;
-        if !(voxel_ok && match_ok && angle_ok) {
+        let group_ok = (1..=MAX_PATCHES_PER_PAIR).contains(&settings.patches_per_pair);
+        if !(voxel_ok && match_ok && angle_ok && group_ok) {
             return Err(Error::invalid(format!("data settings out of range: {settings:?}")));
         }
         let mut ids: HashMap<PathBuf, usize> = HashMap::new();
@@ -310,34 +333,62 @@ impl Sampler {
         Ok(m)
     }
 
-    /// The `batch` samples of training step `step` under `seed`.
+    /// The `batch` samples of training step `step` under `seed`: groups of `patches_per_pair` samples from one
+    /// drawn pair each (the last group may be smaller).
     pub fn batch(&mut self, seed: u64, step: u64, batch: usize) -> Result<Vec<PairSample>> {
         let mut rng = Rng::derived(seed, step);
         let mut plans = Vec::with_capacity(batch);
-        for _ in 0..batch {
-            let mut plan = None;
-            for _ in 0..MAX_DRAWS {
-                let pair = rng.below(self.pairs.len());
-                let matches = self.pair_matches(pair)?;
-                if matches.is_empty() {
-                    continue;
-                }
-                let (source_point, target_point) = matches[rng.below(matches.len())];
-                let seeds = [rng.next_u64(), rng.next_u64()];
-                let max = self.settings.max_rotation_deg;
-                let rotations = [random_rotation(&mut rng, max), random_rotation(&mut rng, max)];
-                plan = Some(Plan { pair, source_point, target_point, seeds, rotations });
-                break;
-            }
-            plans.push(plan.ok_or_else(|| {
-                Error::invalid(format!(
-                    "no corresponding patches found in {MAX_DRAWS} draws: do the training pairs overlap (match \
-                     distance {}, at least {} points per patch)?",
-                    self.settings.match_distance, self.settings.min_patch_points
-                ))
-            })?);
+        while plans.len() < batch {
+            let group = self.settings.patches_per_pair.min(batch - plans.len());
+            plans.extend(self.plan_group(&mut rng, group)?);
         }
         plans.par_iter().map(|p| self.build(p)).collect()
+    }
+
+    /// Draws a pair with matches and `group` of its matches, spread out in the target fragment.
+    fn plan_group(&mut self, rng: &mut Rng, group: usize) -> Result<Vec<Plan>> {
+        for _ in 0..MAX_DRAWS {
+            let pair = rng.below(self.pairs.len());
+            let matches = self.pair_matches(pair)?;
+            if matches.is_empty() {
+                continue;
+            }
+            let target = self.fragments[self.pair_fragments[pair].1].clone().expect("loaded with the matches");
+            let mut chosen: Vec<(u32, u32)> = Vec::with_capacity(group);
+            for _ in 0..group {
+                // The candidate farthest from those chosen (squared distance), stopping at the first a radius away.
+                let mut best = (f32::NEG_INFINITY, matches[0]);
+                for _ in 0..if chosen.is_empty() { 1 } else { SEPARATION_DRAWS } {
+                    let m = matches[rng.below(matches.len())];
+                    let p = target.points[m.1 as usize];
+                    let gap = chosen
+                        .iter()
+                        .map(|c| squared_distance(p, target.points[c.1 as usize]))
+                        .fold(f32::INFINITY, f32::min);
+                    if gap > best.0 {
+                        best = (gap, m);
+                    }
+                    if gap >= self.radius * self.radius {
+                        break;
+                    }
+                }
+                chosen.push(best.1);
+            }
+            let max = self.settings.max_rotation_deg;
+            return Ok(chosen
+                .into_iter()
+                .map(|(source_point, target_point)| {
+                    let seeds = [rng.next_u64(), rng.next_u64()];
+                    let rotations = [random_rotation(rng, max), random_rotation(rng, max)];
+                    Plan { pair, source_point, target_point, seeds, rotations }
+                })
+                .collect());
+        }
+        Err(Error::invalid(format!(
+            "no corresponding patches found in {MAX_DRAWS} draws: do the training pairs overlap (match distance {}, \
+             at least {} points per patch)?",
+            self.settings.match_distance, self.settings.min_patch_points
+        )))
     }
 
     /// Builds one sample from its plan.
@@ -402,5 +453,47 @@ mod tests {
         }
         // The full range is the plain uniform draw.
         assert_eq!(random_rotation(&mut Rng::new(4), 180.0), Rng::new(4).unit_quaternion());
+    }
+
+    #[test]
+    fn grouped_samples_share_a_pair_and_lie_a_radius_apart() {
+        // Two pairs of 2 m x 2 m planes (each fragment paired with a copy of itself): room for many keypoints a
+        // 0.3 m radius apart.
+        let dir = std::env::temp_dir().join(format!("dpr-gpu-group-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let plane: Vec<[f32; 3]> =
+            (0..100).flat_map(|i| (0..100).map(move |j| [i as f32 * 0.02, j as f32 * 0.02, 0.0])).collect();
+        let mut pairs = Vec::new();
+        for name in ["a", "b"] {
+            let file = dir.join(format!("{name}.ply"));
+            crate::io::write_ply(&file, &PointCloud::from_points(plane.clone())).unwrap();
+            pairs.push(FragmentPair { source: file.clone(), target: file, target_from_source: Matrix4::identity() });
+        }
+        let config = ModelConfig { points_per_patch: 32, ..ModelConfig::default() };
+        let settings = DataSettings { voxel: 0.0, patches_per_pair: 4, ..DataSettings::default() };
+        let mut sampler = Sampler::new(pairs, settings, &config).unwrap();
+        let mut rng = Rng::new(9);
+        let mut seen = [false; 2];
+        for _ in 0..20 {
+            let plans = sampler.plan_group(&mut rng, 4).unwrap();
+            assert_eq!(plans.len(), 4);
+            let pair = plans[0].pair;
+            seen[pair] = true;
+            let target = sampler.fragments[sampler.pair_fragments[pair].1].clone().unwrap();
+            for (k, a) in plans.iter().enumerate() {
+                assert_eq!(a.pair, pair, "a group mixes pairs");
+                for b in &plans[..k] {
+                    let d2 = squared_distance(
+                        target.points[a.target_point as usize],
+                        target.points[b.target_point as usize],
+                    );
+                    assert!(d2 >= config.radius * config.radius, "keypoints {} apart", d2.sqrt());
+                }
+            }
+        }
+        assert_eq!(seen, [true, true]);
+        // A batch that is not a multiple of the group size ends with a smaller group.
+        assert_eq!(sampler.batch(3, 0, 6).unwrap().len(), 6);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
