@@ -10,28 +10,19 @@
 //! size and thresholds scale together, so other units work by setting `radius`.
 //!
 //! ```
-//! use dpr_gpu::{IcpSettings, PointCloud, RegistrationSettings, register};
+//! use dpr_gpu::{RegistrationSettings, register};
 //!
 //! # fn main() -> dpr_gpu::Result<()> {
-//! // Three faces of a box, and the same surfaces after a known motion.
-//! let mut points = Vec::new();
-//! for i in 0..40 {
-//!     for j in 0..40 {
-//!         let (a, b) = (i as f32 * 0.025, j as f32 * 0.025);
-//!         points.extend([[a, b, 0.0], [a, 0.0, b], [0.0, a, b * 0.7]]);
-//!     }
-//! }
-//! let source = PointCloud::from_points(points);
+//! // A scan of the shipped example pair (a synthetic room), and the same scan after a known motion, far from
+//! // the identity: the built-in weights cover every relative rotation.
+//! let path = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/pair/cloud_bin_0.ply");
+//! let (source, _) = dpr_gpu::io::read_cloud(path.as_ref(), &Default::default())?;
 //! let truth = nalgebra::Matrix4::new_translation(&nalgebra::Vector3::new(0.3, -0.2, 0.1))
-//!     * nalgebra::Matrix4::from_euler_angles(0.2, -0.1, 0.4);
+//!     * nalgebra::Matrix4::from_euler_angles(2.5, -0.4, 1.0);
 //! let target = source.transformed(&truth);
 //!
-//! let settings = RegistrationSettings {
-//!     keypoints: 200, // with the built-in trained weights
-//!     icp: Some(IcpSettings { max_correspondence_distance: Some(0.05), max_iterations: 30 }),
-//!     ..RegistrationSettings::default()
-//! };
-//! let result = register(&source, &target, &settings)?;
+//! let result = register(&source, &target, &RegistrationSettings::default())?;
+//! assert!(result.success, "{:?}", result.reason);
 //! let error = dpr_gpu::pose::rotation_error_deg(&result.estimate.target_from_source, &truth);
 //! assert!(error < 0.5, "rotation error {error} deg");
 //! # Ok(())

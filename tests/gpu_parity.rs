@@ -1350,9 +1350,12 @@ fn device_register_reads_back_no_per_point_data() {
     let model = small_model(s);
     let backend = GpuBackend::with_gpu(Arc::clone(&g), model).unwrap();
     let (k, n_points) = (40u64, 12_000);
+    // Every point kept: by default a cloud without normals is voxel-downsampled, and the downsampled cloud is
+    // read back once as part of the result (`device_voxel_scan_is_described_in_place` counts that case).
     let settings = dpr_gpu::RegistrationSettings {
         keypoints: k as usize,
         first_keypoints: None,
+        voxel: Some(0.0),
         estimator: dpr_gpu::Estimator::Ransac,
         viewpoint: ROOM_VIEWPOINT,
         seed: s,
@@ -1407,7 +1410,7 @@ fn device_voxel_scan_is_described_in_place() {
     let a = in_place.describe(&source, 0).unwrap();
     let up = g.context.transfers().since(before).host_to_device_bytes;
     assert!(a.cloud.len() < source.len() / 2, "the voxel must thin the cloud ({} of {})", a.cloud.len(), source.len());
-    let again = dpr_gpu::Registrar::with_backend(&settings(None), backend()).unwrap();
+    let again = dpr_gpu::Registrar::with_backend(&settings(Some(0.0)), backend()).unwrap();
     // Its points only: the described cloud also carries the normals the device estimated.
     let b = again.describe(&dpr_gpu::PointCloud::from_points(a.cloud.points.clone()), 0).unwrap();
     assert_eq!(a.keypoints, b.keypoints, "seed {s}");

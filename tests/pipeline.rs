@@ -206,8 +206,12 @@ fn a_moved_scan_described_from_its_moved_sensor_gets_the_moved_normals() {
     // Estimated normals face the sensor. Moving a scan without its sensor (as a rotation about the centroid does)
     // flips some of them; `describe_from` with the moved viewpoint must give exactly the moved normals.
     let cloud = common::room_corner(3, 3000);
-    let settings =
-        dpr_gpu::RegistrationSettings { keypoints: 50, voxel: None, viewpoint: [1.5, 1.5, 1.0], ..Default::default() };
+    let settings = dpr_gpu::RegistrationSettings {
+        keypoints: 50,
+        voxel: Some(0.0),
+        viewpoint: [1.5, 1.5, 1.0],
+        ..Default::default()
+    };
     let weights = Weights::init(&common::tiny_config(), 0).unwrap();
     let registrar = dpr_gpu::Registrar::with_weights(&settings, &weights).unwrap();
     let original = registrar.describe(&cloud, 0).unwrap();
@@ -295,4 +299,35 @@ fn bf16_encoders_register_the_example_pair_like_f32() {
         ea.inliers,
         eb.inliers
     );
+}
+
+#[test]
+fn the_default_voxel_follows_the_radius_for_clouds_without_normals() {
+    use dpr_gpu::settings::VOXEL_PER_RADIUS;
+    let weights = Weights::init(&common::tiny_config(), 0).unwrap();
+    let registrar = |voxel, radius| {
+        let settings = dpr_gpu::RegistrationSettings { voxel, radius, keypoints: 50, ..Default::default() };
+        dpr_gpu::Registrar::with_weights(&settings, &weights).unwrap()
+    };
+    // By default: the radius in use over 12 where normals must be estimated, every point where the file has them.
+    assert_eq!(registrar(None, Some(0.6)).voxel(false), Some(0.6 * VOXEL_PER_RADIUS));
+    assert_eq!(registrar(None, Some(0.6)).voxel(true), None);
+    // Set: 0 keeps every point, any other size is used as given.
+    assert_eq!(registrar(Some(0.0), None).voxel(false), None);
+    assert_eq!(registrar(Some(0.04), None).voxel(true), Some(0.04));
+    let invalid = dpr_gpu::RegistrationSettings { voxel: Some(-0.1), ..Default::default() };
+    assert!(invalid.validate().unwrap_err().to_string().contains("voxel"));
+
+    // A described cloud without normals is the voxel grid's downsampling of it.
+    let cloud = common::room_corner(5, 4000);
+    let voxel = 0.3 * VOXEL_PER_RADIUS;
+    let described = registrar(None, Some(0.3)).describe(&cloud, 0).unwrap();
+    let expected = dpr_gpu::preprocess::voxel_downsample(&cloud, voxel).unwrap();
+    assert!(expected.len() < cloud.len(), "the voxel must thin the cloud");
+    assert_eq!(described.cloud.points, expected.points);
+    // With normals the cloud is described as it is.
+    let normals = vec![[0.0, 0.0, 1.0]; cloud.len()];
+    let with_normals = dpr_gpu::PointCloud { points: cloud.points.clone(), normals: Some(normals) };
+    let described = registrar(None, Some(0.3)).describe(&with_normals, 0).unwrap();
+    assert_eq!(described.cloud.len(), cloud.len());
 }

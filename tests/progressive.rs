@@ -47,9 +47,11 @@ fn a_trusted_early_round_is_the_direct_result_at_its_keypoints() {
     let (source, target, _) = common::room_pair(8, 4000);
     let weights = tiny_weights();
     let lenient = VerdictSettings { min_inliers: 3, min_inlier_ratio: 0.0, min_spread_over_threshold: 0.0 };
+    // Every point kept (the round it stops at was found on the full cloud).
     let base = RegistrationSettings {
         keypoints: 320,
         first_keypoints: Some(40),
+        voxel: Some(0.0),
         estimator: Estimator::Ransac,
         verdict: lenient,
         ..Default::default()

@@ -88,7 +88,9 @@ impl Features {
 /// - ``weights``: weights file (safetensors); None uses the weights built into the package (or the file named
 ///   by the ``DPR_GPU_WEIGHTS`` environment variable).
 /// - ``radius``: patch radius; None takes the radius the weights were trained with (0.30 m).
-/// - ``voxel``: voxel size for downsampling before normals and keypoints; None keeps every point.
+/// - ``voxel``: voxel size for downsampling before normals and keypoints; 0 keeps every point; None (default):
+///   radius / 12 for a cloud without normals, the density the weights were trained at (2.5 cm at 0.30 m), and
+///   every point of a cloud with normals.
 /// - ``keypoints``: keypoints per scan. ``keypoint_mode``: ``"random"`` or ``"uniform"`` (farthest-point).
 /// - ``first_keypoints``: the progressive schedule: ``register`` describes this many keypoints per scan first
 ///   and doubles them, up to ``keypoints``, only while the result is not trusted; None describes ``keypoints``

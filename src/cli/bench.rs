@@ -402,9 +402,11 @@ pub fn bench_model(args: &Args) -> anyhow::Result<Model> {
     Ok(model)
 }
 
-/// The settings of the end-to-end pair: the defaults with `--keypoints` and `--seed`.
+/// The settings of the end-to-end pair: the defaults with `--keypoints` and `--seed`, every point kept (no
+/// voxel downsampling, which the defaults apply to clouds without normals) so a scan has exactly the points the
+/// report names.
 pub fn pair_settings(args: &Args) -> RegistrationSettings {
-    RegistrationSettings { keypoints: args.keypoints, seed: args.seed, ..Default::default() }
+    RegistrationSettings { keypoints: args.keypoints, seed: args.seed, voxel: Some(0.0), ..Default::default() }
 }
 
 /// Most timed repetitions.

@@ -29,7 +29,9 @@ pub struct RegisterOptions {
     /// Patch radius in cloud units (default: the radius the weights were trained with, 0.30 m).
     #[arg(long)]
     pub radius: Option<f32>,
-    /// Voxel size for downsampling (cloud units); default: none.
+    /// Voxel size for downsampling before normals and keypoints (cloud units); 0 keeps every point [default:
+    /// for a file without normals radius / 12, the density the weights' normals were estimated at in training
+    /// (2.5 cm at the default 0.30 m radius); a file with normals keeps every point].
     #[arg(long)]
     pub voxel: Option<f32>,
     /// Neighbours for PCA normals (when the file has none).

@@ -195,6 +195,18 @@ impl Registrar {
         self.backend.as_ref()
     }
 
+    /// Voxel size in use for a cloud with or without normals: the settings' (none for 0); by default, for a
+    /// cloud whose normals must be estimated, the radius in use times [`crate::settings::VOXEL_PER_RADIUS`]
+    /// (the density the normals were estimated at in training), and none for a cloud that has normals.
+    pub fn voxel(&self, cloud_has_normals: bool) -> Option<f32> {
+        match self.settings.voxel {
+            Some(0.0) => None,
+            Some(v) => Some(v),
+            None if cloud_has_normals => None,
+            None => Some(self.radius() * crate::settings::VOXEL_PER_RADIUS),
+        }
+    }
+
     /// Patch radius in use.
     pub fn radius(&self) -> f32 {
         self.settings.radius.unwrap_or(self.backend.model().config.radius)
@@ -226,10 +238,10 @@ impl Registrar {
     }
 
     /// What the backend's scan preparation and description need of the settings.
-    fn scan_settings(&self, viewpoint: [f32; 3]) -> ScanSettings {
+    fn scan_settings(&self, viewpoint: [f32; 3], cloud_has_normals: bool) -> ScanSettings {
         let s = &self.settings;
         ScanSettings {
-            voxel: s.voxel,
+            voxel: self.voxel(cloud_has_normals),
             radius: self.radius(),
             points_per_patch: self.backend.model().config.points_per_patch,
             normal_neighbors: s.normal_neighbors,
@@ -249,8 +261,19 @@ impl Registrar {
     ) -> Result<DescribingScan> {
         let s = &self.settings;
         cloud.validate("cloud")?;
+        let scan_settings = self.scan_settings(viewpoint, cloud.normals.is_some());
         let (cloud, scan_cloud) =
-            self.backend.start_scan(cloud, &self.scan_settings(viewpoint), &mut |stage| clock.lap(stage))?;
+            self.backend.start_scan(cloud, &scan_settings, &mut |stage| clock.lap(stage)).map_err(|e| {
+                match (e, scan_settings.voxel) {
+                    // A default voxel follows the radius: say so, since the user never set it.
+                    (Error::InvalidInput(m), Some(v)) if s.voxel.is_none() => Error::invalid(format!(
+                        "{m} (the default voxel size {v} is the radius {} / 12: set the radius or the voxel size \
+                         for the cloud's units)",
+                        self.radius()
+                    )),
+                    (e, _) => e,
+                }
+            })?;
         let mut rng = Rng::derived(s.seed, 2 * stream);
         let order = match s.keypoint_mode {
             // Farthest-point sampling where the backend keeps the cloud (the same start draw as on the host).
