@@ -100,20 +100,20 @@ pub struct HostScanCloud {
 }
 
 /// Downsamples `cloud` (`settings.voxel`) and checks it keeps `settings.min_points`.
-pub fn downsample(cloud: &PointCloud, settings: &ScanSettings) -> Result<PointCloud> {
+pub fn downsample(input: &PointCloud, settings: &ScanSettings) -> Result<PointCloud> {
     let cloud = match settings.voxel {
-        Some(v) => voxel_downsample(cloud, v)?,
-        None => cloud.clone(),
+        Some(v) => voxel_downsample(input, v)?,
+        None => input.clone(),
     };
-    check_points(&cloud, settings)?;
+    check_points(&cloud, input.len(), settings)?;
     Ok(cloud)
 }
 
-/// An error unless `cloud` has `settings.min_points`.
-pub fn check_points(cloud: &PointCloud, settings: &ScanSettings) -> Result<()> {
+/// An error unless `cloud` (preprocessed from `given` points) has `settings.min_points`.
+pub fn check_points(cloud: &PointCloud, given: usize, settings: &ScanSettings) -> Result<()> {
     if cloud.len() < settings.min_points {
         return Err(Error::invalid(format!(
-            "cloud has {} points after preprocessing; at least {} are needed",
+            "cloud has {} points after preprocessing its {given} points; at least {} are needed",
             cloud.len(),
             settings.min_points
         )));

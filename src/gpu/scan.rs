@@ -44,7 +44,7 @@ impl GpuBackend {
             Some(v) => self.run("voxel_downsample", |_| super::preprocess::voxel_downsample_held(gpu, cloud, v))?,
             None => (cloud.clone(), None),
         };
-        check_points(&host, settings)?;
+        check_points(&host, cloud.len(), settings)?;
         lap("downsample");
         let given = normalise_usable_normals(&mut host);
         let source = match (&host.normals, given) {
