@@ -20,7 +20,7 @@ mod steps;
 pub use crate::pipeline::PoseRows;
 pub use scan::{
     DescribedKeypoints, HeldPoints, HostScanCloud, Lap, ScanCloud, ScanSettings, check_points, downsample,
-    host_start_scan, kept_positions, normalise_usable_normals,
+    has_usable_normals, host_start_scan, kept_positions, normalise_usable_normals,
 };
 pub use steps::{
     HostRows, HostScanRows, MatchedRows, MatchedSide, PatchBatch, RankedHypothesis, RowMatch, ScanRows, Verified,

@@ -309,9 +309,14 @@ fn the_default_voxel_follows_the_radius_for_clouds_without_normals() {
         let settings = dpr_gpu::RegistrationSettings { voxel, radius, keypoints: 50, ..Default::default() };
         dpr_gpu::Registrar::with_weights(&settings, &weights).unwrap()
     };
-    // By default: the radius in use over 12 where normals must be estimated, every point where the file has them.
+    // By default: a fixed share of the radius in use where normals must be estimated, every point where the file
+    // has them.
     assert_eq!(registrar(None, Some(0.6)).voxel(false), Some(0.6 * VOXEL_PER_RADIUS));
     assert_eq!(registrar(None, Some(0.6)).voxel(true), None);
+    // The default radius is a multiple of the weights' training radius, and the default voxel follows it.
+    let radius = common::tiny_config().radius * dpr_gpu::settings::RADIUS_PER_TRAINING_RADIUS;
+    assert_eq!(registrar(None, None).radius(), radius);
+    assert_eq!(registrar(None, None).voxel(false), Some(radius * VOXEL_PER_RADIUS));
     // Set: 0 keeps every point, any other size is used as given.
     assert_eq!(registrar(Some(0.0), None).voxel(false), None);
     assert_eq!(registrar(Some(0.04), None).voxel(true), Some(0.04));
@@ -320,14 +325,18 @@ fn the_default_voxel_follows_the_radius_for_clouds_without_normals() {
 
     // A described cloud without normals is the voxel grid's downsampling of it.
     let cloud = common::room_corner(5, 4000);
-    let voxel = 0.3 * VOXEL_PER_RADIUS;
-    let described = registrar(None, Some(0.3)).describe(&cloud, 0).unwrap();
+    let voxel = 0.6 * VOXEL_PER_RADIUS;
+    let described = registrar(None, Some(0.6)).describe(&cloud, 0).unwrap();
     let expected = dpr_gpu::preprocess::voxel_downsample(&cloud, voxel).unwrap();
     assert!(expected.len() < cloud.len(), "the voxel must thin the cloud");
     assert_eq!(described.cloud.points, expected.points);
     // With normals the cloud is described as it is.
     let normals = vec![[0.0, 0.0, 1.0]; cloud.len()];
     let with_normals = dpr_gpu::PointCloud { points: cloud.points.clone(), normals: Some(normals) };
-    let described = registrar(None, Some(0.3)).describe(&with_normals, 0).unwrap();
+    let described = registrar(None, Some(0.6)).describe(&with_normals, 0).unwrap();
     assert_eq!(described.cloud.len(), cloud.len());
+    // Normals that are all zero are estimated like missing ones, so the cloud is downsampled like one without.
+    let zero = dpr_gpu::PointCloud { points: cloud.points.clone(), normals: Some(vec![[0.0; 3]; cloud.len()]) };
+    let described = registrar(None, Some(0.6)).describe(&zero, 0).unwrap();
+    assert_eq!(described.cloud.points, expected.points);
 }

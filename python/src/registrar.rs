@@ -87,9 +87,9 @@ impl Features {
 ///
 /// - ``weights``: weights file (safetensors); None uses the weights built into the package (or the file named
 ///   by the ``DPR_GPU_WEIGHTS`` environment variable).
-/// - ``radius``: patch radius; None takes the radius the weights were trained with (0.30 m).
+/// - ``radius``: patch radius; None takes twice the radius the weights were trained with (0.60 m).
 /// - ``voxel``: voxel size for downsampling before normals and keypoints; 0 keeps every point; None (default):
-///   radius / 12 for a cloud without normals, the density the weights were trained at (2.5 cm at 0.30 m), and
+///   radius / 24 for a cloud without normals, the density the weights were trained at (2.5 cm at 0.60 m), and
 ///   every point of a cloud with normals.
 /// - ``keypoints``: keypoints per scan. ``keypoint_mode``: ``"random"`` or ``"uniform"`` (farthest-point).
 /// - ``first_keypoints``: the progressive schedule: ``register`` describes this many keypoints per scan first
@@ -99,9 +99,9 @@ impl Features {
 ///   flipped to face this point (each scan's own frame).
 /// - ``matching``: ``"mutual"`` (mutual ``mutual_k`` nearest neighbours, 1..4) or ``"closest"``.
 /// - ``estimator``: ``"relativenet"`` (one hypothesis per correspondence) or ``"ransac"``.
-/// - ``inlier_threshold``: None uses radius / 3. ``ransac_iterations``, ``ransac_confidence``: RANSAC criteria.
+/// - ``inlier_threshold``: None uses radius / 6. ``ransac_iterations``, ``ransac_confidence``: RANSAC criteria.
 /// - ``icp``: refine with point-to-plane ICP (on by default; about 0.2 s a pair);
-///   ``icp_max_correspondence_distance`` (None: radius / 6) and ``icp_max_iterations``.
+///   ``icp_max_correspondence_distance`` (None: radius / 12) and ``icp_max_iterations``.
 /// - ``drop_zero_points``: drop exact (0, 0, 0) rows (invalid LiDAR returns).
 /// - ``seed``: seed for every random choice (same inputs and seed, same result).
 /// - ``backend``: ``"auto"`` (a GPU when one exists, else the CPU with a warning), ``"cpu"`` or ``"gpu"``.
@@ -222,7 +222,7 @@ impl Registrar {
         };
         let probe = RegistrationSettings { weights: args.weights.clone(), ..RegistrationSettings::default() };
         let loaded = py.detach(|| load_weights(&probe)).map_err(to_py_err)?;
-        let settings = args.to_settings(loaded.config.radius)?;
+        let settings = args.to_settings()?;
         let inner = py.detach(|| dpr_gpu::Registrar::with_weights(&settings, &loaded)).map_err(to_py_err)?;
         Ok(Registrar { inner: Arc::new(inner), id: NEXT_REGISTRAR.fetch_add(1, Ordering::Relaxed) })
     }
@@ -231,7 +231,10 @@ impl Registrar {
     /// them at construction, e.g. the ICP distance).
     #[getter]
     fn settings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        settings_dict(py, &self.inner.settings)
+        let d = settings_dict(py, &self.inner.settings)?;
+        // The ICP distance as resolved against the radius in use.
+        d.set_item("icp_max_correspondence_distance", self.inner.icp_max_distance())?;
+        Ok(d)
     }
 
     /// The backend (and adapter) that runs the learned stages, e.g. ``"cpu"``.

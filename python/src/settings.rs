@@ -64,19 +64,18 @@ pub(crate) fn name_of<T: Copy + PartialEq>(value: T, choices: &[(&'static str, T
 }
 
 impl SettingsArgs {
-    /// The library settings. `model_radius` is the radius the weights were trained with: the default ICP
-    /// distance is a sixth of the radius in use, as in the command line. Bounds are checked later, by the
-    /// library (`RegistrationSettings::validate`), so the messages are the library's.
-    pub fn to_settings(&self, model_radius: f32) -> PyResult<RegistrationSettings> {
+    /// The library settings; defaults that follow the radius (ICP distance, voxel, inlier threshold) stay unset
+    /// for the library to derive. Bounds are checked later, by the library (`RegistrationSettings::validate`),
+    /// so the messages are the library's.
+    pub fn to_settings(&self) -> PyResult<RegistrationSettings> {
         let matching = match self.matching.as_str() {
             "mutual" => MatchMode::Mutual(count("mutual_k", self.mutual_k)?),
             "closest" => MatchMode::Closest,
             other => return Err(value_error(format!("unknown matching '{other}' (expected 'mutual' or 'closest')"))),
         };
-        let radius = self.radius.unwrap_or(model_radius);
         let icp = self.icp.then(|| -> PyResult<IcpSettings> {
             Ok(IcpSettings {
-                max_correspondence_distance: Some(self.icp_max_correspondence_distance.unwrap_or(radius / 6.0)),
+                max_correspondence_distance: self.icp_max_correspondence_distance,
                 max_iterations: count("icp_max_iterations", self.icp_max_iterations)?,
             })
         });

@@ -158,8 +158,8 @@ def test_settings_defaults_follow_the_library():
     assert no_icp["icp_max_iterations"] is None and no_icp["icp_max_correspondence_distance"] is None
     icp = dpr_gpu.Registrar(backend="cpu")
     assert icp.settings["icp_max_iterations"] == 30
-    assert icp.settings["icp_max_correspondence_distance"] == pytest.approx(icp.radius / 6)
-    assert icp.radius == pytest.approx(0.30) and icp.inlier_threshold == pytest.approx(0.10)
+    assert icp.settings["icp_max_correspondence_distance"] == pytest.approx(icp.radius / 12)
+    assert icp.radius == pytest.approx(0.60) and icp.inlier_threshold == pytest.approx(0.10)
 
 
 @pytest.mark.parametrize(

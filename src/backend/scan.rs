@@ -121,10 +121,14 @@ pub fn check_points(cloud: &PointCloud, given: usize, settings: &ScanSettings) -
     Ok(())
 }
 
+/// Whether `cloud` has normals and every one is usable (non-zero); otherwise the backends estimate them all.
+pub fn has_usable_normals(cloud: &PointCloud) -> bool {
+    cloud.normals.as_ref().is_some_and(|ns| ns.iter().all(|n| n[0] * n[0] + n[1] * n[1] + n[2] * n[2] > 1e-12))
+}
+
 /// Normalises `cloud`'s normals in place when every one is usable (non-zero) and says whether they were.
 pub fn normalise_usable_normals(cloud: &mut PointCloud) -> bool {
-    let usable =
-        cloud.normals.as_ref().is_some_and(|ns| ns.iter().all(|n| n[0] * n[0] + n[1] * n[1] + n[2] * n[2] > 1e-12));
+    let usable = has_usable_normals(cloud);
     if usable {
         for n in cloud.normals.as_mut().expect("checked") {
             let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();

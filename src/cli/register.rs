@@ -26,12 +26,12 @@ pub struct RegisterOptions {
     /// Keypoint selection: random (3DMatch convention) or uniform (farthest-point sampling).
     #[arg(long, default_value = "random")]
     pub keypoint_mode: String,
-    /// Patch radius in cloud units (default: the radius the weights were trained with, 0.30 m).
+    /// Patch radius in cloud units (default: twice the radius the weights were trained with, 0.60 m).
     #[arg(long)]
     pub radius: Option<f32>,
     /// Voxel size for downsampling before normals and keypoints (cloud units); 0 keeps every point [default:
-    /// for a file without normals radius / 12, the density the weights' normals were estimated at in training
-    /// (2.5 cm at the default 0.30 m radius); a file with normals keeps every point].
+    /// for a file without normals radius / 24, the density the weights' normals were estimated at in training
+    /// (2.5 cm at the default 0.60 m radius); a file with normals keeps every point].
     #[arg(long)]
     pub voxel: Option<f32>,
     /// Neighbours for PCA normals (when the file has none).
@@ -43,7 +43,7 @@ pub struct RegisterOptions {
     /// Mutual K nearest neighbours (1..4), or 0 for the "closest" rule.
     #[arg(long, default_value_t = 1)]
     pub mutual: usize,
-    /// Inlier threshold in cloud units (default: radius / 3).
+    /// Inlier threshold in cloud units (default: radius / 6).
     #[arg(long)]
     pub inlier_threshold: Option<f32>,
     /// RANSAC iteration limit.
@@ -58,7 +58,7 @@ pub struct RegisterOptions {
     /// Refine the final pose with point-to-plane ICP (the default; kept for scripts that ask for it).
     #[arg(long)]
     pub icp: bool,
-    /// ICP's largest point-pair distance in cloud units (default: radius / 6).
+    /// ICP's largest point-pair distance in cloud units (default: radius / 12).
     #[arg(long)]
     pub icp_distance: Option<f32>,
     /// ICP's iteration limit.

@@ -10,14 +10,15 @@ use nalgebra::Matrix4;
 use serde::Serialize;
 use std::collections::HashMap;
 
-/// The patch radius the protocol's distances are defined for (metres).
-pub const REFERENCE_RADIUS: f64 = 0.30;
+/// The patch radius the protocol's distances are defined for (metres): the default patch radius of the shipped
+/// weights (their 0.30 m training radius times `RADIUS_PER_TRAINING_RADIUS`).
+pub const REFERENCE_RADIUS: f64 = 0.60;
 
-/// Success and inlier thresholds. At the reference radius (0.30 m) they are exactly the protocol's; for other
-/// radii every distance scales with `radius / 0.30` (so object-scale data keeps proportional thresholds).
+/// Success and inlier thresholds. At the reference radius (0.60 m) they are exactly the protocol's; for other
+/// radii every distance scales with `radius / 0.60` (so object-scale data keeps proportional thresholds).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct Thresholds {
-    /// radius / 0.30.
+    /// radius / 0.60.
     pub scale: f64,
     /// 3DMatch scenes: success when eᵀΣe / Σ₁₁ <= this (0.04 m², i.e. (0.2 m)², times scale²).
     pub max_information_error: f64,
