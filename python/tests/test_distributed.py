@@ -20,8 +20,9 @@ from dpr_gpu import distributed
 
 # conftest's RECOVER settings (ICP recovers this collection's poses); the low inlier minimum makes the verdict
 # trust some pairs and not others, so the pose graph has certain, uncertain and excluded edges.
-SETTINGS = {**RECOVER, "min_inliers": 3}
-FLAGS = ["--keypoints", "150", "--keypoint-mode", "uniform", "--estimator", "ransac", "--icp", "--seed", "7"]
+# The small generated scans were sized for 0.30 m patches (the default before 0.60 m).
+SETTINGS = {**RECOVER, "min_inliers": 3, "radius": 0.3}
+FLAGS = ["--radius", "0.3", "--keypoints", "150", "--keypoint-mode", "uniform", "--estimator", "ransac", "--icp", "--seed", "7"]
 FLAGS += ["--backend", "cpu", "--min-inliers", "3", "--pairs", "consecutive+retrieval", "--retrieval-k", "1"]
 
 
