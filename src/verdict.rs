@@ -17,8 +17,8 @@ use serde::Serialize;
 /// trusted, no false alarm, and the wrong poses (51 to 121 degrees off) among the pairs outside gt.log that pass
 /// the overlap filter rejected. Rechecked at the 0.60 m default radius (inlier threshold 0.10 m): all 19 gt.log
 /// pairs right and trusted with each estimator, no false alarm, and the 4 pairs outside gt.log that were trusted
-/// right (0.2-0.6 degrees off, against `poses.txt`). The inlier ratio decides most cases; unlike the inlier count it does not grow with
-/// the number of keypoints. The margins are thin (0.054 wrong vs 0.0535-0.056 right), so raise
+/// right (0.2-0.6 degrees off, against `poses.txt`). The inlier ratio decides most cases; unlike the inlier
+/// count it does not grow with the number of keypoints. The margins are thin (0.054 wrong vs 0.0535-0.056 right), so raise
 /// `min_inlier_ratio` where a false alarm costs more than a miss.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct VerdictSettings {

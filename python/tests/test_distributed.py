@@ -22,7 +22,8 @@ from dpr_gpu import distributed
 # trust some pairs and not others, so the pose graph has certain, uncertain and excluded edges.
 # The small generated scans were sized for 0.30 m patches (the default before 0.60 m).
 SETTINGS = {**RECOVER, "min_inliers": 3, "radius": 0.3}
-FLAGS = ["--radius", "0.3", "--keypoints", "150", "--keypoint-mode", "uniform", "--estimator", "ransac", "--icp", "--seed", "7"]
+FLAGS = ["--radius", "0.3", "--keypoints", "150", "--keypoint-mode", "uniform", "--estimator", "ransac", "--icp"]
+FLAGS += ["--seed", "7"]
 FLAGS += ["--backend", "cpu", "--min-inliers", "3", "--pairs", "consecutive+retrieval", "--retrieval-k", "1"]
 
 

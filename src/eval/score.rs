@@ -11,8 +11,8 @@ use serde::Serialize;
 use std::collections::HashMap;
 
 /// The patch radius the protocol's distances are defined for (metres): the default patch radius of the shipped
-/// weights (their 0.30 m training radius times `RADIUS_PER_TRAINING_RADIUS`).
-pub const REFERENCE_RADIUS: f64 = 0.60;
+/// weights (their 0.30 m training radius times `RADIUS_PER_TRAINING_RADIUS`, 0.60 m).
+pub const REFERENCE_RADIUS: f64 = 0.30 * crate::settings::RADIUS_PER_TRAINING_RADIUS as f64;
 
 /// Success and inlier thresholds. At the reference radius (0.60 m) they are exactly the protocol's; for other
 /// radii every distance scales with `radius / 0.60` (so object-scale data keeps proportional thresholds).
