@@ -20,10 +20,21 @@ from dpr_gpu import distributed
 
 # conftest's RECOVER settings (ICP recovers this collection's poses); the low inlier minimum makes the verdict
 # trust some pairs and not others, so the pose graph has certain, uncertain and excluded edges.
-# The small generated scans were sized for 0.30 m patches (the default before 0.60 m).
-SETTINGS = {**RECOVER, "min_inliers": 3, "radius": 0.3}
-FLAGS = ["--radius", "0.3", "--keypoints", "150", "--keypoint-mode", "uniform", "--estimator", "ransac", "--icp"]
-FLAGS += ["--seed", "7"]
+# The small generated scans were sized for the defaults before 0.60 m patches: 0.30 m patches and, computed as
+# the library computed them then (in float32), a radius / 12 voxel, a radius / 3 inlier threshold and a radius / 6
+# ICP distance.
+_R = np.float32(0.3)
+SMALL = {
+    "radius": float(_R),
+    "voxel": float(_R * np.float32(1 / 12)),
+    "inlier_threshold": float(_R / np.float32(3)),
+    "icp_max_correspondence_distance": float(_R / np.float32(6)),
+}
+SETTINGS = {**RECOVER, "min_inliers": 3, **SMALL}
+FLAGS = ["--radius", repr(SMALL["radius"]), "--voxel", repr(SMALL["voxel"])]
+FLAGS += ["--inlier-threshold", repr(SMALL["inlier_threshold"])]
+FLAGS += ["--icp-distance", repr(SMALL["icp_max_correspondence_distance"])]
+FLAGS += ["--keypoints", "150", "--keypoint-mode", "uniform", "--estimator", "ransac", "--icp", "--seed", "7"]
 FLAGS += ["--backend", "cpu", "--min-inliers", "3", "--pairs", "consecutive+retrieval", "--retrieval-k", "1"]
 
 
