@@ -141,6 +141,15 @@ pub const RADIUS_PER_TRAINING_RADIUS: f32 = 2.0;
 /// voxel per training radius) gives 0.54 (weights/README.md).
 pub const VOXEL_PER_RADIUS: f32 = 1.0 / 24.0;
 
+/// The default inlier threshold as a fraction of the patch radius: 0.10 m at the default 0.60 m, the 3DMatch
+/// feature-match distance tau1 and the distance the verdict's thresholds were validated at (at radius / 3 its
+/// spread rule rejects correct poses; weights/README.md, "Inference radius").
+pub const INLIER_THRESHOLD_PER_RADIUS: f32 = 1.0 / 6.0;
+
+/// ICP's default largest point-pair distance as a fraction of the patch radius: 5 cm at the default 0.60 m
+/// (chosen on synthetic validation scenes: rotation errors half those of radius / 6 at the same recall).
+pub const ICP_DISTANCE_PER_RADIUS: f32 = 1.0 / 12.0;
+
 /// Keypoints per scan of the progressive schedule's first round (see `RegistrationSettings::first_keypoints`).
 pub const DEFAULT_FIRST_KEYPOINTS: usize = 250;
 /// Most keypoints per scan.

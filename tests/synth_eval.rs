@@ -255,6 +255,47 @@ fn eval_log_equal_to_ground_truth_has_full_recall_and_a_perturbed_one_less() {
     }
     assert!(recall_pairs > 0, "the test scenes have no non-consecutive pairs");
 
+    // Every estimate slid by 0.3 m: e^T Sigma e / Sigma_11 = 0.09 m^2 fails the protocol's 0.04 m^2, passes the
+    // 0.16 m^2 of distances scaled by 2, which --radius 1.2 implies and --protocol-scale sets either way.
+    let slid_dir = dir.join("slid");
+    for scene in load_dataset(&data).unwrap() {
+        let slid: Vec<LogRecord> = read_log(&scene.dir.join("gt.log"))
+            .unwrap()
+            .iter()
+            .map(|r| LogRecord {
+                matrix: Matrix4::new_translation(&Vector3::new(0.3, 0.0, 0.0)) * r.matrix,
+                ..r.clone()
+            })
+            .collect();
+        std::fs::create_dir_all(&slid_dir).unwrap();
+        std::fs::write(slid_dir.join(format!("{}.log", scene.name)), format_log(&slid)).unwrap();
+    }
+    let slid_recall = |extra: &[&str]| {
+        let out = Command::new(exe)
+            .args(["eval", data.to_str().unwrap(), "--log", slid_dir.to_str().unwrap(), "--out"])
+            .arg(&report_dir)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(report_dir.join("report.json")).unwrap()).unwrap();
+        let scenes = report["estimators"][0]["scenes"].as_array().unwrap().clone();
+        let good: u64 = scenes.iter().map(|s| s["good"].as_u64().unwrap()).sum();
+        (good, report["thresholds"]["tau1"].as_f64().unwrap())
+    };
+    for (extra, good, tau1) in [
+        (&[][..], 0, 0.10),
+        (&["--radius", "1.2"][..], recall_pairs, 0.20),
+        (&["--radius", "1.2", "--protocol-scale", "1"][..], 0, 0.10),
+        (&["--protocol-scale", "2"][..], recall_pairs, 0.20),
+    ] {
+        let (g, t) = slid_recall(extra);
+        assert!(g == good && (t - tau1).abs() < 1e-6, "{extra:?}: {g} good, tau1 {t}");
+    }
+    let bad = Command::new(exe).args(["eval", data.to_str().unwrap(), "--protocol-scale", "0"]).output().unwrap();
+    assert!(!bad.status.success() && String::from_utf8_lossy(&bad.stderr).contains("--protocol-scale"));
+
     // The same scenes scored from the library with every estimate rotated by 20 degrees about the source
     // origin: recall drops, precision equals recall (every result is a gt pair).
     for mut scene in load_dataset(&data).unwrap() {

@@ -25,7 +25,7 @@ use std::path::{Path, PathBuf};
 #[command(after_help = "--estimator also accepts `both`: RelativeNet and RANSAC on the same correspondences, side by \
 side. Registration recall counts gt.log pairs with j - i > 1 (success: e^T Sigma e / Sigma_11 <= 0.04; for a pairs \
 file: source-point RMSE <= 0.2 m); feature-match recall counts every gt.log pair (inlier: |x_i - T_ij x_j| < 0.10 m; \
-matched: inlier ratio > 0.05, strict). Distances scale with --radius / 0.60. Results go to \
+matched: inlier ratio > 0.05, strict). Distances scale with --radius / 0.60 (or --protocol-scale). Results go to \
 OUT/<estimator>/<scene>.log (3DMatch format) and OUT/report.json.
 
 Rotation sweep (--rotate DEG[,DEG...]): every source fragment j of a pair (i, j) is moved by M, a rotation by \
@@ -56,6 +56,11 @@ pub struct Args {
     /// exceeds --min-overlap, as the 3DMatch toolbox does (this is what makes precision meaningful).
     #[arg(long)]
     pub all_pairs: bool,
+    /// Scale of the protocol's distances (feature-match inlier 0.10 m, success 0.2 m, overlap 0.05 m) [default:
+    /// --radius / 0.60, so data in other units keeps proportional thresholds]. 1 keeps the protocol's metres
+    /// whatever the radius, to compare patch radii on one measure.
+    #[arg(long, value_name = "S")]
+    pub protocol_scale: Option<f64>,
     /// Estimated overlap needed to report a pair with --all-pairs.
     #[arg(long, default_value_t = 0.23)]
     pub min_overlap: f64,
@@ -326,8 +331,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !(radius > 0.0 && radius.is_finite()) {
         bail!("--radius must be positive, got {radius}");
     }
+    let thresholds = match args.protocol_scale {
+        Some(s) if !(s > 0.0 && s.is_finite()) => bail!("--protocol-scale must be positive, got {s}"),
+        Some(s) => Thresholds::scaled(s),
+        None => Thresholds::for_radius(radius),
+    };
     let opts = EvalOptions {
-        thresholds: Thresholds::for_radius(radius),
+        thresholds,
         seed: args.register.seed,
         load: args.register.load_options()?,
         all_pairs: args.all_pairs,

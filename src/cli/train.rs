@@ -39,6 +39,10 @@ pub struct Args {
     /// Folding grid G x G (overrides the preset).
     #[arg(long)]
     pub grid: Option<usize>,
+    /// Patch radius the model is trained at, in cloud units [default: the preset's 0.30, or the --init weights'].
+    /// With --init, a different radius fine-tunes the weights for patches of that size.
+    #[arg(long)]
+    pub radius: Option<f32>,
     /// Frame of PC-FoldNet's patches: `normal` (each patch rotated so its keypoint normal is +z; the default) or
     /// `fragment` (the paper). With --init, a different head keeps the FoldNets and re-initialises RelativeNet.
     #[arg(long)]
@@ -151,6 +155,7 @@ fn model_config(args: &Args) -> anyhow::Result<ModelConfig> {
     if let Some(g) = args.grid {
         config.grid = [g, g];
     }
+    config.radius = args.radius.unwrap_or(config.radius);
     config.pose_frame = args.pose_frame.unwrap_or(config.pose_frame);
     config.rotation_output = args.rotation_output.unwrap_or(config.rotation_output);
     config.validate()?;
@@ -194,6 +199,7 @@ fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> an
     };
     let sized = args.config.is_some() || args.points.is_some() || args.grid.is_some();
     check("--config/--points/--grid", sized && model_config(args).ok().as_ref() != Some(config));
+    check("--radius", args.radius.is_some_and(|v| v != config.radius));
     check("--pose-frame", args.pose_frame.is_some_and(|v| v != config.pose_frame));
     check("--rotation-output", args.rotation_output.is_some_and(|v| v != config.rotation_output));
     check("--batch", args.batch.is_some_and(|v| v != s.batch));
@@ -321,7 +327,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         let weights = match &args.init {
             Some(p) => {
-                let w = Weights::load(p)?;
+                let mut w = Weights::load(p)?;
+                if let Some(r) = args.radius {
+                    w.config.radius = r;
+                    w.config.validate().with_context(|| format!("--radius {r}"))?;
+                }
                 let frame = args.pose_frame.unwrap_or(w.config.pose_frame);
                 let output = args.rotation_output.unwrap_or(w.config.rotation_output);
                 if (frame, output) == (w.config.pose_frame, w.config.rotation_output) {
@@ -490,6 +500,20 @@ mod tests {
         // Bad outputs fail before training.
         let e = run(parse(&format!("{common} --out {d}/missing/w.safetensors"))).unwrap_err().to_string();
         assert!(e.contains("does not exist"), "{e}");
+        // --radius: a fresh run's config takes it; with --init it fine-tunes those weights at that radius and
+        // keeps their tensors as the starting point (exported before any step); a resumed run keeps it.
+        run(parse(&format!("{common} --out {d}/r.safetensors --steps 1 --radius 0.6"))).unwrap();
+        assert_eq!(Weights::load(&dir.join("r.safetensors")).unwrap().config.radius, 0.6);
+        let at = |r: &str| format!("--data {d}/pairs.txt --batch 2 --voxel 0.03 --steps 0 --radius={r}");
+        run(parse(&format!("{} --out {d}/f.safetensors --init {d}/a.safetensors", at("0.45")))).unwrap();
+        let f = Weights::load(&dir.join("f.safetensors")).unwrap();
+        assert_eq!(f.config, ModelConfig { radius: 0.45, ..a.config.clone() });
+        assert!(f.tensors == a.tensors);
+        let e = run(parse(&format!("{} --out {d}/g.safetensors --init {d}/a.safetensors", at("-1")))).unwrap_err();
+        assert!(format!("{e:#}").contains("radius"), "{e:#}");
+        let clash =
+            run(parse(&format!("--out {d}/a.safetensors --steps 7 --resume {d}/a.ckpt.safetensors --radius 1")));
+        assert!(clash.unwrap_err().to_string().contains("--radius"));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -37,7 +37,11 @@ pub struct Thresholds {
 impl Thresholds {
     /// The thresholds for patch radius `radius` (metres or the clouds' units).
     pub fn for_radius(radius: f64) -> Thresholds {
-        let s = radius / REFERENCE_RADIUS;
+        Thresholds::scaled(radius / REFERENCE_RADIUS)
+    }
+
+    /// The protocol's distances times `s` (1: exactly the protocol's, in metres).
+    pub fn scaled(s: f64) -> Thresholds {
         Thresholds {
             scale: s,
             max_information_error: 0.04 * s * s,

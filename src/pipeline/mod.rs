@@ -213,20 +213,20 @@ impl Registrar {
         self.settings.radius.unwrap_or(self.backend.model().config.radius * crate::settings::RADIUS_PER_TRAINING_RADIUS)
     }
 
-    /// ICP's largest point-pair distance in use: the settings', by default radius / 12 (5 cm at the default
-    /// radius; chosen on synthetic validation scenes: rotation errors half those of radius / 6, the same
-    /// recall); `None` when ICP is off.
+    /// ICP's largest point-pair distance in use: the settings', by default the radius in use times
+    /// [`crate::settings::ICP_DISTANCE_PER_RADIUS`]; `None` when ICP is off.
     pub fn icp_max_distance(&self) -> Option<f32> {
         self.settings.icp.map(|icp| icp.max_correspondence_distance.unwrap_or(self.default_icp_distance()))
     }
 
     fn default_icp_distance(&self) -> f32 {
-        self.radius() / 12.0
+        self.radius() * crate::settings::ICP_DISTANCE_PER_RADIUS
     }
 
-    /// Inlier threshold in use.
+    /// Inlier threshold in use: the settings', by default the radius in use times
+    /// [`crate::settings::INLIER_THRESHOLD_PER_RADIUS`].
     pub fn inlier_threshold(&self) -> f32 {
-        self.settings.inlier_threshold.unwrap_or(self.radius() / 6.0)
+        self.settings.inlier_threshold.unwrap_or(self.radius() * crate::settings::INLIER_THRESHOLD_PER_RADIUS)
     }
 
     /// Preprocesses `cloud` and describes all its keypoints (`settings.keypoints`). `stream` separates the
