@@ -25,7 +25,7 @@ use std::path::{Path, PathBuf};
 #[command(after_help = "--estimator also accepts `both`: RelativeNet and RANSAC on the same correspondences, side by \
 side. Registration recall counts gt.log pairs with j - i > 1 (success: e^T Sigma e / Sigma_11 <= 0.04; for a pairs \
 file: source-point RMSE <= 0.2 m); feature-match recall counts every gt.log pair (inlier: |x_i - T_ij x_j| < 0.10 m; \
-matched: inlier ratio > 0.05, strict). Distances scale with --radius / 0.60 (or --protocol-scale). Results go to \
+matched: inlier ratio > 0.05, strict). Distances scale by radius / 0.60 unless --protocol-scale sets the factor. Results go to \
 OUT/<estimator>/<scene>.log (3DMatch format) and OUT/report.json.
 
 Rotation sweep (--rotate DEG[,DEG...]): every source fragment j of a pair (i, j) is moved by M, a rotation by \
