@@ -1,0 +1,145 @@
+//! Feature-match recall when each keypoint is matched on its PPF-FoldNet codewords at several patch radii side
+//! by side (each codeword unit-normalised and weighted, then concatenated), against the ground truth of a
+//! dataset `dpr-gpu eval` reads. A measurement tool for weights/README.md ("Matching on codewords at several
+//! radii"), not part of the pipeline.
+//!
+//! cargo run --release --example multi_radius_matching -- DATASET RADII WEIGHTS [KEYPOINTS] [VOXEL] [TAU1]
+//!   RADII: comma-separated patch radii (cloud units), e.g. 0.6,0.3,1.2; the first one's keypoints are used
+//!   WEIGHTS: weight sets separated by `;`, one weight per radius, e.g. "1,0,0;1,0,1;1,0.7,0.7"
+//!   KEYPOINTS: keypoints per scan (default 1000); VOXEL: one voxel size for every radius (default 0: keep every
+//!   point, right for files with normals); TAU1: feature-match inlier distance (default 0.10)
+use dpr_gpu::eval::dataset::load_dataset;
+use dpr_gpu::eval::metrics::count_feature_inliers;
+use dpr_gpu::io::{LoadOptions, read_cloud};
+use dpr_gpu::{MatchMode, Registrar, RegistrationSettings};
+use std::path::Path;
+
+/// One scan described at one radius: kept keypoints (ranks in the keypoint order), positions, codewords.
+struct Described {
+    ranks: Vec<u32>,
+    points: Vec<[f32; 3]>,
+    codewords: Vec<f32>,
+}
+
+impl Described {
+    fn codeword(&self, rank: u32) -> &[f32] {
+        let dim = self.codewords.len() / self.ranks.len();
+        let row = self.ranks.binary_search(&rank).expect("rank kept at every radius");
+        &self.codewords[row * dim..(row + 1) * dim]
+    }
+}
+
+/// Ranks kept at every radius.
+fn common_ranks(scan: &[Described]) -> Vec<u32> {
+    let mut ranks = scan[0].ranks.clone();
+    for other in &scan[1..] {
+        ranks.retain(|r| other.ranks.binary_search(r).is_ok());
+    }
+    ranks
+}
+
+/// Rows of unit codewords times their radius weight, concatenated over the radii with a non-zero weight.
+fn matching_rows(scan: &[Described], ranks: &[u32], weights: &[f32]) -> (Vec<f32>, usize) {
+    let mut rows = Vec::new();
+    let mut dim = 0;
+    for &rank in ranks {
+        let start = rows.len();
+        for (described, &w) in scan.iter().zip(weights).filter(|(_, w)| **w != 0.0) {
+            let c = described.codeword(rank);
+            let norm = c.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
+            rows.extend(c.iter().map(|x| x / norm * w));
+        }
+        dim = rows.len() - start;
+    }
+    (rows, dim)
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.len() < 3 {
+        return Err("usage: multi_radius_matching DATASET RADII WEIGHTS [KEYPOINTS] [VOXEL] [TAU1]".into());
+    }
+    let radii: Vec<f32> = args[1].split(',').map(str::parse).collect::<Result<_, _>>()?;
+    let weight_sets: Vec<Vec<f32>> =
+        args[2].split(';').map(|s| s.split(',').map(str::parse).collect::<Result<_, _>>()).collect::<Result<_, _>>()?;
+    if weight_sets.iter().any(|w| w.len() != radii.len() || w.iter().all(|&x| x == 0.0)) {
+        return Err("every weight set needs one weight per radius, not all zero".into());
+    }
+    let keypoints: usize = args.get(3).map(|s| s.parse()).transpose()?.unwrap_or(1000);
+    let voxel: f32 = args.get(4).map(|s| s.parse()).transpose()?.unwrap_or(0.0);
+    let tau1: f64 = args.get(5).map(|s| s.parse()).transpose()?.unwrap_or(0.10);
+    let registrars = radii
+        .iter()
+        .map(|&r| {
+            let settings = RegistrationSettings {
+                radius: Some(r),
+                voxel: Some(voxel),
+                keypoints,
+                first_keypoints: None,
+                ..RegistrationSettings::default()
+            };
+            Registrar::new(&settings)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    // Per weight set: matched pairs, pairs, sum of inlier ratios; per scene for the protocol's scene mean.
+    let mut scene_recalls = vec![Vec::new(); weight_sets.len()];
+    let (mut matched, mut ratio_sum, mut pairs) = (vec![0usize; weight_sets.len()], vec![0f64; weight_sets.len()], 0);
+    for scene in load_dataset(Path::new(&args[0]))? {
+        let mut scans = Vec::new();
+        for file in &scene.files {
+            let (cloud, _) = read_cloud(file, &LoadOptions::default())?;
+            let mut at_radii = Vec::new();
+            for registrar in &registrars {
+                let f = registrar.describe(&cloud, 0)?;
+                at_radii.push(Described {
+                    ranks: f.keypoint_ranks.clone(),
+                    points: f.keypoints.clone(),
+                    codewords: f.read_codewords()?,
+                });
+            }
+            scans.push(at_radii);
+        }
+        let mut scene_matched = vec![0usize; weight_sets.len()];
+        for gt in &scene.gt {
+            // x_i = T x_j: fragment j is the source.
+            let (source, target) = (&scans[gt.j], &scans[gt.i]);
+            let (source_ranks, target_ranks) = (common_ranks(source), common_ranks(target));
+            let position = |scan: &[Described], rank: u32| scan[0].points[scan[0].ranks.binary_search(&rank).unwrap()];
+            for (k, weights) in weight_sets.iter().enumerate() {
+                let (s, dim) = matching_rows(source, &source_ranks, weights);
+                let (t, _) = matching_rows(target, &target_ranks, weights);
+                let matches = registrars[0].backend().match_codewords(&s, &t, dim, MatchMode::Mutual(1))?;
+                let inliers = count_feature_inliers(
+                    matches.iter().map(|m| {
+                        (
+                            position(target, target_ranks[m.target as usize]),
+                            position(source, source_ranks[m.source as usize]),
+                        )
+                    }),
+                    &gt.transform,
+                    tau1,
+                );
+                let ratio = inliers as f64 / matches.len().max(1) as f64;
+                ratio_sum[k] += ratio;
+                if ratio > 0.05 {
+                    matched[k] += 1;
+                    scene_matched[k] += 1;
+                }
+            }
+            pairs += 1;
+        }
+        for k in 0..weight_sets.len() {
+            scene_recalls[k].push(scene_matched[k] as f64 / scene.gt.len().max(1) as f64);
+        }
+        eprintln!("{} done", scene.name);
+    }
+    for (k, weights) in weight_sets.iter().enumerate() {
+        let scene_mean = scene_recalls[k].iter().sum::<f64>() / scene_recalls[k].len().max(1) as f64;
+        println!(
+            "radii {radii:?} weights {weights:?}: FMR {scene_mean:.3} (scene mean; {}/{pairs} pairs) inlier ratio {:.3}",
+            matched[k],
+            ratio_sum[k] / pairs.max(1) as f64
+        );
+    }
+    Ok(())
+}
