@@ -3,13 +3,15 @@
 //! dataset `dpr-gpu eval` reads. A measurement tool for weights/README.md ("Matching on codewords at several
 //! radii"), not part of the pipeline.
 //!
-//! cargo run --release --example multi_radius_matching -- DATASET RADII WEIGHTS [KEYPOINTS] [VOXEL] [TAU1]
+//! cargo run --release --example multi_radius_matching -- DATASET RADII WEIGHTS [KEYPOINTS] [VOXEL] [SCALE]
 //!   RADII: comma-separated patch radii (cloud units), e.g. 0.6,0.3,1.2; the first one's keypoints are used
 //!   WEIGHTS: weight sets separated by `;`, one weight per radius, e.g. "1,0,0;1,0,1;1,0.7,0.7"
 //!   KEYPOINTS: keypoints per scan (default 1000); VOXEL: one voxel size for every radius (default 0: keep every
-//!   point, right for files with normals); TAU1: feature-match inlier distance (default 0.10)
+//!   point, right for files with normals); SCALE: the protocol's distances in the clouds' units, as `eval
+//!   --protocol-scale` (default 1: tau1 = 0.10 m)
 use dpr_gpu::eval::dataset::load_dataset;
 use dpr_gpu::eval::metrics::count_feature_inliers;
+use dpr_gpu::eval::score::Thresholds;
 use dpr_gpu::io::{LoadOptions, read_cloud};
 use dpr_gpu::{MatchMode, Registrar, RegistrationSettings};
 use std::path::Path;
@@ -57,7 +59,7 @@ fn matching_rows(scan: &[Described], ranks: &[u32], weights: &[f32]) -> (Vec<f32
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     if args.len() < 3 {
-        return Err("usage: multi_radius_matching DATASET RADII WEIGHTS [KEYPOINTS] [VOXEL] [TAU1]".into());
+        return Err("usage: multi_radius_matching DATASET RADII WEIGHTS [KEYPOINTS] [VOXEL] [SCALE]".into());
     }
     let radii: Vec<f32> = args[1].split(',').map(str::parse).collect::<Result<_, _>>()?;
     let weight_sets: Vec<Vec<f32>> =
@@ -67,7 +69,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let keypoints: usize = args.get(3).map(|s| s.parse()).transpose()?.unwrap_or(1000);
     let voxel: f32 = args.get(4).map(|s| s.parse()).transpose()?.unwrap_or(0.0);
-    let tau1: f64 = args.get(5).map(|s| s.parse()).transpose()?.unwrap_or(0.10);
+    let protocol = Thresholds::scaled(args.get(5).map(|s| s.parse()).transpose()?.unwrap_or(1.0));
     let registrars = radii
         .iter()
         .map(|&r| {
@@ -117,11 +119,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                         )
                     }),
                     &gt.transform,
-                    tau1,
+                    protocol.tau1,
                 );
                 let ratio = inliers as f64 / matches.len().max(1) as f64;
                 ratio_sum[k] += ratio;
-                if ratio > 0.05 {
+                if ratio > protocol.tau2 {
                     matched[k] += 1;
                     scene_matched[k] += 1;
                 }
