@@ -23,8 +23,8 @@ pub use scan::{
     has_usable_normals, host_start_scan, kept_positions, normalise_usable_normals,
 };
 pub use steps::{
-    HostRows, HostScanRows, MatchedRows, MatchedSide, PatchBatch, RankedHypothesis, RowMatch, ScanRows, Verified,
-    check_restored, host_correspond, host_describe, host_pose_features, host_rows, host_verify, rank,
+    ContextRows, HostRows, HostScanRows, MatchedRows, MatchedSide, PatchBatch, RankedHypothesis, RowMatch, ScanRows,
+    Verified, check_restored, host_correspond, host_describe, host_pose_features, host_rows, host_verify, rank,
 };
 
 /// What RelativeNet needs per correspondence: `rows` rows of source and target pose features (`rows x

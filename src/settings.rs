@@ -123,7 +123,27 @@ pub struct RegistrationSettings {
     pub backend: BackendKind,
     /// Thresholds of the success verdict on the result.
     pub verdict: crate::verdict::VerdictSettings,
+    /// Context radii: each keypoint is also described with patches of these larger radii, and correspondences
+    /// match on every radius's codeword, each scaled to unit length and weighted, side by side (the main
+    /// radius's with weight 1). Empty (the default): matching on the main radius's codewords as they are.
+    /// The pose features stay the main radius's.
+    pub context_radii: Vec<ContextRadius>,
 }
+
+/// A context radius of [`RegistrationSettings::context_radii`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ContextRadius {
+    /// The patch radius as a multiple of the main radius, in `1..=MAX_CONTEXT_FACTOR` (larger patches keep
+    /// every keypoint the main radius keeps).
+    pub factor: f32,
+    /// Weight of its unit-length codewords in matching, beside the main radius's 1; positive.
+    pub weight: f32,
+}
+
+/// Largest context radius, as a multiple of the main radius.
+pub const MAX_CONTEXT_FACTOR: f32 = 8.0;
+/// Most context radii.
+pub const MAX_CONTEXT_RADII: usize = 4;
 
 /// The default patch radius as a multiple of the radius the weights were trained with: describing each keypoint
 /// with twice the context it was trained on (a patch keeps its number of points, so it samples a larger
@@ -216,6 +236,23 @@ impl RegistrationSettings {
         if !self.viewpoint.iter().all(|c| c.is_finite()) {
             return Err(Error::invalid(format!("viewpoint must be finite, got {:?}", self.viewpoint)));
         }
+        if self.context_radii.len() > MAX_CONTEXT_RADII {
+            return Err(Error::invalid(format!(
+                "at most {MAX_CONTEXT_RADII} context radii, got {}",
+                self.context_radii.len()
+            )));
+        }
+        for c in &self.context_radii {
+            if !(c.factor >= 1.0 && c.factor <= MAX_CONTEXT_FACTOR) {
+                return Err(Error::invalid(format!(
+                    "context radius factor must be in 1..={MAX_CONTEXT_FACTOR} (a multiple of the radius), got {}",
+                    c.factor
+                )));
+            }
+            if !(c.weight.is_finite() && c.weight > 0.0) {
+                return Err(Error::invalid(format!("context radius weight must be positive, got {}", c.weight)));
+            }
+        }
         self.verdict.validate()
     }
 }
@@ -240,6 +277,7 @@ impl Default for RegistrationSettings {
             seed: 0,
             backend: BackendKind::Auto,
             verdict: crate::verdict::VerdictSettings::default(),
+            context_radii: Vec::new(),
         }
     }
 }

@@ -141,13 +141,13 @@ impl ScanCloud for CountingScan {
         &mut self,
         backend: &dyn Backend,
         cloud: &mut dpr_gpu::PointCloud,
-        keypoints: &[usize],
+        keypoints: (&[usize], f32),
         seed: u64,
         rows: &dyn ScanRows,
         lap: Lap<'_>,
     ) -> dpr_gpu::Result<DescribedKeypoints> {
         let out = self.inner.describe_keypoints(backend, cloud, keypoints, seed, rows, lap)?;
-        let (k, p) = (keypoints.len() as u64, out.kept.len() as u64);
+        let (k, p) = (keypoints.0.len() as u64, out.kept.len() as u64);
         let block = dpr_gpu::cpu::patch_sample::BLOCK_CELLS as u64;
         let offsets = if p > 0 { 4 * block * k } else { 0 };
         let mut b = self.bytes.lock().unwrap();

@@ -1029,6 +1029,37 @@ fn register_with_relativenet_matches_cpu_on_a_generated_pair() {
     assert!(cp.inliers >= 10, "the CPU reference registers the pair ({} inliers), seed {s}", cp.inliers);
 }
 
+/// unit_rows: each block is its rows at unit length times the weight, in its columns of the wider rows; the
+/// other columns keep the sentinel. The length's in-order sum may be FMA-contracted on a GPU (the
+/// codeword_distance bound), and its `sqrt` and the division cost a few ulp each.
+fn unit_rows_matches_cpu_ragged() {
+    use dpr_gpu::gpu::unit_rows::{Block, UnitRows};
+    let Some(g) = gpu() else { return };
+    let s = seed(74);
+    let mut rng = Rng::new(s);
+    for (rows, width, out_width, column, weight) in
+        [(1, 1, 1, 0, 1.0), (37, 13, 40, 13, 0.7), (70, 33, 99, 66, 2.5), (130, 4, 9, 0, 1.0)]
+    {
+        let mut input = normals(&mut rng, rows * width);
+        input[..width].fill(0.0); // a zero row stays zero
+        let block = Block { width, out_width, column, weight };
+        let mut want = vec![SENTINEL; rows * out_width];
+        UnitRows::CPU_TWIN(&input, width, weight, column, out_width, &mut want);
+        let mut got = vec![SENTINEL; rows * out_width];
+        gpu::unit_rows::run(&g, &input, block, &mut got).unwrap();
+        let tol = |i: usize| (SUM_ERROR_FACTOR * (width + 2) as f32 + 8.0) * EPS * want[i].abs() + f32::MIN_POSITIVE;
+        assert_close(&format!("unit_rows {rows}x{width} into {out_width} at {column}"), s, &got, &want, tol);
+        let written = want.iter().filter(|x| !x.is_nan()).count();
+        assert_eq!(written, rows * width, "only the block's columns are written (seed {s})");
+        for row in want.chunks_exact(out_width).skip(1) {
+            let length = row[column..column + width].iter().map(|x| x * x).sum::<f32>().sqrt();
+            assert!((length - weight).abs() < 1e-4 * weight, "rows at unit length times the weight (seed {s})");
+        }
+    }
+    let bad = Block { width: 4, out_width: 6, column: 3, weight: 1.0 };
+    assert!(gpu::unit_rows::run(&g, &[0.0; 4], bad, &mut [0.0; 6]).is_err(), "a block past the row");
+}
+
 /// pose_feature: a subtraction per value, exact on both sides; rows not named keep their contents.
 fn pose_feature_matches_cpu_scattered() {
     let Some(g) = gpu() else { return };
@@ -1445,6 +1476,57 @@ fn device_uniform_keypoints_match_cpu() {
     assert_eq!(gs.cloud.normals, cs.cloud.normals, "file normals, normalised alike (seed {s})");
 }
 
+/// Context radii on the device: the cloud's cell table is built for the largest radius and patches of the main
+/// radius are drawn from it, so the kept keypoints are the CPU's; the context rows' codewords are the CPU's,
+/// and matching on the unit codewords side by side (`unit_rows`) gives the CPU's correspondences, exactly for
+/// the same rows (a CPU scan adopted by the GPU backend) and nearly for rows described on each side.
+fn device_context_radii_match_cpu() {
+    use dpr_gpu::settings::ContextRadius;
+    let Some(g) = gpu() else { return };
+    let s = seed(78);
+    let (gpu_b, cpu_b) = backends_for(g, small_model(s));
+    let settings = dpr_gpu::RegistrationSettings {
+        keypoints: 70,
+        radius: Some(0.3),
+        viewpoint: ROOM_VIEWPOINT,
+        context_radii: vec![ContextRadius { factor: 2.5, weight: 0.8 }],
+        seed: s,
+        ..Default::default()
+    };
+    let (source, target, _) = common::room_pair(s, 3_000);
+    let (source, target) = (with_host_normals(&source), with_host_normals(&target));
+    let on_gpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(gpu_b)).unwrap();
+    let on_cpu = dpr_gpu::Registrar::with_backend(&settings, Box::new(cpu_b)).unwrap();
+    let (gs, cs) = (on_gpu.describe(&source, 0).unwrap(), on_cpu.describe(&source, 0).unwrap());
+    let (gt, ct) = (on_gpu.describe(&target, 1).unwrap(), on_cpu.describe(&target, 1).unwrap());
+    let rtol = network_rtol();
+    for (g_scan, c_scan) in [(&gs, &cs), (&gt, &ct)] {
+        assert_eq!(g_scan.keypoint_ranks, c_scan.keypoint_ranks, "seed {s}");
+        let (gm, cm) = (g_scan.read_codewords().unwrap(), c_scan.read_codewords().unwrap());
+        assert_close("main codewords", s, &gm, &cm, |_| rtol * max_abs(&cm).max(1.0));
+        let (gc, cc) =
+            (g_scan.context[0].rows.read_codewords().unwrap(), c_scan.context[0].rows.read_codewords().unwrap());
+        assert_eq!(gc.len(), cm.len(), "a context row per kept keypoint (seed {s})");
+        assert_close("context codewords", s, &gc, &cc, |_| rtol * max_abs(&cc).max(1.0));
+        assert!(gc.iter().zip(&gm).any(|(a, b)| a != b), "context rows are another radius's (seed {s})");
+    }
+    let pairs = |c: &[dpr_gpu::Correspondence]| {
+        c.iter().map(|c| (c.source_index, c.target_index)).collect::<std::collections::HashSet<_>>()
+    };
+    let want = pairs(&on_cpu.correspond(&cs, &ct).unwrap());
+    assert!(want.len() >= 5, "the pair gives correspondences ({}), seed {s}", want.len());
+    let (ags, agt) = (on_gpu.adopt(&cs).unwrap(), on_gpu.adopt(&ct).unwrap());
+    assert_eq!(pairs(&on_gpu.correspond(&ags, &agt).unwrap()), want, "adopted rows, seed {s}");
+    let got = pairs(&on_gpu.correspond(&gs, &gt).unwrap());
+    let shared = got.intersection(&want).count();
+    assert!(
+        shared * 10 >= 9 * want.len().max(got.len()),
+        "{shared} shared of {} / {}, seed {s}",
+        got.len(),
+        want.len()
+    );
+}
+
 fn main() -> std::process::ExitCode {
     dpr_gpu::gpu::testing::run_tests(&[TESTS, gpu_preprocess::TESTS, gpu_icp::TESTS].concat())
 }
@@ -1479,11 +1561,13 @@ const TESTS: &[dpr_gpu::gpu::testing::GpuTest] = &[
     ("poison_inputs_stay_in_their_patches", poison_inputs_stay_in_their_patches),
     ("auto_backend_skips_software_adapters", auto_backend_skips_software_adapters),
     ("pose_feature_matches_cpu_scattered", pose_feature_matches_cpu_scattered),
+    ("unit_rows_matches_cpu_ragged", unit_rows_matches_cpu_ragged),
     ("device_steps_match_cpu_steps", device_steps_match_cpu_steps),
     ("pair_steps_read_back_only_small_results", pair_steps_read_back_only_small_results),
     ("device_register_matches_cpu_register", device_register_matches_cpu_register),
     ("device_register_reads_back_no_per_point_data", device_register_reads_back_no_per_point_data),
     ("device_uniform_keypoints_match_cpu", device_uniform_keypoints_match_cpu),
+    ("device_context_radii_match_cpu", device_context_radii_match_cpu),
     (
         "register_with_relativenet_matches_cpu_on_a_generated_pair",
         register_with_relativenet_matches_cpu_on_a_generated_pair,

@@ -340,3 +340,104 @@ fn the_default_voxel_follows_the_radius_for_clouds_without_normals() {
     let described = registrar(None, Some(0.6)).describe(&zero, 0).unwrap();
     assert_eq!(described.cloud.points, expected.points);
 }
+
+/// Context radii (`RegistrationSettings::context_radii`): each kept keypoint is described again at each larger
+/// radius, with exactly the codewords a registrar at that radius gives it, and correspondences are the mutual
+/// nearest neighbours of the unit codewords of every radius, weighted and side by side. The oracle describes
+/// the scans at each radius separately and matches by brute force in f64; a match may differ from it only
+/// where two candidates lie within f32 rounding of each other.
+#[test]
+fn context_radii_match_on_weighted_unit_codewords_of_every_radius() {
+    use dpr_gpu::settings::ContextRadius;
+    let weights = Weights::init(&common::tiny_config(), 3).unwrap();
+    let (source, target, _) = common::room_pair(11, 3000);
+    let base = dpr_gpu::RegistrationSettings {
+        keypoints: 120,
+        first_keypoints: None,
+        voxel: Some(0.0),
+        radius: Some(0.3),
+        ..Default::default()
+    };
+    let context = vec![ContextRadius { factor: 2.0, weight: 0.7 }, ContextRadius { factor: 3.5, weight: 1.3 }];
+    let with_context = dpr_gpu::RegistrationSettings { context_radii: context.clone(), ..base.clone() };
+    let registrar = dpr_gpu::Registrar::with_weights(&with_context, &weights).unwrap();
+    let (s, t) = (registrar.describe(&source, 0).unwrap(), registrar.describe(&target, 1).unwrap());
+    assert_eq!(s.context.len(), 2);
+
+    // Rows of unit codewords times their weight, per radius, from registrars at each radius alone.
+    let mut blocks = Vec::new();
+    for (factor, weight) in std::iter::once((1.0, 1.0)).chain(context.iter().map(|c| (c.factor, c.weight))) {
+        let alone = dpr_gpu::RegistrationSettings { radius: Some(0.3 * factor), ..base.clone() };
+        let r = dpr_gpu::Registrar::with_weights(&alone, &weights).unwrap();
+        let mut per_scan = Vec::new();
+        for (cloud, stream, described) in [(&source, 0, &s), (&target, 1, &t)] {
+            let f = r.describe(cloud, stream).unwrap();
+            let codewords = f.read_codewords().unwrap();
+            let dim = codewords.len() / f.keypoints.len();
+            // The same keypoints (by rank) as the registrar with context radii keeps.
+            let rows: Vec<Vec<f64>> = described
+                .keypoint_ranks
+                .iter()
+                .map(|rank| {
+                    let row = f.keypoint_ranks.binary_search(rank).expect("a larger patch keeps the keypoint");
+                    let c = &codewords[row * dim..(row + 1) * dim];
+                    let norm = c.iter().map(|&x| f64::from(x).powi(2)).sum::<f64>().sqrt();
+                    c.iter().map(|&x| f64::from(x) / norm * f64::from(weight)).collect()
+                })
+                .collect();
+            if factor > 1.0 {
+                let k = context.iter().position(|c| c.factor == factor).unwrap();
+                let own = described.context[k].rows.read_codewords().unwrap();
+                let picked: Vec<f32> = described
+                    .keypoint_ranks
+                    .iter()
+                    .flat_map(|rank| {
+                        let row = f.keypoint_ranks.binary_search(rank).unwrap();
+                        codewords[row * dim..(row + 1) * dim].to_vec()
+                    })
+                    .collect();
+                assert_eq!(own, picked, "context rows at {factor}x are that radius's codewords");
+            }
+            per_scan.push(rows);
+        }
+        blocks.push(per_scan);
+    }
+    let distance = |a: usize, b: usize| -> f64 {
+        blocks.iter().map(|scan| scan[0][a].iter().zip(&scan[1][b]).map(|(x, y)| (x - y).powi(2)).sum::<f64>()).sum()
+    };
+    let (ns, nt) = (s.keypoints.len(), t.keypoints.len());
+    let nearest_target = |a: usize| (0..nt).map(|b| distance(a, b)).fold(f64::INFINITY, f64::min);
+    let nearest_source = |b: usize| (0..ns).map(|a| distance(a, b)).fold(f64::INFINITY, f64::min);
+    let oracle: Vec<(usize, usize)> = (0..ns)
+        .filter_map(|a| {
+            let b = (0..nt).min_by(|&x, &y| distance(a, x).total_cmp(&distance(a, y)))?;
+            let back = (0..ns).min_by(|&x, &y| distance(x, b).total_cmp(&distance(y, b)))?;
+            (back == a).then_some((a, b))
+        })
+        .collect();
+    let got = registrar.correspond(&s, &t).unwrap();
+    let near = |d: f64, best: f64| d <= best * (1.0 + 1e-5) + 1e-9;
+    for c in &got {
+        let (a, b) = (c.source_index as usize, c.target_index as usize);
+        let d = distance(a, b);
+        assert!(near(d, nearest_target(a)) && near(d, nearest_source(b)), "({a}, {b}) is not mutual nearest");
+    }
+    assert!(got.len().abs_diff(oracle.len()) <= 2, "{} correspondences, the oracle {}", got.len(), oracle.len());
+    assert!(oracle.len() >= 10, "the pair gives correspondences ({})", oracle.len());
+    // Without context radii the matches differ (the blocks matter).
+    let plain = dpr_gpu::Registrar::with_weights(&base, &weights).unwrap();
+    let (ps, pt) = (plain.describe(&source, 0).unwrap(), plain.describe(&target, 1).unwrap());
+    let pairs = |c: &[dpr_gpu::Correspondence]| c.iter().map(|c| (c.source_index, c.target_index)).collect::<Vec<_>>();
+    assert_ne!(pairs(&plain.correspond(&ps, &pt).unwrap()), pairs(&got));
+    // A scan described without context radii does not match one described with them.
+    assert!(registrar.correspond(&s, &pt).is_err());
+    // Factors below 1 or past the bound, and non-positive weights, are refused.
+    for bad in [
+        ContextRadius { factor: 0.5, weight: 1.0 },
+        ContextRadius { factor: 9.0, weight: 1.0 },
+        ContextRadius { factor: 2.0, weight: 0.0 },
+    ] {
+        let settings = dpr_gpu::RegistrationSettings { context_radii: vec![bad], ..base.clone() };
+        assert!(dpr_gpu::Registrar::with_weights(&settings, &weights).is_err(), "{bad:?}");
+    }
+}

@@ -144,6 +144,8 @@ impl DescribedScan {
             candidates,
             empty_patches,
             rows,
+            // The Python package does not describe at context radii (`RegistrationSettings::context_radii`).
+            context: Vec::new(),
             held_points: None,
             timings,
         };

@@ -105,6 +105,8 @@ impl SettingsArgs {
                 min_inlier_ratio: self.min_inlier_ratio,
                 min_spread_over_threshold: self.min_spread_over_threshold,
             },
+            // Context radii are not exposed to Python yet: its pickled scans carry the main radius's rows only.
+            context_radii: Vec::new(),
         })
     }
 }

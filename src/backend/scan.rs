@@ -17,6 +17,9 @@ pub struct ScanSettings {
     pub voxel: Option<f32>,
     /// Patch radius.
     pub radius: f32,
+    /// The largest patch radius keypoints are described at (`radius` or a larger context radius): the GPU's
+    /// cell table is built for it.
+    pub largest_radius: f32,
     /// Points per patch (N).
     pub points_per_patch: usize,
     /// Neighbours of a PCA normal.
@@ -55,13 +58,14 @@ pub trait HeldPoints: Send + Sync + std::fmt::Debug {
 
 /// A scan's preprocessed cloud where its backend describes it.
 pub trait ScanCloud: Send + Sync {
-    /// Describes `keypoints` (cloud indices, in order) with patches ranked by `seed`, appending the kept ones'
-    /// rows to `rows`. `cloud` is the scan's host cloud (the host version fills the normals it estimates in).
+    /// Describes `keypoints` (cloud indices, in order) with patches of `radius` (at most the settings'
+    /// `largest_radius`) ranked by `seed`, appending the kept ones' rows to `rows`. `cloud` is the scan's host
+    /// cloud (the host version fills the normals it estimates in).
     fn describe_keypoints(
         &mut self,
         backend: &dyn Backend,
         cloud: &mut PointCloud,
-        keypoints: &[usize],
+        keypoints: (&[usize], f32),
         seed: u64,
         rows: &dyn ScanRows,
         lap: Lap<'_>,
@@ -197,12 +201,12 @@ impl ScanCloud for HostScanCloud {
         &mut self,
         backend: &dyn Backend,
         cloud: &mut PointCloud,
-        keypoints: &[usize],
+        (keypoints, radius): (&[usize], f32),
         seed: u64,
         rows: &dyn ScanRows,
         lap: Lap<'_>,
     ) -> Result<DescribedKeypoints> {
-        let (radius, n) = (self.settings.radius, self.settings.points_per_patch);
+        let n = self.settings.points_per_patch;
         let patches = extract_patches(&cloud.points, &self.index, keypoints, radius, n, seed);
         lap("patches");
         let mut needed: Vec<usize> = patches.keypoints.clone();

@@ -15,7 +15,7 @@ use crate::pipeline::PoseRows;
 use crate::preprocess::GatheredPatches;
 use crate::settings::MatchMode;
 use std::any::Any;
-use std::sync::{Mutex, MutexGuard};
+use std::sync::{Arc, Mutex, MutexGuard};
 
 /// A scan's described rows (one per kept keypoint, in description order), held by the backend that described
 /// them: its PPF-FoldNet codewords (`rows x codeword`), PC-FoldNet's inputs and the pose features computed from
@@ -159,8 +159,21 @@ impl<'a> PatchBatch<'a> {
     }
 }
 
+/// A scan's rows described at a context radius ([`crate::settings::ContextRadius`]), row for row with its main
+/// rows, and the weight of their unit-length codewords in matching.
+#[derive(Clone, Debug)]
+pub struct ContextRows {
+    /// The patch radius (cloud units).
+    pub radius: f32,
+    /// Weight in matching (the main radius's is 1).
+    pub weight: f32,
+    /// The rows (their PPF-FoldNet codewords are what matching reads).
+    pub rows: Arc<dyn ScanRows>,
+}
+
 /// Matching the first rows of two described scans, checked: both prefixes within the rows described and the
-/// codeword widths equal and non-zero.
+/// codeword widths equal and non-zero; with context rows (both scans described at the same context radii and
+/// weights), each row matches on its codewords of every radius side by side ([`RowMatch::blocks`]).
 #[derive(Clone, Copy, Debug)]
 pub struct RowMatch<'a> {
     source: &'a dyn ScanRows,
@@ -168,6 +181,8 @@ pub struct RowMatch<'a> {
     target: &'a dyn ScanRows,
     target_rows: usize,
     mode: MatchMode,
+    source_context: &'a [ContextRows],
+    target_context: &'a [ContextRows],
 }
 
 impl<'a> RowMatch<'a> {
@@ -191,7 +206,51 @@ impl<'a> RowMatch<'a> {
                 target.rows()
             )));
         }
-        Ok(RowMatch { source, source_rows, target, target_rows, mode })
+        Ok(RowMatch { source, source_rows, target, target_rows, mode, source_context: &[], target_context: &[] })
+    }
+
+    /// Matches on the codewords of the context rows too: both scans' context radii and weights must be equal
+    /// and their context rows hold at least the prefixes matched, in the main rows' width.
+    pub fn with_context(mut self, source: &'a [ContextRows], target: &'a [ContextRows]) -> Result<RowMatch<'a>> {
+        let described = |c: &[ContextRows]| c.iter().map(|c| (c.radius, c.weight)).collect::<Vec<_>>();
+        if described(source) != described(target) {
+            return Err(Error::invalid(format!(
+                "correspond: the scans were described at different context radii and weights ({:?} and {:?})",
+                described(source),
+                described(target)
+            )));
+        }
+        for (c, prefix) in
+            source.iter().map(|c| (c, self.source_rows)).chain(target.iter().map(|c| (c, self.target_rows)))
+        {
+            if c.rows.codeword() != self.source.codeword() || c.rows.rows() < prefix {
+                return Err(Error::invalid(format!(
+                    "correspond: context rows at radius {} hold {} rows of {} values, {prefix} rows of {} needed",
+                    c.radius,
+                    c.rows.rows(),
+                    c.rows.codeword(),
+                    self.source.codeword()
+                )));
+            }
+        }
+        (self.source_context, self.target_context) = (source, target);
+        Ok(self)
+    }
+
+    /// The blocks of the matching rows: (weight, source rows, target rows) of the main radius (weight 1) and
+    /// each context radius; empty without context rows (matching then reads the main codewords as they are).
+    pub fn blocks(&self) -> Vec<(f32, &'a dyn ScanRows, &'a dyn ScanRows)> {
+        if self.source_context.is_empty() {
+            return Vec::new();
+        }
+        let main = std::iter::once((1.0, self.source, self.target));
+        main.chain(
+            self.source_context
+                .iter()
+                .zip(self.target_context)
+                .map(|(s, t)| (s.weight, s.rows.as_ref(), t.rows.as_ref())),
+        )
+        .collect()
     }
     /// Source rows and how many of the first to match.
     pub fn source(&self) -> (&'a dyn ScanRows, usize) {
@@ -352,13 +411,24 @@ pub fn host_describe<B: Backend + ?Sized>(backend: &B, batch: PatchBatch<'_>, ro
     Ok(())
 }
 
-/// Matches the first rows of two host stores.
+/// Matches the first rows of two host stores (side by side with their context rows, if any).
 pub fn host_correspond<B: Backend + ?Sized>(backend: &B, request: RowMatch<'_>) -> Result<Vec<Match>> {
     let ((s, sn), (t, tn)) = (request.source(), request.target());
     let dim = s.codeword();
-    let source = host_rows(s, "correspond")?.lock().codewords[..sn * dim].to_vec();
-    let target = host_rows(t, "correspond")?.lock().codewords[..tn * dim].to_vec();
-    backend.match_codewords(&source, &target, dim, request.mode())
+    let prefix = |rows: &dyn ScanRows, n: usize| -> Result<Vec<f32>> {
+        Ok(host_rows(rows, "correspond")?.lock().codewords[..n * dim].to_vec())
+    };
+    let blocks = request.blocks();
+    if blocks.is_empty() {
+        return backend.match_codewords(&prefix(s, sn)?, &prefix(t, tn)?, dim, request.mode());
+    }
+    let width = dim * blocks.len();
+    let (mut source, mut target) = (vec![0.0; sn * width], vec![0.0; tn * width]);
+    for (b, &(weight, bs, bt)) in blocks.iter().enumerate() {
+        crate::cpu::unit_rows::unit_rows(&prefix(bs, sn)?, dim, weight, b * dim, width, &mut source);
+        crate::cpu::unit_rows::unit_rows(&prefix(bt, tn)?, dim, weight, b * dim, width, &mut target);
+    }
+    backend.match_codewords(&source, &target, width, request.mode())
 }
 
 /// The pose features (PC-FoldNet codeword minus PPF-FoldNet codeword) of `which` rows of a host store, in

@@ -75,6 +75,11 @@ pub struct RegisterOptions {
     /// ignored); default: columns 4-6 are normals when every row has unit length there, else the file is refused.
     #[arg(long)]
     pub xyz_columns: Option<String>,
+    /// Also describe each keypoint with patches FACTOR times the radius (1..8) and match on the codewords of
+    /// every radius side by side, each at unit length, this one weighted by WEIGHT (the main radius's by 1);
+    /// repeatable, e.g. --context-radius 2:1. The pose features stay the main radius's.
+    #[arg(long, value_name = "FACTOR:WEIGHT")]
+    pub context_radius: Vec<String>,
     /// Verdict: fewest inliers for a trusted result.
     #[arg(long, default_value_t = crate::verdict::VerdictSettings::default().min_inliers)]
     pub min_inliers: usize,
@@ -92,6 +97,15 @@ pub fn parse_estimator(s: &str) -> anyhow::Result<Estimator> {
         "relativenet" => Ok(Estimator::RelativeNet),
         "ransac" => Ok(Estimator::Ransac),
         other => bail!("unknown estimator '{other}' (expected relativenet or ransac)"),
+    }
+}
+
+/// Parses `FACTOR:WEIGHT` (a `--context-radius`); the ranges are checked with the settings.
+pub fn parse_context_radius(s: &str) -> anyhow::Result<ContextRadius> {
+    let parsed = s.split_once(':').and_then(|(f, w)| Some((f.trim().parse().ok()?, w.trim().parse().ok()?)));
+    match parsed {
+        Some((factor, weight)) => Ok(ContextRadius { factor, weight }),
+        None => bail!("--context-radius expects FACTOR:WEIGHT, e.g. 2:1, got '{s}'"),
     }
 }
 
@@ -130,6 +144,7 @@ impl RegisterOptions {
             "auto" => BackendKind::Auto,
             other => bail!("unknown backend '{other}' (expected cpu, gpu or auto)"),
         };
+        s.context_radii = self.context_radius.iter().map(|c| parse_context_radius(c)).collect::<anyhow::Result<_>>()?;
         s.ransac.max_iterations = self.ransac_iterations.max(1);
         s.verdict = crate::verdict::VerdictSettings {
             min_inliers: self.min_inliers,

@@ -27,4 +27,5 @@ pub mod prefix_scan;
 pub mod rotation_head;
 pub mod score_hypotheses;
 pub mod segments;
+pub mod unit_rows;
 pub mod voxel_average;

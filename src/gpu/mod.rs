@@ -45,6 +45,7 @@ pub mod scan;
 pub mod score_hypotheses;
 pub mod segments;
 pub mod testing;
+pub mod unit_rows;
 pub mod voxel_average;
 
 use crate::backend::{Backend, MatchedRows, PatchBatch, RotationInputs, RowMatch, ScanRows, Verified};

@@ -336,6 +336,8 @@ pub struct SampledPatches {
     pub centers: Vec<[f32; 3]>,
     /// Kept keypoints' unit normals.
     pub center_normals: Vec<[f32; 3]>,
+    /// The patch radius they were drawn at.
+    pub radius: f32,
     /// Sorted candidate keys (device).
     candidates: Option<wgpu::Buffer>,
 }
@@ -400,7 +402,7 @@ impl DeviceCloud {
         &self.table.points
     }
 
-    /// The patch radius (the cell size of its table).
+    /// The largest patch radius it samples (the cell size of its table); the default of [`DeviceCloud::sample`].
     pub fn radius(&self) -> f32 {
         self.radius
     }
@@ -437,13 +439,25 @@ impl DeviceCloud {
     /// candidates (16 bytes each, padded to a power of two) would not fit one buffer: the caller splits the
     /// keypoints.
     pub fn sample(&self, gpu: &Gpu, keypoints: &[u32], seed: u64) -> Result<Option<SampledPatches>> {
-        let params = patch_sample::params(keypoints.len(), self.table.inv_cell, self.radius, seed)?;
+        self.sample_at(gpu, keypoints, seed, self.radius)
+    }
+
+    /// [`DeviceCloud::sample`] with patches of `radius`, at most the cell size (the cloud's radius).
+    pub fn sample_at(&self, gpu: &Gpu, keypoints: &[u32], seed: u64, radius: f32) -> Result<Option<SampledPatches>> {
+        if radius > self.radius {
+            return Err(Error::invalid(format!(
+                "patch_sample: radius {radius} is larger than the cells ({}) of the cloud's table",
+                self.radius
+            )));
+        }
+        let params = patch_sample::params(keypoints.len(), self.table.inv_cell, radius, seed)?;
         let mut out = SampledPatches {
             kept: Vec::new(),
             empty: Vec::new(),
             table: Vec::new(),
             centers: Vec::new(),
             center_normals: Vec::new(),
+            radius,
             candidates: None,
         };
         if keypoints.is_empty() {
@@ -479,8 +493,8 @@ impl DeviceCloud {
         if (padded * 16) as u64 > ctx.max_buffer_bytes() {
             if keypoints.len() == 1 {
                 return Err(Error::Gpu(format!(
-                    "patch_sample: keypoint {} has {total} points within radius {}, more than one buffer holds",
-                    keypoints[0], self.radius
+                    "patch_sample: keypoint {} has {total} points within radius {radius}, more than one buffer holds",
+                    keypoints[0]
                 )));
             }
             return Ok(None);
@@ -510,17 +524,17 @@ impl DeviceCloud {
     pub fn sample_in_parts(
         &self,
         gpu: &Gpu,
-        keypoints: &[u32],
+        (keypoints, radius): (&[u32], f32),
         seed: u64,
         first: usize,
         each: &mut dyn FnMut(usize, SampledPatches) -> Result<()>,
     ) -> Result<()> {
-        match self.sample(gpu, keypoints, seed)? {
+        match self.sample_at(gpu, keypoints, seed, radius)? {
             Some(sampled) => each(first, sampled),
             None => {
                 let half = keypoints.len() / 2;
-                self.sample_in_parts(gpu, &keypoints[..half], seed, first, each)?;
-                self.sample_in_parts(gpu, &keypoints[half..], seed, first + half, each)
+                self.sample_in_parts(gpu, (&keypoints[..half], radius), seed, first, each)?;
+                self.sample_in_parts(gpu, (&keypoints[half..], radius), seed, first + half, each)
             }
         }
     }
@@ -560,7 +574,7 @@ pub fn sample_patches(
     let cloud = DeviceCloud::new(gpu, points, NormalSource::Given(points), radius)?;
     let n = points_per_patch;
     let mut out = Patches { points_per_patch: n, ..Patches::default() };
-    cloud.sample_in_parts(gpu, keypoints, seed, 0, &mut |first, sampled| {
+    cloud.sample_in_parts(gpu, (keypoints, radius), seed, 0, &mut |first, sampled| {
         out.keypoints.extend(sampled.kept.iter().map(|&s| keypoints[first + s] as usize));
         out.empty.extend(sampled.empty.iter().map(|&s| keypoints[first + s] as usize));
         let rows = sampled.table.len() * n;

@@ -30,6 +30,7 @@ use super::prefix_scan::PrefixScan;
 use super::rotation_head::RotationHead;
 use super::score_hypotheses::ScoreHypotheses;
 use super::segments::SegmentsKernel;
+use super::unit_rows::UnitRows;
 use super::voxel_average::VoxelAverage;
 use crate::error::{Error, Result};
 
@@ -51,6 +52,7 @@ pub const KERNELS: &[KernelSpec] = &[
     DenseFast::SPEC,
     DenseCoopF16::SPEC,
     MaxPool::SPEC,
+    UnitRows::SPEC,
     CodewordDistance::SPEC,
     MutualKnn::SPEC,
     PoseFeature::SPEC,

@@ -248,7 +248,7 @@ impl GpuBackend {
         let Some(candidates) = sampled.candidates().filter(|_| p > 0) else { return Ok(()) };
         let n = self.model.config.points_per_patch;
         let ctx = &self.gpu.context;
-        self.describe_chunks(store, p, cloud.radius(), |rec, ws, c0, cp| {
+        self.describe_chunks(store, p, sampled.radius, |rec, ws, c0, cp| {
             let table = ws.upload(ctx, "pf_table", &sampled.table[c0..c0 + cp])?;
             let center_index = ws.buffer(ctx, "pf_center_index", (cp * 4) as u64)?;
             let centers = ws.buffer(ctx, "pf_centers", (cp * 12) as u64)?;
@@ -338,11 +338,36 @@ impl GpuBackend {
     }
 
     /// Mutual kNN on the codewords where they are; only the matches come back.
+    /// With context rows, the matching rows are built where the codewords are ([`super::unit_rows`]).
     pub(super) fn correspond_on_device(&self, request: RowMatch<'_>) -> Result<Vec<crate::cpu::mutual_knn::Match>> {
         let ((s, ns), (t, nt)) = (request.source(), request.target());
-        let source = self.own(s, "correspond")?.lock().codewords.clone();
-        let target = self.own(t, "correspond")?.lock().codewords.clone();
-        self.match_buffers(&source, &target, (ns, nt, s.codeword()), request.mode())
+        let dim = s.codeword();
+        let blocks = request.blocks();
+        if blocks.is_empty() {
+            let source = self.own(s, "correspond")?.lock().codewords.clone();
+            let target = self.own(t, "correspond")?.lock().codewords.clone();
+            return self.match_buffers(&source, &target, (ns, nt, dim), request.mode());
+        }
+        let width = dim * blocks.len();
+        let gpu = &self.gpu;
+        let (source, target) = self.run("matching rows", |ws| {
+            let ctx = &gpu.context;
+            let source = ws.buffer(ctx, "match_source_blocks", (ns.max(1) * width * 4) as u64)?;
+            let target = ws.buffer(ctx, "match_target_blocks", (nt.max(1) * width * 4) as u64)?;
+            let mut rec = Recorder::new(gpu, "matching rows");
+            for (b, &(weight, bs, bt)) in blocks.iter().enumerate() {
+                let block = super::unit_rows::Block { width: dim, out_width: width, column: b * dim, weight };
+                for (rows, n, out) in [(bs, ns, &source), (bt, nt, &target)] {
+                    if n > 0 {
+                        let codewords = self.own(rows, "correspond")?.lock().codewords.clone();
+                        super::unit_rows::record(&mut rec, n, block, &codewords, out)?;
+                    }
+                }
+            }
+            rec.finish()?;
+            Ok((source, target))
+        })?;
+        self.match_buffers(&source, &target, (ns, nt, width), request.mode())
     }
 
     /// PC-FoldNet on the rows of `which` whose pose features are missing; the features stay on the device.

@@ -52,8 +52,8 @@ impl GpuBackend {
             _ => NormalSource::Estimate { k: settings.normal_neighbors, viewpoint: settings.viewpoint },
         };
         let device = self.run("start_scan", |_| match held {
-            Some(points) => DeviceCloud::from_buffer(gpu, points, host.len(), source, settings.radius),
-            None => DeviceCloud::new(gpu, &host.points, source, settings.radius),
+            Some(points) => DeviceCloud::from_buffer(gpu, points, host.len(), source, settings.largest_radius),
+            None => DeviceCloud::new(gpu, &host.points, source, settings.largest_radius),
         })?;
         if !given {
             host.normals = None;
@@ -69,7 +69,7 @@ impl ScanCloud for GpuScanCloud {
         &mut self,
         _backend: &dyn Backend,
         _cloud: &mut PointCloud,
-        keypoints: &[usize],
+        (keypoints, radius): (&[usize], f32),
         seed: u64,
         rows: &dyn ScanRows,
         lap: Lap<'_>,
@@ -85,7 +85,7 @@ impl ScanCloud for GpuScanCloud {
         lap("normals");
         let mut out = DescribedKeypoints::default();
         // Parts of the keypoints whose candidates fit a buffer, sampled and described in order.
-        self.cloud.sample_in_parts(&b.gpu, &ks, seed, 0, &mut |first, sampled| {
+        self.cloud.sample_in_parts(&b.gpu, (&ks, radius), seed, 0, &mut |first, sampled| {
             b.describe_sampled(&self.cloud, &sampled, rows)?;
             out.kept.extend(sampled.kept.iter().map(|&s| first + s));
             out.empty += sampled.empty.len();

@@ -2,7 +2,7 @@
 //! estimate the pose. `register` runs it all; `Registrar` exposes the steps for evaluation tools and keeps the
 //! model and backend loaded across pairs.
 
-use crate::backend::{Backend, CpuBackend, MatchedRows, MatchedSide, RowMatch, ScanSettings};
+use crate::backend::{Backend, ContextRows, CpuBackend, MatchedRows, MatchedSide, RowMatch, ScanRows, ScanSettings};
 use crate::cloud::PointCloud;
 use crate::cpu::gemm::Precision;
 use crate::error::{Error, Result};
@@ -13,6 +13,7 @@ use crate::preprocess::select_keypoints;
 use crate::rng::Rng;
 use crate::settings::*;
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Instant;
 
 mod scan;
@@ -229,6 +230,11 @@ impl Registrar {
         self.settings.inlier_threshold.unwrap_or(self.radius() * crate::settings::INLIER_THRESHOLD_PER_RADIUS)
     }
 
+    /// The context radii in use (cloud units) with their weights: the settings' factors times the radius.
+    pub fn context_radii(&self) -> Vec<(f32, f32)> {
+        self.settings.context_radii.iter().map(|c| (c.factor * self.radius(), c.weight)).collect()
+    }
+
     /// Preprocesses `cloud` and describes all its keypoints (`settings.keypoints`). `stream` separates the
     /// random choices of different scans under one seed (0 for the source, 1 for the target in `register`).
     /// Pose features are computed later, only for the keypoints an estimate needs.
@@ -255,6 +261,7 @@ impl Registrar {
         ScanSettings {
             voxel: self.voxel(cloud_has_normals),
             radius: self.radius(),
+            largest_radius: self.context_radii().into_iter().map(|(r, _)| r).fold(self.radius(), f32::max),
             points_per_patch: self.backend.model().config.points_per_patch,
             normal_neighbors: s.normal_neighbors,
             viewpoint,
@@ -305,6 +312,13 @@ impl Registrar {
             candidates: 0,
             empty_patches: 0,
             rows: self.backend.new_scan_rows(order.len())?,
+            context: self
+                .context_radii()
+                .into_iter()
+                .map(|(radius, weight)| {
+                    Ok(ContextRows { radius, weight, rows: self.backend.new_scan_rows(order.len())? })
+                })
+                .collect::<Result<_>>()?,
             held_points: scan_cloud.held_points(),
             timings: Vec::new(),
         };
@@ -329,11 +343,34 @@ impl Registrar {
         let described = scan.cloud.describe_keypoints(
             self.backend.as_ref(),
             &mut f.cloud,
-            &scan.order[from..to],
+            (&scan.order[from..to], self.radius()),
             scan.patch_seed,
             f.rows.as_ref(),
             &mut |stage| clock.lap(stage),
         )?;
+        if !f.context.is_empty() {
+            // The kept keypoints again, with larger patches: none is dropped, so the rows stay aligned.
+            let kept: Vec<usize> = described.kept.iter().map(|&pos| scan.order[from + pos]).collect();
+            for c in &f.context {
+                let again = scan.cloud.describe_keypoints(
+                    self.backend.as_ref(),
+                    &mut f.cloud,
+                    (&kept, c.radius),
+                    scan.patch_seed,
+                    c.rows.as_ref(),
+                    &mut |_| {},
+                )?;
+                if again.kept.len() != kept.len() {
+                    return Err(Error::invalid(format!(
+                        "context radius {}: {} of {} keypoints kept",
+                        c.radius,
+                        again.kept.len(),
+                        kept.len()
+                    )));
+                }
+            }
+            clock.lap("context_encoder");
+        }
         // Ranks of the kept keypoints: their positions in `scan.order[from..to]`.
         f.keypoint_ranks.extend(described.kept.iter().map(|&pos| (from + pos) as u32));
         f.keypoints.extend(described.centers);
@@ -364,15 +401,23 @@ impl Registrar {
     /// `scan` with its rows held by this registrar's backend: the same rows when the backend described them,
     /// else a copy moved to it (e.g. a scan unpickled with host rows, registered on a GPU).
     pub fn adopt(&self, scan: &ScanFeatures) -> Result<ScanFeatures> {
-        let rows = self.backend.adopt_rows(&scan.rows)?;
-        if rows.rows() != scan.keypoints.len() {
-            return Err(Error::invalid(format!(
-                "described scan: {} rows for {} keypoints",
-                rows.rows(),
-                scan.keypoints.len()
-            )));
-        }
-        Ok(ScanFeatures { rows, ..scan.clone() })
+        let adopt = |rows: &Arc<dyn ScanRows>| -> Result<Arc<dyn ScanRows>> {
+            let rows = self.backend.adopt_rows(rows)?;
+            if rows.rows() != scan.keypoints.len() {
+                return Err(Error::invalid(format!(
+                    "described scan: {} rows for {} keypoints",
+                    rows.rows(),
+                    scan.keypoints.len()
+                )));
+            }
+            Ok(rows)
+        };
+        let context = scan
+            .context
+            .iter()
+            .map(|c| Ok(ContextRows { rows: adopt(&c.rows)?, ..c.clone() }))
+            .collect::<Result<_>>()?;
+        Ok(ScanFeatures { rows: adopt(&scan.rows)?, context, ..scan.clone() })
     }
 
     /// Correspondences between two described scans (matching rule from the settings).
@@ -393,7 +438,8 @@ impl Registrar {
             (source.rows.as_ref(), source_rows),
             (target.rows.as_ref(), target_rows),
             self.settings.matching,
-        )?;
+        )?
+        .with_context(&source.context, &target.context)?;
         let matches = self.backend.correspond(request)?;
         Ok(matches
             .into_iter()

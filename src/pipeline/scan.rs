@@ -6,7 +6,7 @@
 //! K at once: the keypoint order is a prefix-stable seeded sample, each patch draws from its own stream (derived
 //! from its keypoint), and every network row depends only on its own patch.
 
-use crate::backend::{HeldPoints, ScanCloud, ScanRows};
+use crate::backend::{ContextRows, HeldPoints, ScanCloud, ScanRows};
 use crate::cloud::PointCloud;
 use crate::settings::StageTime;
 use std::sync::Arc;
@@ -33,6 +33,9 @@ pub struct ScanFeatures {
     /// codewords, PC-FoldNet's inputs and the pose features computed so far. Shared by clones; pairs that
     /// read one scan reuse them.
     pub rows: Arc<dyn ScanRows>,
+    /// The rows described at each context radius of the settings (row for row with `rows`; empty without
+    /// context radii): only their codewords are used, in matching. Shared by clones.
+    pub context: Vec<ContextRows>,
     /// The preprocessed points as the backend that prepared the scan holds them (the GPU backend: a device
     /// buffer; `None` on the host, where `cloud.points` are they), for stages after description (ICP) to read
     /// them where they are. Shared by clones.
