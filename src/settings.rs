@@ -128,6 +128,22 @@ pub struct RegistrationSettings {
     /// radius's with weight 1). Empty (the default): matching on the main radius's codewords as they are.
     /// The pose features stay the main radius's.
     pub context_radii: Vec<ContextRadius>,
+    /// Which rounds match on the context radii's codewords too (when there are context radii).
+    pub context_when: ContextWhen,
+}
+
+/// Which registration rounds match on the codewords of the context radii
+/// ([`RegistrationSettings::context_radii`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub enum ContextWhen {
+    /// Every round: correspondences always come from the codewords of every radius.
+    #[default]
+    Always,
+    /// Only a last round, run when no round matching on the main radius's codewords alone gave a trusted
+    /// result; it matches all keypoints on every radius. Pairs the main radius registers keep its result and
+    /// its speed (the context patches are described only for such a round, but `describe` describes them
+    /// always, so described scans can be registered either way).
+    Untrusted,
 }
 
 /// A context radius of [`RegistrationSettings::context_radii`].
@@ -278,6 +294,7 @@ impl Default for RegistrationSettings {
             backend: BackendKind::Auto,
             verdict: crate::verdict::VerdictSettings::default(),
             context_radii: Vec::new(),
+            context_when: ContextWhen::default(),
         }
     }
 }

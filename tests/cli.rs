@@ -119,6 +119,10 @@ fn bad_input_fails_with_one_line_and_never_overwrites_inputs() {
     assert_clean_failure(&dpr(&["register", s, t, "--weights", &weights, "--radius=-1"]), "radius");
     assert_clean_failure(&dpr(&["register", s, t, "--weights", &weights, "--mutual", "7"]), "mutual");
     assert_clean_failure(&dpr(&["register", s, t, "--weights", &weights, "--estimator", "magic"]), "magic");
+    assert_clean_failure(&dpr(&["register", s, t, "--weights", &weights, "--context-radius", "2"]), "FACTOR:WEIGHT");
+    assert_clean_failure(&dpr(&["register", s, t, "--weights", &weights, "--context-radius", "0.5:1"]), "factor");
+    let when = ["register", s, t, "--weights", &weights, "--context-radius", "2:1", "--context-when", "sometimes"];
+    assert_clean_failure(&dpr(&when), "sometimes");
     // A radius far too small for the cloud's units: no patch has neighbours.
     assert_clean_failure(&dpr(&["register", s, t, "--weights", &weights, "--radius", "0.00001"]), "radius");
 

@@ -1484,7 +1484,7 @@ fn device_context_radii_match_cpu() {
     use dpr_gpu::settings::ContextRadius;
     let Some(g) = gpu() else { return };
     let s = seed(78);
-    let (gpu_b, cpu_b) = backends_for(g, small_model(s));
+    let (gpu_b, cpu_b) = backends_for(Arc::clone(&g), small_model(s));
     let settings = dpr_gpu::RegistrationSettings {
         keypoints: 70,
         radius: Some(0.3),
@@ -1525,6 +1525,23 @@ fn device_context_radii_match_cpu() {
         got.len(),
         want.len()
     );
+    // Described only for a last round (`ContextWhen::Untrusted`, a verdict nothing passes, three rounds
+    // before it): the same keypoints and context rows as describing them with the main patches.
+    let lazy = dpr_gpu::RegistrationSettings {
+        context_when: dpr_gpu::settings::ContextWhen::Untrusted,
+        first_keypoints: Some(20),
+        verdict: dpr_gpu::verdict::VerdictSettings { min_inliers: usize::MAX, ..Default::default() },
+        ..settings.clone()
+    };
+    let (gpu_b, _) = backends_for(g, small_model(s));
+    let registered =
+        dpr_gpu::Registrar::with_backend(&lazy, Box::new(gpu_b)).unwrap().register_detailed(&source, &target).unwrap();
+    for (g_scan, c_scan) in [(&registered.source, &cs), (&registered.target, &ct)] {
+        assert_eq!(g_scan.keypoint_ranks, c_scan.keypoint_ranks, "lazy context, seed {s}");
+        let (gc, cc) =
+            (g_scan.context[0].rows.read_codewords().unwrap(), c_scan.context[0].rows.read_codewords().unwrap());
+        assert_close("lazily described context codewords", s, &gc, &cc, |_| rtol * max_abs(&cc).max(1.0));
+    }
 }
 
 fn main() -> std::process::ExitCode {

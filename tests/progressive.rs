@@ -98,3 +98,74 @@ fn pose_features_computed_on_demand_do_not_depend_on_which_rows_came_first() {
     assert!(everything_at_once.iter().all(|v| v.is_finite()));
     assert!(r.pose_features(&a, &[rows]).is_err());
 }
+
+/// `ContextWhen::Untrusted`: rounds on the main radius's codewords alone, then, only while untrusted, one round
+/// on every radius over all keypoints, which must be exactly what matching on every radius from the start
+/// (`ContextWhen::Always`, keypoints described at once) gives; a pair trusted early never describes the context
+/// patches and gets exactly the result without context radii.
+#[test]
+fn context_radii_only_when_untrusted_add_one_round_on_every_radius() {
+    use dpr_gpu::settings::{ContextRadius, ContextWhen};
+    let (source, target, _) = common::room_pair(4, 4000);
+    let weights = tiny_weights();
+    let context = vec![ContextRadius { factor: 2.0, weight: 1.0 }];
+    let never = VerdictSettings { min_inliers: usize::MAX, ..VerdictSettings::default() };
+    for estimator in [Estimator::RelativeNet, Estimator::Ransac] {
+        let base = RegistrationSettings { keypoints: 120, estimator, verdict: never, ..Default::default() };
+        let lazy = RegistrationSettings {
+            first_keypoints: Some(40),
+            context_radii: context.clone(),
+            context_when: ContextWhen::Untrusted,
+            ..base.clone()
+        };
+        let always = RegistrationSettings {
+            first_keypoints: None,
+            context_radii: context.clone(),
+            context_when: ContextWhen::Always,
+            ..base.clone()
+        };
+        let main_only = RegistrationSettings { first_keypoints: None, ..base.clone() };
+        let a = registrar(&lazy, &weights).register_detailed(&source, &target).unwrap();
+        let b = registrar(&always, &weights).register_detailed(&source, &target).unwrap();
+        let c = registrar(&main_only, &weights).register_detailed(&source, &target).unwrap();
+        assert_eq!(a.result.estimate.target_from_source, b.result.estimate.target_from_source, "{estimator:?}");
+        assert_eq!(a.correspondences, b.correspondences);
+        assert_ne!(a.correspondences, c.correspondences, "the last round matched on the context radius too");
+        assert_eq!(
+            a.source.context[0].rows.read_codewords().unwrap(),
+            b.source.context[0].rows.read_codewords().unwrap()
+        );
+        // Rounds at 40, 80 and 120 keypoints, then the context round: four matchings, one context description
+        // per scan.
+        assert_eq!(a.result.timings.iter().filter(|t| t.stage == "matching").count(), 4);
+        assert_eq!(a.result.timings.iter().filter(|t| t.stage.ends_with("context_encoder")).count(), 2);
+        // Scans described in full (`eval`) give the same rounds.
+        let r = registrar(&lazy, &weights);
+        let (s, t) = (r.describe(&source, 0).unwrap(), r.describe(&target, 1).unwrap());
+        let round = r.register_described(&s, &t, estimator).unwrap();
+        assert_eq!(round.estimate.target_from_source, a.result.estimate.target_from_source);
+        let once = r.register_described_at_once(&s, &t, estimator).unwrap();
+        assert_eq!(once.correspondences, a.correspondences);
+    }
+
+    // Trusted in an early round (the pair of `a_trusted_early_round_is_the_direct_result_at_its_keypoints`):
+    // no context round and no context description; the result of the main radius alone.
+    let (source, target, _) = common::room_pair(8, 4000);
+    let lenient = VerdictSettings { min_inliers: 3, min_inlier_ratio: 0.0, min_spread_over_threshold: 0.0 };
+    let base = RegistrationSettings {
+        keypoints: 320,
+        first_keypoints: Some(40),
+        voxel: Some(0.0),
+        estimator: Estimator::Ransac,
+        verdict: lenient,
+        ..Default::default()
+    };
+    let lazy = RegistrationSettings { context_radii: context, context_when: ContextWhen::Untrusted, ..base.clone() };
+    let a = registrar(&lazy, &weights).register_detailed(&source, &target).unwrap();
+    let c = registrar(&base, &weights).register_detailed(&source, &target).unwrap();
+    assert!(a.result.success, "{:?}", a.result.reason);
+    assert_eq!(a.result.estimate.target_from_source, c.result.estimate.target_from_source);
+    assert_eq!(a.correspondences, c.correspondences);
+    assert!(a.result.timings.iter().all(|t| !t.stage.ends_with("context_encoder")));
+    assert_eq!(a.source.context[0].rows.rows(), 0);
+}

@@ -107,6 +107,7 @@ impl SettingsArgs {
             },
             // Context radii are not exposed to Python yet: its pickled scans carry the main radius's rows only.
             context_radii: Vec::new(),
+            context_when: Default::default(),
         })
     }
 }

@@ -80,6 +80,10 @@ pub struct RegisterOptions {
     /// repeatable, e.g. --context-radius 2:1. The pose features stay the main radius's.
     #[arg(long, value_name = "FACTOR:WEIGHT")]
     pub context_radius: Vec<String>,
+    /// Which rounds match on the context radii too: always, or untrusted (only a last round on all keypoints,
+    /// run when matching on the main radius alone gave no trusted result).
+    #[arg(long, value_name = "WHEN", default_value = "always")]
+    pub context_when: String,
     /// Verdict: fewest inliers for a trusted result.
     #[arg(long, default_value_t = crate::verdict::VerdictSettings::default().min_inliers)]
     pub min_inliers: usize,
@@ -145,6 +149,11 @@ impl RegisterOptions {
             other => bail!("unknown backend '{other}' (expected cpu, gpu or auto)"),
         };
         s.context_radii = self.context_radius.iter().map(|c| parse_context_radius(c)).collect::<anyhow::Result<_>>()?;
+        s.context_when = match self.context_when.as_str() {
+            "always" => ContextWhen::Always,
+            "untrusted" => ContextWhen::Untrusted,
+            other => bail!("unknown --context-when '{other}' (expected always or untrusted)"),
+        };
         s.ransac.max_iterations = self.ransac_iterations.max(1);
         s.verdict = crate::verdict::VerdictSettings {
             min_inliers: self.min_inliers,

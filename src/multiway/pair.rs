@@ -7,7 +7,7 @@
 
 use crate::eval::groundtruth::{PreparedFragment, correspondence_points};
 use crate::eval::metrics::information_matrix;
-use crate::pipeline::{Registrar, ScanFeatures};
+use crate::pipeline::{Registrar, Round, ScanFeatures};
 use crate::rng::Rng;
 use nalgebra::{Matrix4, Matrix6};
 use serde::{Deserialize, Serialize};
@@ -100,13 +100,9 @@ pub fn register_pair(
     information: &InformationSettings,
 ) -> PairResult {
     let started = std::time::Instant::now();
-    let attempt = registrar.correspond(source, target).and_then(|c| {
-        let estimate = registrar.estimate(source, target, &c, registrar.settings.estimator)?;
-        Ok((estimate, c))
-    });
+    let attempt = registrar.register_described_at_once(source, target, registrar.settings.estimator);
     let (t, inliers, fitness, rmse, correspondences, trusted, reason, info) = match attempt {
-        Ok((estimate, c)) => {
-            let verdict = registrar.judge(&estimate, &c);
+        Ok(Round { estimate, correspondences: c, verdict, .. }) => {
             let e = &estimate;
             let t = e.target_from_source;
             let info = edge_information(prepared_target, prepared_source, &t, (i, j), information);

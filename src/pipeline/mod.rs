@@ -249,6 +249,7 @@ impl Registrar {
         let mut clock = Stopwatch::new(self.progress_for(stream));
         let mut scan = self.start_description(cloud, stream, viewpoint, &mut clock)?;
         self.extend_description(&mut scan, self.settings.keypoints, &mut clock)?;
+        self.describe_context(&mut scan, &mut clock)?;
         self.complete_normals(&mut scan)?;
         clock.lap("remaining_normals");
         scan.features.timings = clock.timings;
@@ -348,29 +349,6 @@ impl Registrar {
             f.rows.as_ref(),
             &mut |stage| clock.lap(stage),
         )?;
-        if !f.context.is_empty() {
-            // The kept keypoints again, with larger patches: none is dropped, so the rows stay aligned.
-            let kept: Vec<usize> = described.kept.iter().map(|&pos| scan.order[from + pos]).collect();
-            for c in &f.context {
-                let again = scan.cloud.describe_keypoints(
-                    self.backend.as_ref(),
-                    &mut f.cloud,
-                    (&kept, c.radius),
-                    scan.patch_seed,
-                    c.rows.as_ref(),
-                    &mut |_| {},
-                )?;
-                if again.kept.len() != kept.len() {
-                    return Err(Error::invalid(format!(
-                        "context radius {}: {} of {} keypoints kept",
-                        c.radius,
-                        again.kept.len(),
-                        kept.len()
-                    )));
-                }
-            }
-            clock.lap("context_encoder");
-        }
         // Ranks of the kept keypoints: their positions in `scan.order[from..to]`.
         f.keypoint_ranks.extend(described.kept.iter().map(|&pos| (from + pos) as u32));
         f.keypoints.extend(described.centers);
@@ -382,6 +360,40 @@ impl Registrar {
                 "no keypoint has a neighbour within radius {}: is the radius right for the cloud's units?",
                 self.radius()
             )));
+        }
+        if self.settings.context_when == ContextWhen::Always {
+            self.describe_context(scan, clock)?;
+        }
+        Ok(())
+    }
+
+    /// Describes the kept keypoints of `scan` that have no context rows yet again at every context radius.
+    /// None is dropped (a larger patch holds every point of the main one), so the rows stay aligned.
+    fn describe_context(&self, scan: &mut DescribingScan, clock: &mut Stopwatch<'_>) -> Result<()> {
+        let f = &mut scan.features;
+        for c in &f.context {
+            let kept: Vec<usize> =
+                f.keypoint_ranks[c.rows.rows()..].iter().map(|&rank| scan.order[rank as usize]).collect();
+            if kept.is_empty() {
+                continue;
+            }
+            let again = scan.cloud.describe_keypoints(
+                self.backend.as_ref(),
+                &mut f.cloud,
+                (&kept, c.radius),
+                scan.patch_seed,
+                c.rows.as_ref(),
+                &mut |_| {},
+            )?;
+            if again.kept.len() != kept.len() {
+                return Err(Error::invalid(format!(
+                    "context radius {}: {} of {} keypoints kept",
+                    c.radius,
+                    again.kept.len(),
+                    kept.len()
+                )));
+            }
+            clock.lap("context_encoder");
         }
         Ok(())
     }
@@ -421,25 +433,27 @@ impl Registrar {
     }
 
     /// Correspondences between two described scans (matching rule from the settings).
+    /// On the codewords of every radius, whatever [`ContextWhen`] says.
     pub fn correspond(&self, source: &ScanFeatures, target: &ScanFeatures) -> Result<Vec<Correspondence>> {
-        self.correspond_rows(source, source.keypoints.len(), target, target.keypoints.len())
+        self.correspond_rows(source, source.keypoints.len(), target, target.keypoints.len(), true)
     }
 
     /// Correspondences between the first `source_rows` keypoints of `source` and the first `target_rows` of
-    /// `target`.
+    /// `target`, on the context radii's codewords too when `context`.
     fn correspond_rows(
         &self,
         source: &ScanFeatures,
         source_rows: usize,
         target: &ScanFeatures,
         target_rows: usize,
+        context: bool,
     ) -> Result<Vec<Correspondence>> {
         let request = RowMatch::new(
             (source.rows.as_ref(), source_rows),
             (target.rows.as_ref(), target_rows),
             self.settings.matching,
-        )?
-        .with_context(&source.context, &target.context)?;
+        )?;
+        let request = if context { request.with_context(&source.context, &target.context)? } else { request };
         let matches = self.backend.correspond(request)?;
         Ok(matches
             .into_iter()
@@ -534,18 +548,28 @@ impl Registrar {
         keypoint_stages(self.settings.first_keypoints, self.settings.keypoints)
     }
 
-    /// One round: correspondences among the first `keypoints` keypoints of each scan, the pose, its verdict.
+    /// Whether every round matches on the context radii too (else only [`Registrar::context_round`]).
+    fn context_in_every_round(&self) -> bool {
+        self.settings.context_when == ContextWhen::Always
+    }
+
+    /// Whether the rounds of `outcome` call for the last round of [`ContextWhen::Untrusted`].
+    fn needs_context_round(&self, outcome: &stages::Outcome) -> bool {
+        !self.settings.context_radii.is_empty() && !self.context_in_every_round() && !outcome.trusted()
+    }
+
+    /// One round: correspondences among the first `keypoints` keypoints of each scan (on the context radii's
+    /// codewords too when `context`), the pose, its verdict.
     fn round(
         &self,
-        source: &ScanFeatures,
-        target: &ScanFeatures,
+        (source, target): (&ScanFeatures, &ScanFeatures),
         keypoints: usize,
-        estimator: Estimator,
+        (estimator, context): (Estimator, bool),
         clock: &mut Stopwatch<'_>,
     ) -> Result<Round> {
         clock.scope = "";
         let (sr, tr) = (source.rows_within(keypoints), target.rows_within(keypoints));
-        let correspondences = self.correspond_rows(source, sr, target, tr)?;
+        let correspondences = self.correspond_rows(source, sr, target, tr, context)?;
         clock.lap("matching");
         if estimator == Estimator::RelativeNet {
             // Computed here (and kept in the scans) to time PC-FoldNet on its own.
@@ -574,15 +598,39 @@ impl Registrar {
         let mut clock = Stopwatch::new(None);
         let mut outcome = stages::Outcome::default();
         let mut rows = None;
-        for k in self.keypoint_stages() {
+        let stages = self.keypoint_stages();
+        let every = self.context_in_every_round();
+        for &k in &stages {
             let now = (source.rows_within(k), target.rows_within(k));
             if rows == Some(now) {
                 continue;
             }
             rows = Some(now);
-            if outcome.offer(self.round(source, target, k, estimator, &mut clock)) {
+            if outcome.offer(self.round((source, target), k, (estimator, every), &mut clock)) {
                 break;
             }
+        }
+        if self.needs_context_round(&outcome) {
+            outcome.offer(self.round((source, target), stages[stages.len() - 1], (estimator, true), &mut clock));
+        }
+        outcome.finish()
+    }
+
+    /// One round on all keypoints of two described scans (and the round on the context radii too when
+    /// [`ContextWhen::Untrusted`] calls for it): the result of [`Registrar::register_described`] without the
+    /// progressive schedule.
+    pub fn register_described_at_once(
+        &self,
+        source: &ScanFeatures,
+        target: &ScanFeatures,
+        estimator: Estimator,
+    ) -> Result<Round> {
+        let mut clock = Stopwatch::new(None);
+        let mut outcome = stages::Outcome::default();
+        let all = source.candidates.max(target.candidates);
+        outcome.offer(self.round((source, target), all, (estimator, self.context_in_every_round()), &mut clock));
+        if self.needs_context_round(&outcome) {
+            outcome.offer(self.round((source, target), all, (estimator, true), &mut clock));
         }
         outcome.finish()
     }
@@ -604,7 +652,9 @@ impl Registrar {
         let mut tgt = self.start_description(target, 1, viewpoint, &mut clock).map_err(|e| prefix("target", e))?;
         let mut outcome = stages::Outcome::default();
         let mut rows = None;
-        for k in self.keypoint_stages() {
+        let stages = self.keypoint_stages();
+        let plan = (self.settings.estimator, self.context_in_every_round());
+        for &k in &stages {
             clock.scope = "source.";
             self.extend_description(&mut src, k, &mut clock).map_err(|e| prefix("source", e))?;
             clock.scope = "target.";
@@ -614,10 +664,18 @@ impl Registrar {
                 continue;
             }
             rows = Some(now);
-            let round = self.round(&src.features, &tgt.features, k, self.settings.estimator, &mut clock);
-            if outcome.offer(round) {
+            if outcome.offer(self.round((&src.features, &tgt.features), k, plan, &mut clock)) {
                 break;
             }
+        }
+        if self.needs_context_round(&outcome) {
+            clock.scope = "source.";
+            self.describe_context(&mut src, &mut clock).map_err(|e| prefix("source", e))?;
+            clock.scope = "target.";
+            self.describe_context(&mut tgt, &mut clock).map_err(|e| prefix("target", e))?;
+            let last = stages[stages.len() - 1];
+            let estimator = self.settings.estimator;
+            outcome.offer(self.round((&src.features, &tgt.features), last, (estimator, true), &mut clock));
         }
         let round = outcome.finish()?;
         for scan in [&mut src, &mut tgt] {

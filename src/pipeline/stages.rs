@@ -58,6 +58,11 @@ impl Outcome {
         }
     }
 
+    /// Whether a round so far is trusted.
+    pub(crate) fn trusted(&self) -> bool {
+        self.latest.as_ref().is_some_and(|r| r.verdict.success)
+    }
+
     /// The round to report.
     pub(crate) fn finish(self) -> Result<Round> {
         match (self.latest, self.error) {
