@@ -7,7 +7,7 @@ mod common;
 use dpr_gpu::model::Weights;
 use dpr_gpu::settings::Estimator;
 use dpr_gpu::verdict::VerdictSettings;
-use dpr_gpu::{Registrar, RegistrationSettings};
+use dpr_gpu::{PointCloud, Registrar, RegistrationSettings};
 
 fn tiny_weights() -> Weights {
     Weights::init(&common::tiny_config(), 3).unwrap()
@@ -40,15 +40,12 @@ fn a_pair_that_needs_every_round_ends_with_the_direct_result() {
     }
 }
 
-#[test]
-fn a_trusted_early_round_is_the_direct_result_at_its_keypoints() {
-    // A verdict that trusts any pose with a handful of inliers: the schedule stops at an early round (on this
-    // pair, with these tiny random weights, after the third of four rounds).
+/// A pair and settings on which the schedule stops at an early round with the tiny random weights: a verdict
+/// that trusts any pose with a handful of inliers, every point kept (the round was found on the full cloud).
+fn early_stopping_pair() -> (PointCloud, PointCloud, RegistrationSettings) {
     let (source, target, _) = common::room_pair(8, 4000);
-    let weights = tiny_weights();
     let lenient = VerdictSettings { min_inliers: 3, min_inlier_ratio: 0.0, min_spread_over_threshold: 0.0 };
-    // Every point kept (the round it stops at was found on the full cloud).
-    let base = RegistrationSettings {
+    let settings = RegistrationSettings {
         keypoints: 320,
         first_keypoints: Some(40),
         voxel: Some(0.0),
@@ -56,6 +53,15 @@ fn a_trusted_early_round_is_the_direct_result_at_its_keypoints() {
         verdict: lenient,
         ..Default::default()
     };
+    (source, target, settings)
+}
+
+#[test]
+fn a_trusted_early_round_is_the_direct_result_at_its_keypoints() {
+    // A verdict that trusts any pose with a handful of inliers: the schedule stops at an early round (on this
+    // pair, with these tiny random weights, after the third of four rounds).
+    let (source, target, base) = early_stopping_pair();
+    let weights = tiny_weights();
     let staged = registrar(&base, &weights).register_detailed(&source, &target).unwrap();
     assert!(staged.result.success, "{:?}", staged.result.reason);
     let k = staged.result.keypoints;
@@ -150,16 +156,7 @@ fn context_radii_only_when_untrusted_add_one_round_on_every_radius() {
 
     // Trusted in an early round (the pair of `a_trusted_early_round_is_the_direct_result_at_its_keypoints`):
     // no context round and no context description; the result of the main radius alone.
-    let (source, target, _) = common::room_pair(8, 4000);
-    let lenient = VerdictSettings { min_inliers: 3, min_inlier_ratio: 0.0, min_spread_over_threshold: 0.0 };
-    let base = RegistrationSettings {
-        keypoints: 320,
-        first_keypoints: Some(40),
-        voxel: Some(0.0),
-        estimator: Estimator::Ransac,
-        verdict: lenient,
-        ..Default::default()
-    };
+    let (source, target, base) = early_stopping_pair();
     let lazy = RegistrationSettings { context_radii: context, context_when: ContextWhen::Untrusted, ..base.clone() };
     let a = registrar(&lazy, &weights).register_detailed(&source, &target).unwrap();
     let c = registrar(&base, &weights).register_detailed(&source, &target).unwrap();

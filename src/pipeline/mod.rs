@@ -610,10 +610,7 @@ impl Registrar {
                 break;
             }
         }
-        if self.needs_context_round(&outcome) {
-            outcome.offer(self.round((source, target), stages[stages.len() - 1], (estimator, true), &mut clock));
-        }
-        outcome.finish()
+        self.conclude(outcome, (source, target), stages[stages.len() - 1], estimator, &mut clock)
     }
 
     /// One round on all keypoints of two described scans (and the round on the context radii too when
@@ -629,8 +626,21 @@ impl Registrar {
         let mut outcome = stages::Outcome::default();
         let all = source.candidates.max(target.candidates);
         outcome.offer(self.round((source, target), all, (estimator, self.context_in_every_round()), &mut clock));
+        self.conclude(outcome, (source, target), all, estimator, &mut clock)
+    }
+
+    /// The result of the rounds in `outcome`, after the round on every radius over `keypoints` keypoints when
+    /// [`ContextWhen::Untrusted`] calls for it (the scans' context rows are described already).
+    fn conclude(
+        &self,
+        mut outcome: stages::Outcome,
+        scans: (&ScanFeatures, &ScanFeatures),
+        keypoints: usize,
+        estimator: Estimator,
+        clock: &mut Stopwatch<'_>,
+    ) -> Result<Round> {
         if self.needs_context_round(&outcome) {
-            outcome.offer(self.round((source, target), all, (estimator, true), &mut clock));
+            outcome.offer(self.round(scans, keypoints, (estimator, true), clock));
         }
         outcome.finish()
     }
