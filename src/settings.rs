@@ -140,10 +140,9 @@ pub enum ContextWhen {
     #[default]
     Always,
     /// Only a last round, run when no round matching on the main radius's codewords alone gave a trusted
-    /// result; it matches all keypoints on every radius, and its pose replaces the last round's when it is
-    /// trusted or has more inliers. Pairs the main radius registers keep its result and its speed (the context
-    /// patches are described only for such a round, but `describe` describes them always, so described scans
-    /// can be registered either way).
+    /// result; it matches all keypoints on every radius. Pairs the main radius registers keep its result and
+    /// its speed (the context patches are described only for such a round, but `describe` describes them
+    /// always, so described scans can be registered either way).
     Untrusted,
 }
 

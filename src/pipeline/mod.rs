@@ -640,7 +640,7 @@ impl Registrar {
         clock: &mut Stopwatch<'_>,
     ) -> Result<Round> {
         if self.needs_context_round(&outcome) {
-            outcome.offer_alternative(self.round(scans, keypoints, (estimator, true), clock));
+            outcome.offer(self.round(scans, keypoints, (estimator, true), clock));
         }
         outcome.finish()
     }
@@ -685,7 +685,7 @@ impl Registrar {
             self.describe_context(&mut tgt, &mut clock).map_err(|e| prefix("target", e))?;
             let last = stages[stages.len() - 1];
             let estimator = self.settings.estimator;
-            outcome.offer_alternative(self.round((&src.features, &tgt.features), last, (estimator, true), &mut clock));
+            outcome.offer(self.round((&src.features, &tgt.features), last, (estimator, true), &mut clock));
         }
         let round = outcome.finish()?;
         for scan in [&mut src, &mut tgt] {

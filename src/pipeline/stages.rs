@@ -58,19 +58,6 @@ impl Outcome {
         }
     }
 
-    /// Takes a round that matched the same keypoints another way (the round on every context radius of
-    /// `ContextWhen::Untrusted`): it replaces the round so far only when it is trusted or has more inliers, so a
-    /// fallback never trades a better supported pose for a worse one. True when it is trusted.
-    pub(crate) fn offer_alternative(&mut self, round: Result<Round>) -> bool {
-        if let (Some(kept), Ok(r)) = (&self.latest, &round)
-            && !r.verdict.success
-            && r.estimate.inliers <= kept.estimate.inliers
-        {
-            return false;
-        }
-        self.offer(round)
-    }
-
     /// Whether a round so far is trusted.
     pub(crate) fn trusted(&self) -> bool {
         self.latest.as_ref().is_some_and(|r| r.verdict.success)
@@ -89,50 +76,6 @@ impl Outcome {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn round(inliers: usize, trusted: bool) -> Result<Round> {
-        let estimate = PoseEstimate {
-            target_from_source: nalgebra::Matrix4::identity(),
-            inliers,
-            inlier_rmse: 0.0,
-            fitness: 0.0,
-            hypotheses_scored: inliers,
-        };
-        let verdict = if trusted { Verdict { success: true, reason: None } } else { Verdict::fail("few inliers") };
-        Ok(Round { keypoints: 10, correspondences: Vec::new(), estimate, verdict })
-    }
-
-    fn inliers(outcome: Outcome) -> usize {
-        outcome.finish().unwrap().estimate.inliers
-    }
-
-    #[test]
-    fn an_alternative_round_replaces_an_untrusted_one_only_when_trusted_or_better_supported() {
-        let untrusted_five = || {
-            let mut o = Outcome::default();
-            assert!(!o.offer(round(5, false)));
-            o
-        };
-        let mut o = untrusted_five();
-        assert!(!o.offer_alternative(round(4, false)));
-        assert_eq!(inliers(o), 5, "fewer inliers: the first round stays");
-        let mut o = untrusted_five();
-        assert!(!o.offer_alternative(round(5, false)));
-        assert_eq!(inliers(o), 5, "a tie: the first round stays");
-        let mut o = untrusted_five();
-        assert!(!o.offer_alternative(round(6, false)));
-        assert_eq!(inliers(o), 6, "more inliers: the alternative");
-        let mut o = untrusted_five();
-        assert!(o.offer_alternative(round(3, true)));
-        assert_eq!(inliers(o), 3, "trusted: the alternative");
-        let mut o = untrusted_five();
-        assert!(!o.offer_alternative(Err(Error::invalid("no correspondences"))));
-        assert_eq!(inliers(o), 5, "a failed alternative keeps the pose");
-        let mut o = Outcome::default();
-        assert!(!o.offer(Err(Error::invalid("no correspondences"))));
-        assert!(!o.offer_alternative(round(1, false)));
-        assert_eq!(inliers(o), 1, "no pose before: the alternative's");
-    }
 
     #[test]
     fn stages_double_from_the_first_count_and_end_at_the_keypoints() {
