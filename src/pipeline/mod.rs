@@ -548,7 +548,7 @@ impl Registrar {
         keypoint_stages(self.settings.first_keypoints, self.settings.keypoints)
     }
 
-    /// Whether every round matches on the context radii too (else only [`Registrar::context_round`]).
+    /// Whether every round matches on the context radii too (else only the last round of [`ContextWhen::Untrusted`]).
     fn context_in_every_round(&self) -> bool {
         self.settings.context_when == ContextWhen::Always
     }
@@ -683,11 +683,9 @@ impl Registrar {
             self.describe_context(&mut src, &mut clock).map_err(|e| prefix("source", e))?;
             clock.scope = "target.";
             self.describe_context(&mut tgt, &mut clock).map_err(|e| prefix("target", e))?;
-            let last = stages[stages.len() - 1];
-            let estimator = self.settings.estimator;
-            outcome.offer(self.round((&src.features, &tgt.features), last, (estimator, true), &mut clock));
         }
-        let round = outcome.finish()?;
+        let (scans, last) = ((&src.features, &tgt.features), stages[stages.len() - 1]);
+        let round = self.conclude(outcome, scans, last, self.settings.estimator, &mut clock)?;
         for scan in [&mut src, &mut tgt] {
             if !scan.cloud.normals_complete() {
                 // Normals were estimated only where patches needed them.
