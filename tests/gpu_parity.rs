@@ -1374,49 +1374,63 @@ fn device_register_matches_cpu_register() {
 /// two tables and the 28-term normal equations per iteration. The bound below is counted from those sizes,
 /// with no term in the cloud size, and the clouds are large enough that one readback of a cloud's points or
 /// normals would exceed it. Up, each cloud's points cross once (normals are estimated on the device, ICP
-/// reads the points the scans left there), plus per-keypoint arrays and grid words.
+/// reads the points the scans left there), plus per-keypoint arrays and grid words. Checked for one round on
+/// the main radius alone, and for an untrusted pair's two (the main radius's, then the context round, whose
+/// patches are described from the points already on the device): twice the per-round terms.
 fn device_register_reads_back_no_per_point_data() {
     let Some(g) = gpu() else { return };
     let s = seed(76);
-    let model = small_model(s);
-    let backend = GpuBackend::with_gpu(Arc::clone(&g), model).unwrap();
     let (k, n_points) = (40u64, 12_000);
     // Every point kept: by default a cloud without normals is voxel-downsampled, and the downsampled cloud is
     // read back once as part of the result (`device_voxel_scan_is_described_in_place` counts that case).
-    let settings = dpr_gpu::RegistrationSettings {
+    let main_only = dpr_gpu::RegistrationSettings {
         keypoints: k as usize,
         first_keypoints: None,
+        context_radii: Vec::new(),
         voxel: Some(0.0),
         estimator: dpr_gpu::Estimator::Ransac,
         viewpoint: ROOM_VIEWPOINT,
         seed: s,
         ..Default::default()
     };
-    let icp = settings.icp.expect("ICP is on by default");
+    // The default context radius, and a verdict nothing passes: the context round runs.
+    let untrusted = dpr_gpu::RegistrationSettings {
+        context_radii: dpr_gpu::settings::DEFAULT_CONTEXT_RADII.to_vec(),
+        context_when: dpr_gpu::settings::ContextWhen::Untrusted,
+        verdict: dpr_gpu::verdict::VerdictSettings { min_inliers: usize::MAX, ..Default::default() },
+        ..main_only.clone()
+    };
     let (source, target, _) = common::room_pair(s, n_points);
-    let r = dpr_gpu::Registrar::with_backend(&settings, Box::new(backend)).unwrap();
-    let before = g.context.transfers();
-    let result = r.register(&source, &target).unwrap();
-    let moved = g.context.transfers().since(before);
-    let n = (source.len() + target.len()) as u64;
-    let block = dpr_gpu::cpu::patch_sample::BLOCK_CELLS as u64;
-    let k_max = dpr_gpu::gpu::mutual_knn::K_MAX as u64;
-    // Per scan: grid words and status of two cell tables (radius cells; kNN cells for the normals).
-    let meta = 2 * (32 + 4);
-    // ICP, once (one round): grid words of the target's two tables, then 28 f32 sums per iteration.
-    let (icp_down, icp_up) = (meta + 4 * 28 * icp.max_iterations as u64, 2 * (32 + 4));
-    let down_bound = 2 * (meta + k * (4 * block + 24)) + 3 * 4 * k_max * k + icp_down;
-    let up_bound = 12 * n + 2 * (2 * (32 + 4) + k * (4 + 4 * block + 2 * 16)) + icp_up;
-    assert!(result.correspondences >= 3, "seed {s}");
-    assert!(moved.device_to_host_bytes <= down_bound, "{} bytes down, bound {down_bound}", moved.device_to_host_bytes);
-    assert!(down_bound < 12 * source.len().min(target.len()) as u64, "the clouds are too small to tell");
-    assert!(moved.host_to_device_bytes <= up_bound, "{} bytes up, bound {up_bound}", moved.host_to_device_bytes);
-    eprintln!(
-        "device register of {n} points, {k} keypoints per scan: {} bytes up (points: {}), {} bytes down",
-        moved.host_to_device_bytes,
-        12 * n,
-        moved.device_to_host_bytes
-    );
+    for (settings, rounds) in [(main_only, 1u64), (untrusted, 2)] {
+        let icp = settings.icp.expect("ICP is on by default");
+        let backend = GpuBackend::with_gpu(Arc::clone(&g), small_model(s)).unwrap();
+        let r = dpr_gpu::Registrar::with_backend(&settings, Box::new(backend)).unwrap();
+        let before = g.context.transfers();
+        let result = r.register_detailed(&source, &target).unwrap();
+        let moved = g.context.transfers().since(before);
+        let context_described = result.source.context.first().map_or(0, |c| c.rows.rows());
+        assert_eq!(context_described > 0, rounds == 2, "the context round ran only when asked (seed {s})");
+        let n = (source.len() + target.len()) as u64;
+        let block = dpr_gpu::cpu::patch_sample::BLOCK_CELLS as u64;
+        let k_max = dpr_gpu::gpu::mutual_knn::K_MAX as u64;
+        // Per scan: grid words and status of two cell tables (radius cells; kNN cells for the normals).
+        let meta = 2 * (32 + 4);
+        // ICP, per round: grid words of the target's two tables, then 28 f32 sums per iteration.
+        let (icp_down, icp_up) = (meta + 4 * 28 * icp.max_iterations as u64, 2 * (32 + 4));
+        let down_bound = rounds * (2 * (meta + k * (4 * block + 24)) + 3 * 4 * k_max * k + icp_down);
+        let up_bound = 12 * n + rounds * (2 * (2 * (32 + 4) + k * (4 + 4 * block + 2 * 16)) + icp_up);
+        assert!(result.result.correspondences >= 3, "seed {s}");
+        let down = moved.device_to_host_bytes;
+        assert!(down <= down_bound, "{rounds} round(s): {down} bytes down, bound {down_bound}");
+        assert!(down_bound < 12 * source.len().min(target.len()) as u64, "the clouds are too small to tell");
+        let up = moved.host_to_device_bytes;
+        assert!(up <= up_bound, "{rounds} round(s): {up} bytes up, bound {up_bound}");
+        eprintln!(
+            "device register of {n} points, {k} keypoints per scan, {rounds} round(s): {up} bytes up (points: {}), \
+             {down} bytes down",
+            12 * n
+        );
+    }
 }
 
 /// `--voxel` on the device: the scan is described from the downsampling's output buffer in place, bit for bit

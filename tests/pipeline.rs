@@ -356,6 +356,7 @@ fn context_radii_match_on_weighted_unit_codewords_of_every_radius() {
         first_keypoints: None,
         voxel: Some(0.0),
         radius: Some(0.3),
+        context_radii: Vec::new(),
         ..Default::default()
     };
     let context = vec![ContextRadius { factor: 2.0, weight: 0.7 }, ContextRadius { factor: 3.5, weight: 1.3 }];

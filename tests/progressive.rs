@@ -17,14 +17,18 @@ fn registrar(settings: &RegistrationSettings, weights: &Weights) -> Registrar {
     Registrar::with_weights(settings, weights).unwrap()
 }
 
+/// 120 keypoints, the main radius alone and a verdict nothing passes: every round runs.
+fn never_trusted(estimator: Estimator) -> RegistrationSettings {
+    let never = VerdictSettings { min_inliers: usize::MAX, ..VerdictSettings::default() };
+    RegistrationSettings { keypoints: 120, estimator, verdict: never, context_radii: Vec::new(), ..Default::default() }
+}
+
 #[test]
 fn a_pair_that_needs_every_round_ends_with_the_direct_result() {
     let (source, target, _) = common::room_pair(4, 4000);
     let weights = tiny_weights();
-    // A verdict nothing passes: every round runs.
-    let never = VerdictSettings { min_inliers: usize::MAX, ..VerdictSettings::default() };
     for estimator in [Estimator::RelativeNet, Estimator::Ransac] {
-        let base = RegistrationSettings { keypoints: 120, estimator, verdict: never, ..Default::default() };
+        let base = never_trusted(estimator);
         let staged = RegistrationSettings { first_keypoints: Some(25), ..base.clone() };
         let direct = RegistrationSettings { first_keypoints: None, ..base };
         let a = registrar(&staged, &weights).register_detailed(&source, &target).unwrap();
@@ -41,7 +45,8 @@ fn a_pair_that_needs_every_round_ends_with_the_direct_result() {
 }
 
 /// A pair and settings on which the schedule stops at an early round with the tiny random weights: a verdict
-/// that trusts any pose with a handful of inliers, every point kept (the round was found on the full cloud).
+/// that trusts any pose with a handful of inliers, every point kept (the round was found on the full cloud), the
+/// main radius alone.
 fn early_stopping_pair() -> (PointCloud, PointCloud, RegistrationSettings) {
     let (source, target, _) = common::room_pair(8, 4000);
     let lenient = VerdictSettings { min_inliers: 3, min_inlier_ratio: 0.0, min_spread_over_threshold: 0.0 };
@@ -51,6 +56,7 @@ fn early_stopping_pair() -> (PointCloud, PointCloud, RegistrationSettings) {
         voxel: Some(0.0),
         estimator: Estimator::Ransac,
         verdict: lenient,
+        context_radii: Vec::new(),
         ..Default::default()
     };
     (source, target, settings)
@@ -115,9 +121,8 @@ fn context_radii_only_when_untrusted_add_one_round_on_every_radius() {
     let (source, target, _) = common::room_pair(4, 4000);
     let weights = tiny_weights();
     let context = vec![ContextRadius { factor: 2.0, weight: 1.0 }];
-    let never = VerdictSettings { min_inliers: usize::MAX, ..VerdictSettings::default() };
     for estimator in [Estimator::RelativeNet, Estimator::Ransac] {
-        let base = RegistrationSettings { keypoints: 120, estimator, verdict: never, ..Default::default() };
+        let base = never_trusted(estimator);
         let lazy = RegistrationSettings {
             first_keypoints: Some(40),
             context_radii: context.clone(),

@@ -56,6 +56,8 @@ class _Settings(TypedDict, total=False):
     min_inliers: int
     min_inlier_ratio: float
     min_spread_over_threshold: float
+    context_radii: Sequence[tuple[float, float]]
+    context_when: Literal["untrusted", "always"]
 
 @final
 class Features:
@@ -255,6 +257,8 @@ class Registrar:
         min_inliers: int = 12,
         min_inlier_ratio: float = 0.055,
         min_spread_over_threshold: float = 2.0,
+        context_radii: Sequence[tuple[float, float]] = [(2.0, 1.0)],
+        context_when: Literal["untrusted", "always"] = "untrusted",
     ) -> Registrar: ...
     @property
     def settings(self) -> dict[str, object]:

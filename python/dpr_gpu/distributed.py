@@ -46,6 +46,7 @@ from ._dpr_gpu import (
     MultiwayResult,
     PairResult,
     Registrar,
+    _library_defaults,
     multiway_origin,
     optimize_pairs,
     read_cloud,
@@ -458,7 +459,35 @@ def _arguments() -> argparse.ArgumentParser:
     reg.add_argument("--min-inliers", type=int, default=12)
     reg.add_argument("--min-inlier-ratio", type=float, default=0.055)
     reg.add_argument("--min-inlier-spread", type=float, default=2.0)
+    reg.add_argument(
+        "--context-radius",
+        action="append",
+        default=None,
+        metavar="FACTOR:WEIGHT",
+        help="context radius, repeatable, or 'off' (default 2:1)",
+    )
+    reg.add_argument("--context-when", default="untrusted", choices=("untrusted", "always"))
     return p
+
+
+def _context_radii(values: Optional[Sequence[str]]) -> Sequence[Tuple[float, float]]:
+    """The `context_radii` of `--context-radius` values (None: the library's default, 2:1; 'off' alone: none)."""
+    if values is None:
+        return cast(List[Tuple[float, float]], _library_defaults()["context_radii"])
+    if "off" in (v.strip() for v in values):
+        if len(values) > 1:
+            raise ValueError("--context-radius off cannot be combined with other context radii")
+        return []
+    radii: List[Tuple[float, float]] = []
+    for v in values:
+        factor, sep, weight = v.partition(":")
+        try:
+            radii.append((float(factor), float(weight)))
+        except ValueError:
+            raise ValueError(f"--context-radius expects FACTOR:WEIGHT (e.g. 2:1) or off, got '{v}'") from None
+        if not sep:
+            raise ValueError(f"--context-radius expects FACTOR:WEIGHT (e.g. 2:1) or off, got '{v}'")
+    return radii
 
 
 def _settings_of(a: argparse.Namespace) -> Dict[str, Any]:
@@ -487,6 +516,8 @@ def _settings_of(a: argparse.Namespace) -> Dict[str, Any]:
         "min_inliers": a.min_inliers,
         "min_inlier_ratio": a.min_inlier_ratio,
         "min_spread_over_threshold": a.min_inlier_spread,
+        "context_radii": _context_radii(a.context_radius),
+        "context_when": a.context_when,
     }
 
 

@@ -7,7 +7,7 @@ use crate::arrays::{cloud_from_arrays, matrix, positions, vectors};
 use crate::errors::{to_py_err, value_error};
 use crate::result::timings_dict;
 use crate::state::{Reader, Writer, flat, triples};
-use dpr_gpu::backend::{HostRows, HostScanRows, check_restored};
+use dpr_gpu::backend::{ContextRows, HostRows, HostScanRows, ScanRows, check_restored};
 use dpr_gpu::eval::groundtruth::PreparedFragment;
 use dpr_gpu::io::{LoadOptions, OriginShift};
 use dpr_gpu::multiway::pair::{InformationSettings, prepare_for_information, register_pair};
@@ -21,7 +21,7 @@ use pyo3::types::{PyBytes, PyDict, PyTuple};
 use std::sync::{Arc, OnceLock};
 
 /// Magic tags of the pickled states.
-const SCAN_MAGIC: &[u8] = b"dpr-gpu/DescribedScan/2\0";
+const SCAN_MAGIC: &[u8] = b"dpr-gpu/DescribedScan/3\0";
 const PAIR_MAGIC: &[u8] = b"dpr-gpu/PairResult/1\0";
 
 /// A fingerprint of the settings and weights a scan was described with: only a registrar with the same key may
@@ -66,8 +66,6 @@ impl DescribedScan {
     fn state(&self) -> PyResult<Vec<u8>> {
         let f = &self.features;
         // The rows live with the backend that described them (device buffers for a GPU): read back once here.
-        let codewords = f.read_codewords().map_err(to_py_err)?;
-        let pose = f.read_pose_rows().map_err(to_py_err)?;
         let mut w = Writer::new(SCAN_MAGIC);
         w.u64(self.key);
         w.u64(self.index as u64);
@@ -82,10 +80,13 @@ impl DescribedScan {
         w.u64(f.empty_patches as u64);
         w.u32s(&f.keypoint_ranks);
         w.u64(f.candidates as u64);
-        w.f32s(&codewords);
-        w.f32s(&pose.input);
-        w.f32s(&pose.features);
-        w.u32s(&pose.ready.iter().map(|&r| u32::from(r)).collect::<Vec<u32>>());
+        write_rows(&mut w, f.rows.as_ref())?;
+        w.u64(f.context.len() as u64);
+        for c in &f.context {
+            w.f64(f64::from(c.radius));
+            w.f64(f64::from(c.weight));
+            write_rows(&mut w, c.rows.as_ref())?;
+        }
         w.f32s(&self.pooled);
         w.u64(f.timings.len() as u64);
         for t in &f.timings {
@@ -109,10 +110,19 @@ impl DescribedScan {
         let empty_patches = r.usize()?;
         let keypoint_ranks = r.u32s()?;
         let candidates = r.usize()?;
-        let ppf_codewords = r.f32s()?;
-        let pose_input = r.f32s()?;
-        let pose_values = r.f32s()?;
-        let ready = r.u32s()?;
+        let main = read_rows(&mut r)?;
+        let context_radii = r.usize()?;
+        if context_radii > dpr_gpu::settings::MAX_CONTEXT_RADII {
+            return Err(value_error(format!(
+                "DescribedScan: {context_radii} context radii (at most {})",
+                dpr_gpu::settings::MAX_CONTEXT_RADII
+            )));
+        }
+        let mut context = Vec::with_capacity(context_radii);
+        for _ in 0..context_radii {
+            let (radius, weight) = (r.f64()? as f32, r.f64()? as f32);
+            context.push((radius, weight, read_rows(&mut r)?));
+        }
         let pooled = r.f32s()?;
         let stages = r.usize()?;
         let mut timings = Vec::new();
@@ -125,17 +135,22 @@ impl DescribedScan {
             && keypoint_ranks.len() == keypoints.len()
             && keypoint_ranks.windows(2).all(|w| w[0] < w[1])
             && keypoint_ranks.last().is_none_or(|&r| (r as usize) < candidates)
-            && (keypoints.is_empty() || ppf_codewords.len() % keypoints.len() == 0);
+            && (keypoints.is_empty() || main.codewords.len() % keypoints.len() == 0);
         if !consistent {
             return Err(value_error("DescribedScan: the pickled arrays do not fit together"));
         }
-        let codeword = ppf_codewords.len() / keypoints.len().max(1);
-        let pose_rows =
-            PoseRows { input: pose_input, features: pose_values, ready: ready.iter().map(|&r| r != 0).collect() };
+        let codeword = main.codewords.len() / keypoints.len().max(1);
         // Host rows; `Registrar.register_described` moves them to its backend (`Registrar::adopt`).
-        check_restored(&ppf_codewords, &pose_rows, keypoints.len(), codeword)
-            .map_err(|e| value_error(format!("DescribedScan: {e}")))?;
-        let rows = Arc::new(HostScanRows::with_rows(codeword, HostRows { codewords: ppf_codewords, pose: pose_rows }));
+        let restore = |rows: HostRows| -> PyResult<Arc<dyn ScanRows>> {
+            check_restored(&rows.codewords, &rows.pose, keypoints.len(), codeword)
+                .map_err(|e| value_error(format!("DescribedScan: {e}")))?;
+            Ok(Arc::new(HostScanRows::with_rows(codeword, rows)))
+        };
+        let rows = restore(main)?;
+        let context = context
+            .into_iter()
+            .map(|(radius, weight, rows)| Ok(ContextRows { radius, weight, rows: restore(rows)? }))
+            .collect::<PyResult<Vec<_>>>()?;
         let features = ScanFeatures {
             cloud: PointCloud { points, normals: has_normals.then_some(normals) },
             keypoints,
@@ -144,8 +159,7 @@ impl DescribedScan {
             candidates,
             empty_patches,
             rows,
-            // The Python package does not describe at context radii (`RegistrationSettings::context_radii`).
-            context: Vec::new(),
+            context,
             held_points: None,
             timings,
         };
@@ -219,6 +233,24 @@ impl DescribedScan {
         let state = PyBytes::new(py, &self.state()?);
         PyTuple::new(py, [restore, PyTuple::new(py, [state])?.into_any()])
     }
+}
+
+/// Writes described rows (read back from the backend that holds them): codewords, then the pose rows.
+fn write_rows(w: &mut Writer, rows: &dyn ScanRows) -> PyResult<()> {
+    let codewords = rows.read_codewords().map_err(to_py_err)?;
+    let pose = rows.read_pose_rows().map_err(to_py_err)?;
+    w.f32s(&codewords);
+    w.f32s(&pose.input);
+    w.f32s(&pose.features);
+    w.u32s(&pose.ready.iter().map(|&r| u32::from(r)).collect::<Vec<u32>>());
+    Ok(())
+}
+
+/// Reads rows written by [`write_rows`] (checked by the caller).
+fn read_rows(r: &mut Reader<'_>) -> PyResult<HostRows> {
+    let codewords = r.f32s()?;
+    let (input, features, ready) = (r.f32s()?, r.f32s()?, r.u32s()?);
+    Ok(HostRows { codewords, pose: PoseRows { input, features, ready: ready.iter().map(|&r| r != 0).collect() } })
 }
 
 /// Rebuilds a pickled `DescribedScan`.

@@ -4,7 +4,7 @@ use crate::arrays::{cloud_from_arrays, index_pairs, positions, vectors};
 use crate::described::{DescribedScan, PairResult};
 use crate::errors::{to_py_err, value_error};
 use crate::result::{PoseEstimate, RegistrationResult, SnapshotInputs, timings_dict};
-use crate::settings::{ESTIMATORS, SettingsArgs, settings_dict};
+use crate::settings::{ESTIMATORS, SettingsArgs, default_context_radii, settings_dict};
 use dpr_gpu::io::{LoadOptions, OriginShift};
 use dpr_gpu::pipeline::{ScanFeatures, load_weights};
 use dpr_gpu::pose::unshift_pose;
@@ -106,6 +106,11 @@ impl Features {
 /// - ``seed``: seed for every random choice (same inputs and seed, same result).
 /// - ``backend``: ``"auto"`` (a GPU when one exists, else the CPU with a warning), ``"cpu"`` or ``"gpu"``.
 /// - ``min_inliers``, ``min_inlier_ratio``, ``min_spread_over_threshold``: thresholds of the success verdict.
+/// - ``context_radii``: ``(factor, weight)`` pairs: each keypoint is also described with a patch ``factor``
+///   times the radius (1..8), and matching reads the unit codewords of every radius side by side, this one's
+///   weighted by ``weight`` (the main radius's by 1); ``()`` for the main radius alone. ``context_when``:
+///   ``"untrusted"`` (only a last round on all keypoints, when the main radius gave no trusted result) or
+///   ``"always"``.
 ///
 /// Raises ``ValueError`` for bad settings or weights that do not fit, ``OSError`` when the weights file cannot be
 /// read, ``RuntimeError`` when ``backend="gpu"`` finds no usable GPU.
@@ -161,13 +166,16 @@ impl Registrar {
         min_inliers = 12,
         min_inlier_ratio = 0.055,
         min_spread_over_threshold = 2.0,
+        context_radii = default_context_radii(),
+        context_when = "untrusted".to_string(),
     ),
     text_signature = "(*, weights=None, radius=None, voxel=None, keypoints=2500, first_keypoints=250, \
         keypoint_mode='random', \
         normal_neighbors=30, viewpoint=(0.0, 0.0, 0.0), matching='mutual', mutual_k=1, estimator='relativenet', \
         inlier_threshold=None, ransac_iterations=100000, ransac_confidence=0.999, icp=True, \
         icp_max_correspondence_distance=None, icp_max_iterations=30, drop_zero_points=False, seed=0, \
-        backend='auto', min_inliers=12, min_inlier_ratio=0.055, min_spread_over_threshold=2.0)")]
+        backend='auto', min_inliers=12, min_inlier_ratio=0.055, min_spread_over_threshold=2.0, \
+        context_radii=[(2.0, 1.0)], context_when='untrusted')")]
     #[expect(clippy::too_many_arguments, reason = "one keyword argument per setting, as Python callers expect")]
     fn new(
         py: Python<'_>,
@@ -194,6 +202,8 @@ impl Registrar {
         min_inliers: i64,
         min_inlier_ratio: f64,
         min_spread_over_threshold: f64,
+        context_radii: Vec<(f32, f32)>,
+        context_when: String,
     ) -> PyResult<Registrar> {
         let args = SettingsArgs {
             weights,
@@ -219,6 +229,8 @@ impl Registrar {
             min_inliers,
             min_inlier_ratio,
             min_spread_over_threshold,
+            context_radii,
+            context_when,
         };
         let probe = RegistrationSettings { weights: args.weights.clone(), ..RegistrationSettings::default() };
         let loaded = py.detach(|| load_weights(&probe)).map_err(to_py_err)?;

@@ -3,11 +3,17 @@
 //! verdict thresholds are top-level, ICP is `icp=True` plus its two parameters).
 
 use crate::errors::value_error;
+use dpr_gpu::settings::{ContextRadius, ContextWhen};
 use dpr_gpu::verdict::VerdictSettings;
 use dpr_gpu::{BackendKind, Estimator, IcpSettings, KeypointMode, MatchMode, RansacSettings, RegistrationSettings};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::path::PathBuf;
+
+/// The library's default context radii as `(factor, weight)` pairs: the default of `context_radii`.
+pub(crate) fn default_context_radii() -> Vec<(f32, f32)> {
+    dpr_gpu::settings::DEFAULT_CONTEXT_RADII.iter().map(|c| (c.factor, c.weight)).collect()
+}
 
 /// The keyword arguments of `Registrar(...)` and `register(...)`, as Python gave them.
 pub(crate) struct SettingsArgs {
@@ -34,6 +40,8 @@ pub(crate) struct SettingsArgs {
     pub min_inliers: i64,
     pub min_inlier_ratio: f64,
     pub min_spread_over_threshold: f64,
+    pub context_radii: Vec<(f32, f32)>,
+    pub context_when: String,
 }
 
 /// `value` as a count; negative values are refused naming `name`.
@@ -55,6 +63,8 @@ const BACKENDS: &[(&str, BackendKind)] =
 /// Estimator names.
 pub(crate) const ESTIMATORS: &[(&str, Estimator)] =
     &[("relativenet", Estimator::RelativeNet), ("ransac", Estimator::Ransac)];
+/// `context_when` names.
+const CONTEXT_WHEN: &[(&str, ContextWhen)] = &[("untrusted", ContextWhen::Untrusted), ("always", ContextWhen::Always)];
 /// Keypoint mode names.
 const KEYPOINT_MODES: &[(&str, KeypointMode)] = &[("random", KeypointMode::Random), ("uniform", KeypointMode::Uniform)];
 
@@ -105,9 +115,12 @@ impl SettingsArgs {
                 min_inlier_ratio: self.min_inlier_ratio,
                 min_spread_over_threshold: self.min_spread_over_threshold,
             },
-            // Context radii are not exposed to Python yet: its pickled scans carry the main radius's rows only.
-            context_radii: Vec::new(),
-            context_when: Default::default(),
+            context_radii: self
+                .context_radii
+                .iter()
+                .map(|&(factor, weight)| ContextRadius { factor, weight })
+                .collect(),
+            context_when: choose("context_when", &self.context_when, CONTEXT_WHEN)?,
         })
     }
 }
@@ -142,6 +155,9 @@ pub(crate) fn settings_dict<'py>(py: Python<'py>, s: &RegistrationSettings) -> P
     d.set_item("min_inliers", s.verdict.min_inliers)?;
     d.set_item("min_inlier_ratio", s.verdict.min_inlier_ratio)?;
     d.set_item("min_spread_over_threshold", s.verdict.min_spread_over_threshold)?;
+    let context: Vec<(f32, f32)> = s.context_radii.iter().map(|c| (c.factor, c.weight)).collect();
+    d.set_item("context_radii", context)?;
+    d.set_item("context_when", name_of(s.context_when, CONTEXT_WHEN))?;
     Ok(d)
 }
 

@@ -18,8 +18,9 @@ import dpr_gpu
 from conftest import RECOVER, cli_binary, known_pose, room_corner, rotation_error_deg, transform
 from dpr_gpu import distributed
 
-# conftest's RECOVER settings (ICP recovers this collection's poses); the low inlier minimum makes the verdict
-# trust some pairs and not others, so the pose graph has certain, uncertain and excluded edges.
+# conftest's RECOVER settings (ICP recovers this collection's poses) with a low inlier minimum (see MIXED below
+# for a verdict that trusts some pairs and not others, so the pose graph has certain, uncertain and excluded
+# edges).
 # The small generated scans were sized for the defaults before 0.60 m patches: 0.30 m patches and, computed as
 # the library computed them then (in float32), a radius / 12 voxel, a radius / 3 inlier threshold and a radius / 6
 # ICP distance.
@@ -80,10 +81,16 @@ def assert_same_multiway(a, b):
             np.testing.assert_array_equal(ea[key], eb[key], err_msg=f"edge ({ea['i']}, {ea['j']}) {key}")
 
 
+# The default context radius rescues every pair of this collection at min_inliers=3 (the context round of (0, 3)
+# goes from 2 to 16 inliers); at 18, pairs (1, 2) and (0, 3) stay untrusted after it (17 and 16 inliers) while
+# the others have 19-34, with the bf16 and the f32 encoders alike.
+MIXED = {**SETTINGS, "min_inliers": 18}
+
+
 def test_ray_run_equals_single_process_and_uses_every_actor(ray, collection):
     scans, truth = collection
-    single = dpr_gpu.multiway(scans, pairs="all", **SETTINGS)
-    outcome = distributed.run(scans, pairs="all", workers=2, batch_size=2, **SETTINGS)
+    single = dpr_gpu.multiway(scans, pairs="all", **MIXED)
+    outcome = distributed.run(scans, pairs="all", workers=2, batch_size=2, **MIXED)
     assert_same_multiway(outcome.result.to_dict(), single)
 
     # The work ran on the two actors (distinct Ray actor ids, neither the driver), both describing and
@@ -213,3 +220,16 @@ def test_adapter_index_picks_the_adapter_by_position(monkeypatch):
     monkeypatch.setenv("DPR_GPU_ADAPTER_INDEX", "first")
     with pytest.raises(RuntimeError, match="not an adapter index"):
         dpr_gpu.Registrar(backend="gpu", keypoints=10)
+
+
+def test_context_radius_flags_parse_as_dpr_gpu_multiway_parses_them():
+    defaults = dpr_gpu._dpr_gpu._library_defaults()
+    assert distributed._context_radii(None) == defaults["context_radii"] == [(2.0, 1.0)]
+    assert distributed._context_radii(["off"]) == []
+    assert distributed._context_radii(["3:0.5", "1.5:2"]) == [(3.0, 0.5), (1.5, 2.0)]
+    for bad, needle in ((["off", "2:1"], "cannot be combined"), (["2"], "FACTOR:WEIGHT"), (["a:b"], "FACTOR:WEIGHT")):
+        with pytest.raises(ValueError, match=needle):
+            distributed._context_radii(bad)
+    parsed = distributed._arguments().parse_args(["in", "--out", "o", "--context-radius", "off"])
+    settings = distributed._settings_of(parsed)
+    assert (settings["context_radii"], settings["context_when"]) == ([], "untrusted")

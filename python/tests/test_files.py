@@ -110,7 +110,8 @@ def _assert_same_as_cli(result: dpr_gpu.RegistrationResult, cli: dict) -> None:
     assert result.empty_patches == cli["empty_patches"]
     assert result.success == cli["success"] and result.reason == cli["reason"]
     assert result.backend == cli["backend"]
-    assert list(result.timings) == [t["stage"] for t in cli["timings"] if t["stage"] != "load"]
+    # Python sums the times of a stage that ran in several rounds, under its first position.
+    assert list(result.timings) == list(dict.fromkeys(t["stage"] for t in cli["timings"] if t["stage"] != "load"))
 
 
 @pytest.mark.parametrize("case", sorted(CASES))

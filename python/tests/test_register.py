@@ -176,6 +176,9 @@ def test_settings_defaults_follow_the_library():
         ({"seed": -1}, "seed must be"),
         ({"min_inlier_ratio": 2.0}, "min inlier ratio"),
         ({"viewpoint": (0.0, float("nan"), 0.0)}, "viewpoint must be finite"),
+        ({"context_radii": ((0.5, 1.0),)}, "context radius factor"),
+        ({"context_radii": ((2.0, 0.0),)}, "context radius weight"),
+        ({"context_when": "sometimes"}, "unknown context_when"),
     ],
 )
 def test_bad_settings_raise_value_error(settings, needle):

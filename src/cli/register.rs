@@ -77,12 +77,13 @@ pub struct RegisterOptions {
     pub xyz_columns: Option<String>,
     /// Also describe each keypoint with patches FACTOR times the radius (1..8) and match on the codewords of
     /// every radius side by side, each at unit length, this one weighted by WEIGHT (the main radius's by 1);
-    /// repeatable, e.g. --context-radius 2:1. The pose features stay the main radius's.
-    #[arg(long, value_name = "FACTOR:WEIGHT")]
+    /// repeatable (given ones replace the default); `off`: the main radius alone. The pose features stay the
+    /// main radius's.
+    #[arg(long, value_name = "FACTOR:WEIGHT", default_value = "2:1")]
     pub context_radius: Vec<String>,
-    /// Which rounds match on the context radii too: always, or untrusted (only a last round on all keypoints,
-    /// run when matching on the main radius alone gave no trusted result).
-    #[arg(long, value_name = "WHEN", default_value = "always")]
+    /// Which rounds match on the context radii too: untrusted (only a last round on all keypoints, run when
+    /// matching on the main radius alone gave no trusted result), or always.
+    #[arg(long, value_name = "WHEN", default_value = "untrusted")]
     pub context_when: String,
     /// Verdict: fewest inliers for a trusted result.
     #[arg(long, default_value_t = crate::verdict::VerdictSettings::default().min_inliers)]
@@ -104,8 +105,19 @@ pub fn parse_estimator(s: &str) -> anyhow::Result<Estimator> {
     }
 }
 
+/// Parses the `--context-radius` values: `off` alone (no context radius) or `FACTOR:WEIGHT` each.
+pub fn parse_context_radii(values: &[String]) -> anyhow::Result<Vec<ContextRadius>> {
+    if values.iter().any(|v| v.trim() == "off") {
+        if values.len() > 1 {
+            bail!("--context-radius off cannot be combined with other context radii");
+        }
+        return Ok(Vec::new());
+    }
+    values.iter().map(|v| parse_context_radius(v)).collect()
+}
+
 /// Parses `FACTOR:WEIGHT` (a `--context-radius`); the ranges are checked with the settings.
-pub fn parse_context_radius(s: &str) -> anyhow::Result<ContextRadius> {
+fn parse_context_radius(s: &str) -> anyhow::Result<ContextRadius> {
     let parsed = s.split_once(':').and_then(|(f, w)| Some((f.trim().parse().ok()?, w.trim().parse().ok()?)));
     match parsed {
         Some((factor, weight)) => Ok(ContextRadius { factor, weight }),
@@ -148,7 +160,7 @@ impl RegisterOptions {
             "auto" => BackendKind::Auto,
             other => bail!("unknown backend '{other}' (expected cpu, gpu or auto)"),
         };
-        s.context_radii = self.context_radius.iter().map(|c| parse_context_radius(c)).collect::<anyhow::Result<_>>()?;
+        s.context_radii = parse_context_radii(&self.context_radius)?;
         s.context_when = match self.context_when.as_str() {
             "always" => ContextWhen::Always,
             "untrusted" => ContextWhen::Untrusted,
@@ -379,4 +391,38 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
         );
     }
     Ok(result.success)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Args;
+    use crate::settings::{ContextRadius, ContextWhen, DEFAULT_CONTEXT_RADII, RegistrationSettings};
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: Args,
+    }
+
+    fn settings(flags: &[&str]) -> anyhow::Result<RegistrationSettings> {
+        let cli = Cli::try_parse_from(["register", "s.ply", "t.ply"].iter().chain(flags))?;
+        cli.args.options.to_settings()
+    }
+
+    #[test]
+    fn context_radius_flags_default_to_the_library_and_off_turns_them_off() {
+        let library = RegistrationSettings::default();
+        let defaults = settings(&[]).unwrap();
+        assert_eq!(defaults.context_radii, library.context_radii);
+        assert_eq!(defaults.context_radii, DEFAULT_CONTEXT_RADII);
+        assert_eq!((defaults.context_when, library.context_when), (ContextWhen::Untrusted, ContextWhen::Untrusted));
+        assert!(settings(&["--context-radius", "off"]).unwrap().context_radii.is_empty());
+        let given = settings(&["--context-radius", "3:0.5", "--context-radius", "1.5:2", "--context-when", "always"]);
+        let given = given.unwrap();
+        let expected = [ContextRadius { factor: 3.0, weight: 0.5 }, ContextRadius { factor: 1.5, weight: 2.0 }];
+        assert_eq!((given.context_radii.as_slice(), given.context_when), (&expected[..], ContextWhen::Always));
+        let mixed = settings(&["--context-radius", "off", "--context-radius", "2:1"]).unwrap_err().to_string();
+        assert!(mixed.contains("off cannot be combined"), "{mixed}");
+    }
 }
