@@ -480,13 +480,11 @@ def _context_radii(values: Optional[Sequence[str]]) -> Sequence[Tuple[float, flo
         return []
     radii: List[Tuple[float, float]] = []
     for v in values:
-        factor, sep, weight = v.partition(":")
+        factor, _, weight = v.partition(":")  # no ':' leaves weight empty, which float() refuses
         try:
             radii.append((float(factor), float(weight)))
         except ValueError:
             raise ValueError(f"--context-radius expects FACTOR:WEIGHT (e.g. 2:1) or off, got '{v}'") from None
-        if not sep:
-            raise ValueError(f"--context-radius expects FACTOR:WEIGHT (e.g. 2:1) or off, got '{v}'")
     return radii
 
 

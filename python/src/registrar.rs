@@ -108,7 +108,7 @@ impl Features {
 /// - ``min_inliers``, ``min_inlier_ratio``, ``min_spread_over_threshold``: thresholds of the success verdict.
 /// - ``context_radii``: ``(factor, weight)`` pairs: each keypoint is also described with a patch ``factor``
 ///   times the radius (1..8), and matching reads the unit codewords of every radius side by side, this one's
-///   weighted by ``weight`` (the main radius's by 1); ``()`` for the main radius alone. ``context_when``:
+///   weighted by ``weight`` (the main radius's by 1); ``[]`` for the main radius alone. ``context_when``:
 ///   ``"untrusted"`` (only a last round on all keypoints, when the main radius gave no trusted result) or
 ///   ``"always"``.
 ///
