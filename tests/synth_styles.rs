@@ -201,6 +201,7 @@ fn every_style_is_deterministic_per_seed_and_thread_count() {
         ("randomized_room", styled(Style::Randomized, 2, 48, 3, Some(false))),
         ("randomized_object", styled(Style::Randomized, 2, 64, 1, Some(true))),
         ("heldout", styled(Style::Heldout, 2, 48, 3, None)),
+        ("heldout_tof", styled(Style::HeldoutTof, 2, 48, 3, None)),
     ] {
         let (a, b, c) = (dir.join(format!("{name}_a")), dir.join(format!("{name}_b")), dir.join(format!("{name}_c")));
         write_dataset(&a, 7, 1, &settings, false, |_| {}).unwrap();
@@ -278,9 +279,10 @@ fn randomized_scenes_draw_different_parameters() {
 
 /// Checks every gt.log pair of `scene`: the transform is inv(E_i) E_j of poses.txt and maps fragment j onto
 /// fragment i (the recomputed overlap matches the recorded one; the best point-to-plane correction explains
-/// under 3 mm of residual, where a transform 3 cm and 2 degrees off shows over 6 mm), every pair passes
-/// `min_overlap`, and every pair not listed fails it. Returns (rotation angle in degrees, overlap) per pair.
-fn check_ground_truth(scene: &Path, fragments: usize, min_overlap: f64) -> Vec<(f64, f64)> {
+/// under 3 mm of residual, where a transform 3 cm and 2 degrees off shows over `wrong_shows` and twice the
+/// ground truth's), every pair passes `min_overlap`, and every pair not listed fails it. Returns (rotation angle
+/// in degrees, overlap) per pair.
+fn check_ground_truth(scene: &Path, fragments: usize, min_overlap: f64, wrong_shows: f64) -> Vec<(f64, f64)> {
     let with_normals: Vec<PointsNormals> =
         (0..fragments).map(|k| load_with_normals(&scene.join(format!("cloud_bin_{k}.ply")))).collect();
     let clouds: Vec<Vec<[f64; 3]>> = with_normals.iter().map(|c| c.0.clone()).collect();
@@ -316,7 +318,10 @@ fn check_ground_truth(scene: &Path, fragments: usize, min_overlap: f64) -> Vec<(
         let mut off = nalgebra::Rotation3::from_axis_angle(&axis, 2f64.to_radians()).to_homogeneous();
         off.fixed_view_mut::<3, 1>(0, 3).copy_from(&(axis.into_inner() * 0.03));
         let t_off = misalignment(&with_normals[i], &with_normals[j], &(off * rec.matrix));
-        assert!(t_off > 0.006, "pair {i} {j}: a 3 cm, 2 degree error was measured as {t_off}");
+        assert!(
+            t_off > wrong_shows && t_off > 2.0 * off_by,
+            "pair {i} {j}: a 3 cm, 2 degree error was measured as {t_off} (ground truth {off_by})"
+        );
         out.push((rotation_angle_deg(&rec.matrix), o));
     }
     // Pairs missing from gt.log fail the threshold.
@@ -335,15 +340,18 @@ fn check_ground_truth(scene: &Path, fragments: usize, min_overlap: f64) -> Vec<(
 #[test]
 fn ground_truth_realigns_fragments_and_respects_min_overlap() {
     let dir = temp_dir("gt");
-    for (name, mut settings) in [
-        ("randomized", styled(Style::Randomized, 4, 64, 3, Some(false))),
-        ("heldout", styled(Style::Heldout, 4, 64, 3, None)),
+    for (name, mut settings, wrong_shows) in [
+        ("randomized", styled(Style::Randomized, 4, 64, 3, Some(false)), 0.006),
+        ("heldout", styled(Style::Heldout, 4, 64, 3, None), 0.006),
+        // The attics' few large planes constrain the wrong transform less (3.4-7.4 mm measured here), and the
+        // time-of-flight depth bias leaves up to 1.7 mm where the ground truth is right.
+        ("heldout_tof", styled(Style::HeldoutTof, 4, 64, 3, None), 0.003),
     ] {
         for min_overlap in [0.2, 0.45] {
             settings.ground_truth.min_overlap = min_overlap;
             let out = dir.join(format!("{name}_{min_overlap}"));
             let summaries = write_dataset(&out, 5, 1, &settings, false, |_| {}).unwrap();
-            let pairs = check_ground_truth(&summaries[0].dir, 4, min_overlap);
+            let pairs = check_ground_truth(&summaries[0].dir, 4, min_overlap, wrong_shows);
             if min_overlap == 0.2 {
                 assert!(pairs.len() >= 3, "{name}: {pairs:?}");
             }
@@ -384,7 +392,7 @@ fn object_scenes_have_large_rotations_between_scans() {
         }
         let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
         assert!((extent - size).abs() < 0.1 * size, "extent {extent} vs size {size}");
-        angles.extend(check_ground_truth(&s.dir, 8, 0.2).into_iter().map(|(a, _)| a));
+        angles.extend(check_ground_truth(&s.dir, 8, 0.2, 0.006).into_iter().map(|(a, _)| a));
     }
     angles.sort_by(f64::total_cmp);
     assert!(angles.len() >= 4, "{angles:?}");

@@ -36,8 +36,9 @@ pub struct Args {
     /// Generator style. kinect: the original Kinect-like generator. randomized: domain randomisation for
     /// training (noise model and level, density, voxel, dropouts and holes, intrinsics and range, room and
     /// furniture families, wide trajectories, about 30 % object-scale scenes); writes the drawn parameters to
-    /// style.json. heldout: structured-light camera in halls with families no other style builds; the
-    /// generalisation check - never train or tune on it.
+    /// style.json. heldout: structured-light camera in halls with families no other style builds;
+    /// heldout-tof: low time-of-flight camera in attic flats with families no other style builds. The two
+    /// held-out styles are the generalisation checks - never train or tune on them.
     #[arg(long, value_enum, default_value_t = Style::Kinect)]
     pub style: Style,
     /// Smallest overlap for a pair to enter gt.log [default: 0.30 (3DMatch rule); 0.20 for --style randomized].

@@ -20,12 +20,12 @@ pub struct Furniture {
     pub height: f64,
 }
 
-fn v(x: f64, y: f64, z: f64) -> Vector3<f64> {
+pub(crate) fn v(x: f64, y: f64, z: f64) -> Vector3<f64> {
     Vector3::new(x, y, z)
 }
 
 /// A box spanning `[x0, x1] x [y0, y1] x [z0, z1]` (local frame, no rotation).
-fn slab(x0: f64, x1: f64, y0: f64, y1: f64, z0: f64, z1: f64) -> Primitive {
+pub(crate) fn slab(x0: f64, x1: f64, y0: f64, y1: f64, z0: f64, z1: f64) -> Primitive {
     Primitive::cuboid(
         v((x0 + x1) / 2.0, (y0 + y1) / 2.0, (z0 + z1) / 2.0),
         v((x1 - x0) / 2.0, (y1 - y0) / 2.0, (z1 - z0) / 2.0),
@@ -34,7 +34,7 @@ fn slab(x0: f64, x1: f64, y0: f64, y1: f64, z0: f64, z1: f64) -> Primitive {
 }
 
 /// An upright cylinder standing on `z0`.
-fn post(x: f64, y: f64, z0: f64, radius: f64, height: f64) -> Primitive {
+pub(crate) fn post(x: f64, y: f64, z0: f64, radius: f64, height: f64) -> Primitive {
     Primitive::upright_cylinder(v(x, y, z0 + height / 2.0), radius, height / 2.0)
 }
 

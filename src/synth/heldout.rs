@@ -5,25 +5,12 @@
 //!
 //! World frame as in [`super::room`]: z up, floor z = 0, rectangular floor plan.
 
-use super::furniture::Furniture;
+use super::furniture::{Furniture, slab, v};
 use super::geometry::{Object, Primitive, rot_y};
 use super::room::{Footprint, Room};
 use crate::rng::Rng;
-use nalgebra::Vector3;
 use serde::Serialize;
 use std::f64::consts::{FRAC_PI_2, PI};
-
-fn v(x: f64, y: f64, z: f64) -> Vector3<f64> {
-    Vector3::new(x, y, z)
-}
-
-fn slab(x0: f64, x1: f64, y0: f64, y1: f64, z0: f64, z1: f64) -> Primitive {
-    Primitive::cuboid(
-        v((x0 + x1) / 2.0, (y0 + y1) / 2.0, (z0 + z1) / 2.0),
-        v((x1 - x0) / 2.0, (y1 - y0) / 2.0, (z1 - z0) / 2.0),
-        0.0,
-    )
-}
 
 /// What was drawn for a held-out hall (written to style.json).
 #[derive(Clone, Debug, PartialEq, Serialize)]

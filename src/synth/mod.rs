@@ -8,13 +8,14 @@
 //! spec 3.3) plus `pairs.txt` and `poses.txt`.
 //!
 //! [`style`] selects the generator: `kinect` (the one described above, the default), `randomized` (domain
-//! randomisation for training, including object-scale scenes) or `heldout` (a different sensor and scene
-//! families, kept for the generalisation check); styled scenes also write the parameters they drew to
+//! randomisation for training, including object-scale scenes), `heldout` and `heldout-tof` (each a different
+//! sensor and scene families, kept for the generalisation check); styled scenes also write the parameters they drew to
 //! `style.json`.
 //!
 //! Everything is deterministic per seed: each frame draws from its own derived random stream and results are
 //! collected in order, so thread scheduling does not matter.
 
+pub mod attic;
 pub mod camera;
 pub mod furniture;
 pub mod fuse;
@@ -56,7 +57,7 @@ pub struct SynthSettings {
     /// The generator. `frames_per_fragment`, `voxel` and `camera` apply to [`Style::Kinect`] only; the other
     /// styles draw them per scene unless `overrides` fixes them.
     pub style: Style,
-    /// Fixed values for the drawn parameters of the `randomized` and `heldout` styles.
+    /// Fixed values for the drawn parameters of the styled generators (every style but `kinect`).
     pub overrides: Overrides,
 }
 
@@ -86,7 +87,7 @@ pub struct Scene {
     pub world_from_camera: Vec<Matrix4<f64>>,
     /// The room that was scanned (for object scenes: an empty floor plan whose objects are the object's parts).
     pub room: Room,
-    /// What a `randomized` or `heldout` scene drew (`None` for `kinect`).
+    /// What a styled scene drew (`None` for `kinect`).
     pub recipe: Option<SceneRecipe>,
 }
 

@@ -1,6 +1,8 @@
-//! The depth sensors of the `randomized` and `heldout` styles: a pinhole depth camera with a choice of noise
-//! models, random dropouts, image-space holes and per-object absorbing materials, and optionally a
-//! structured-light model (projector shadows and quantised disparity) that the `heldout` style alone uses.
+//! The depth sensors of the styled generators: a pinhole depth camera with a choice of noise models, random
+//! dropouts, image-space holes and per-object absorbing materials; optionally a structured-light model
+//! (projector shadows and quantised disparity) that the `heldout` style alone uses, and a time-of-flight model
+//! (noise growing with depth squared over the incidence cosine, a periodic "wiggling" depth bias, and mixed
+//! pixels where a pixel straddles a depth edge) that the `heldout-tof` style alone uses.
 //!
 //! Camera frame as in [`super::camera`]: x right, y down, z forward; depth is the z coordinate. Noise moves a
 //! return along its ray.
@@ -45,11 +47,25 @@ pub enum DepthNoise {
         /// Disparity steps per pixel.
         subpixel: f64,
     },
+    /// Time of flight: the returned amplitude falls as cos(incidence) / z^2, so sigma = `sigma_at_1m` z^2 /
+    /// cos(incidence); the phase measurement adds a periodic bias `wiggle_amplitude` sin(2 pi z /
+    /// `wiggle_period` + `wiggle_phase`).
+    TimeOfFlight {
+        /// Standard deviation at 1 unit of depth, head-on.
+        sigma_at_1m: f64,
+        /// Amplitude of the periodic depth bias.
+        wiggle_amplitude: f64,
+        /// Period of the bias in depth.
+        wiggle_period: f64,
+        /// Phase of the bias (radians).
+        wiggle_phase: f64,
+    },
 }
 
 impl DepthNoise {
-    /// The measured depth for a true depth `z`.
-    pub fn apply(&self, z: f64, rng: &mut Rng) -> f64 {
+    /// The measured depth for a true depth `z` seen at incidence cosine `cos_incidence` (in (0, 1]; only
+    /// the time-of-flight model uses it).
+    pub fn apply(&self, z: f64, cos_incidence: f64, rng: &mut Rng) -> f64 {
         match *self {
             DepthNoise::Constant { sigma } => z + sigma * rng.normal(),
             DepthNoise::Proportional { per_unit } => z + per_unit * z * rng.normal(),
@@ -58,6 +74,10 @@ impl DepthNoise {
                 let d = focal_px * baseline / z + sigma_px * rng.normal();
                 let dq = (d * subpixel).round().max(1.0) / subpixel;
                 focal_px * baseline / dq
+            }
+            DepthNoise::TimeOfFlight { sigma_at_1m, wiggle_amplitude, wiggle_period, wiggle_phase } => {
+                let bias = wiggle_amplitude * (std::f64::consts::TAU * z / wiggle_period + wiggle_phase).sin();
+                z + bias + sigma_at_1m * z * z / cos_incidence.max(1e-3) * rng.normal()
             }
         }
     }
@@ -90,7 +110,16 @@ pub struct Sensor {
     pub hole_radius: [f64; 2],
     /// Structured light: the projector sits this far along camera +x; points it cannot see are missing.
     pub projector_baseline: Option<f64>,
+    /// Time of flight: a pixel integrates light over this many pixels around its ray; where that footprint
+    /// straddles a depth edge (a second ray inside it hits more than [`MIXED_PIXEL_EDGE`] deeper or
+    /// shallower), the return is a random mix of the two depths: a "flying pixel" between the surfaces.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mixed_pixel_footprint: Option<f64>,
 }
+
+/// Depth difference (scene units) between the two rays of a pixel footprint above which a time-of-flight
+/// pixel returns a mixed depth.
+pub const MIXED_PIXEL_EDGE: f64 = 0.05;
 
 /// An elliptic hole in the image (pixel units).
 struct Hole {
@@ -170,7 +199,25 @@ impl Sensor {
                         continue;
                     }
                 }
-                let zn = self.noise.apply(z, &mut Rng::new(noise_rng_seed));
+                let mut noise_rng = Rng::new(noise_rng_seed);
+                let z = match self.mixed_pixel_footprint {
+                    Some(footprint) => {
+                        let (du, dv) =
+                            (noise_rng.uniform(-0.5, 0.5) * footprint, noise_rng.uniform(-0.5, 0.5) * footprint);
+                        let mix = noise_rng.unit_f64();
+                        let ray2 = Vector3::new((pu + du - cx) / fx, (pv + dv - cy) / fy, 1.0);
+                        let len2 = ray2.norm();
+                        let far = self.max_depth * len2 * 2.0;
+                        match cast_ray_object(objects, &origin, &(r * (ray2 / len2)), far) {
+                            Some((hit2, _)) if (hit2.t / len2 - z).abs() > MIXED_PIXEL_EDGE => {
+                                mix * z + (1.0 - mix) * hit2.t / len2
+                            }
+                            _ => z,
+                        }
+                    }
+                    None => z,
+                };
+                let zn = self.noise.apply(z, cos_inc, &mut noise_rng);
                 let p = r_out * (ray * zn) + t_out;
                 let n = r_out * (r.transpose() * hit.normal);
                 out.push(([p.x, p.y, p.z], [n.x, n.y, n.z]));
@@ -200,6 +247,7 @@ mod tests {
             max_holes: 0,
             hole_radius: [0.05, 0.1],
             projector_baseline: None,
+            mixed_pixel_footprint: None,
         }
     }
 
@@ -231,6 +279,61 @@ mod tests {
         let pts = sensor(noise).scan(&[wall_at(3.0)], &[], &pose, &Matrix4::identity(), &mut Rng::new(5));
         // d = 37.5 / 3 = 12.5 px is a multiple of 1/8: the depth is exact; the steps there are about 3 cm.
         assert!(pts.iter().all(|(p, _)| (p[2] - 3.0).abs() < 1e-9));
+    }
+
+    #[test]
+    fn time_of_flight_noise_grows_with_depth_squared_and_carries_the_wiggle_bias() {
+        let pose = look_pose(Vector3::zeros(), 0.0, 0.0, 0.0);
+        let tof = |sigma_at_1m: f64, wiggle_amplitude: f64| DepthNoise::TimeOfFlight {
+            sigma_at_1m,
+            wiggle_amplitude,
+            wiggle_period: 0.8,
+            wiggle_phase: 0.3,
+        };
+        // Pure noise: at 2 m the spread is four times that at 1 m (head-on rays: cos(incidence) ~ 1 near the
+        // image centre, at most 1 / cos(30 deg) off at the corners).
+        let spread = |depth: f64| {
+            let pts =
+                sensor(tof(0.003, 0.0)).scan(&[wall_at(depth)], &[], &pose, &Matrix4::identity(), &mut Rng::new(8));
+            let mean = pts.iter().map(|(p, _)| p[2]).sum::<f64>() / pts.len() as f64;
+            (pts.iter().map(|(p, _)| (p[2] - mean).powi(2)).sum::<f64>() / (pts.len() - 1) as f64).sqrt()
+        };
+        let (s1, s2) = (spread(1.0), spread(2.0));
+        assert!(s1 > 0.003 && s1 < 0.0036, "{s1}");
+        assert!((s2 / s1 - 4.0).abs() < 0.4, "{s1} {s2}");
+        // Pure bias: every return of a wall at depth z is moved by a sin(2 pi z / period + phase) along z.
+        for depth in [1.0, 1.3, 2.1] {
+            let pts =
+                sensor(tof(0.0, 0.01)).scan(&[wall_at(depth)], &[], &pose, &Matrix4::identity(), &mut Rng::new(9));
+            let bias = 0.01 * (std::f64::consts::TAU * depth / 0.8 + 0.3).sin();
+            assert!(pts.iter().all(|(p, _)| (p[2] - depth - bias).abs() < 1e-9), "{depth}");
+        }
+    }
+
+    #[test]
+    fn mixed_pixels_float_between_the_surfaces_of_a_depth_edge() {
+        // A post 1 m in front of a wall 3 m away: without mixed pixels every return lies on one of the two
+        // surfaces; with them, pixels whose footprint straddles the post's silhouette return depths between.
+        let pose = look_pose(Vector3::zeros(), 0.0, 0.0, 0.0);
+        let post = Object::new("post", vec![Primitive::upright_cylinder(Vector3::new(2.0, 0.0, 0.0), 0.2, 5.0)]);
+        let scene = [wall_at(3.0), post];
+        let none = DepthNoise::Constant { sigma: 0.0 };
+        let between = |pts: &[([f64; 3], [f64; 3])]| {
+            pts.iter().filter(|(p, _)| p[2] > 2.0 + MIXED_PIXEL_EDGE && p[2] < 3.0 - MIXED_PIXEL_EDGE).count()
+        };
+        let plain = sensor(none.clone()).scan(&scene, &[], &pose, &Matrix4::identity(), &mut Rng::new(10));
+        let mixed = Sensor { mixed_pixel_footprint: Some(3.0), ..sensor(none) };
+        let flying = mixed.scan(&scene, &[], &pose, &Matrix4::identity(), &mut Rng::new(10));
+        assert_eq!(plain.len(), flying.len());
+        // The post's visible surface spans depths 1.8-2.0 m.
+        assert_eq!(between(&plain), 0);
+        // Its two silhouette edges run down all 30 rows; a footprint of 3 pixels straddles an edge in about
+        // 1.5 columns per edge (0.75 of them expected to mix), and 90 % of the mixes land between.
+        let n = between(&flying);
+        assert!((20..=120).contains(&n), "{n} mixed pixels");
+        // Away from the edges the returns are untouched.
+        let moved = plain.iter().zip(&flying).filter(|(a, b)| a.0 != b.0).count();
+        assert!(moved >= n && moved < 200, "{moved}");
     }
 
     #[test]

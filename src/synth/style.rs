@@ -1,11 +1,12 @@
-//! Scene styles: `kinect` (the original generator), `randomized` (domain randomisation for training) and
-//! `heldout` (a different sensor and scene families, never to be trained or tuned on: the generalisation
-//! check).
+//! Scene styles: `kinect` (the original generator), `randomized` (domain randomisation for training), and two
+//! generalisation checks that are never to be trained or tuned on, each with its own sensor and scene families:
+//! `heldout` (structured light in open-plan halls) and `heldout-tof` (time of flight in attic flats).
 //!
 //! A styled scene first draws a [`SceneRecipe`] from its seed (sensor, noise model and level, density, fusion
 //! voxel, room or object family, trajectory or viewpoints, per-fragment variations), then scans it. The recipe
 //! is written next to the fragments as `style.json`.
 
+use super::attic::{AtticRecord, camera_room, generate_attic};
 use super::camera::{MotionModel, look_pose, plan_trajectory};
 use super::heldout::{HallRecord, generate_hall};
 use super::object::{ObjectFamily, generate_object};
@@ -32,6 +33,10 @@ pub enum Style {
     /// The generalisation check: a structured-light camera (quantised disparity, projector shadows) in halls
     /// with families no other style builds. Never train or tune on it.
     Heldout,
+    /// The second generalisation check: a low-mounted time-of-flight camera (noise growing with depth squared
+    /// over the incidence cosine, periodic depth bias, mixed pixels at depth edges) in attic flats under
+    /// pitched roofs with families no other style builds. Never train or tune on it.
+    HeldoutTof,
 }
 
 impl Style {
@@ -40,12 +45,12 @@ impl Style {
     pub fn default_min_overlap(self) -> f64 {
         match self {
             Style::Randomized => 0.20,
-            Style::Kinect | Style::Heldout => 0.30,
+            Style::Kinect | Style::Heldout | Style::HeldoutTof => 0.30,
         }
     }
 }
 
-/// Values that replace drawn ones in the `randomized` and `heldout` styles (`None`: drawn).
+/// Values that replace drawn ones in the styled generators (`None`: drawn).
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Overrides {
     /// Fusion voxel size.
@@ -106,7 +111,7 @@ pub struct SceneRecipe {
     pub style: Style,
     /// The scene seed.
     pub seed: u64,
-    /// "room", "corridor", "l_room", "hall" or "object".
+    /// "room", "corridor", "l_room", "hall", "attic" or "object".
     pub kind: String,
     /// The sensor (scene-level values; see `fragments` for per-fragment changes).
     pub sensor: Sensor,
@@ -122,6 +127,9 @@ pub struct SceneRecipe {
     pub room: Option<RoomRecord>,
     /// Hall draws (`heldout`).
     pub hall: Option<HallRecord>,
+    /// Attic draws (`heldout-tof`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub attic: Option<AtticRecord>,
     /// Object draws (object scenes).
     pub object: Option<ObjectRecord>,
     /// Per fragment.
@@ -186,6 +194,7 @@ fn randomized_sensor(rng: &mut Rng, object: bool) -> Sensor {
         max_holes: rng.below(5),
         hole_radius: [small_hole, small_hole + rng.uniform(0.02, 0.1)],
         projector_baseline: None,
+        mixed_pixel_footprint: None,
     }
 }
 
@@ -215,6 +224,35 @@ fn heldout_sensor(rng: &mut Rng) -> Sensor {
         max_holes: rng.below(2),
         hole_radius: [0.02, 0.05],
         projector_baseline: Some(baseline),
+        mixed_pixel_footprint: None,
+    }
+}
+
+/// The held-out time-of-flight camera: low resolution, short range, mixed pixels.
+fn tof_sensor(rng: &mut Rng) -> Sensor {
+    let hfov = rng.uniform(62.0, 80.0);
+    let aspect = [1.0, 5.0 / 4.0, 4.0 / 3.0][rng.below(3)];
+    let vfov = 2.0 * ((hfov / 2.0f64).to_radians().tan() / aspect).atan().to_degrees();
+    let width = 112 + rng.below(81);
+    Sensor {
+        width,
+        height: aspect_height(width, hfov, vfov),
+        hfov_deg: hfov,
+        vfov_deg: vfov,
+        min_depth: rng.uniform(0.25, 0.4),
+        max_depth: rng.uniform(3.5, 5.5),
+        dropout: rng.uniform(0.005, 0.03),
+        max_incidence_deg: rng.uniform(75.0, 85.0),
+        noise: DepthNoise::TimeOfFlight {
+            sigma_at_1m: rng.uniform(0.0015, 0.004),
+            wiggle_amplitude: rng.uniform(0.003, 0.01),
+            wiggle_period: rng.uniform(0.6, 1.5),
+            wiggle_phase: rng.uniform(0.0, std::f64::consts::TAU),
+        },
+        max_holes: rng.below(2),
+        hole_radius: [0.02, 0.06],
+        projector_baseline: None,
+        mixed_pixel_footprint: Some(rng.uniform(1.0, 2.0)),
     }
 }
 
@@ -226,6 +264,9 @@ fn scaled_noise(sensor: &Sensor, s: f64) -> DepthNoise {
         DepthNoise::Quadratic { a, b, z0 } => DepthNoise::Quadratic { a: a * s, b: b * s, z0 },
         DepthNoise::Disparity { focal_px, baseline, sigma_px, subpixel } => {
             DepthNoise::Disparity { focal_px, baseline, sigma_px: sigma_px * s, subpixel }
+        }
+        DepthNoise::TimeOfFlight { sigma_at_1m, wiggle_amplitude, wiggle_period, wiggle_phase } => {
+            DepthNoise::TimeOfFlight { sigma_at_1m: sigma_at_1m * s, wiggle_amplitude, wiggle_period, wiggle_phase }
         }
     }
 }
@@ -283,7 +324,8 @@ fn fuse_capped(samples: &[([f64; 3], [f64; 3])], voxel: f64) -> (PointCloud, f64
     }
 }
 
-/// Draws the recipe of a `randomized` or `heldout` scene from `seed` and scans it into `fragments` fragments.
+/// Draws the recipe of a styled scene (any style but `kinect`) from `seed` and scans it into `fragments`
+/// fragments.
 pub fn generate_styled_scene(
     seed: u64,
     style: Style,
@@ -308,10 +350,14 @@ pub fn generate_styled_scene(
     let mut rng = Rng::derived(seed, STREAM_RECIPE);
     let drawn_object = rng.unit_f64() < 0.3;
     let object = style == Style::Randomized && overrides.object_scenes.unwrap_or(drawn_object);
-    let mut sensor =
-        if style == Style::Heldout { heldout_sensor(&mut rng) } else { randomized_sensor(&mut rng, object) };
+    let mut sensor = match style {
+        Style::Heldout => heldout_sensor(&mut rng),
+        Style::HeldoutTof => tof_sensor(&mut rng),
+        _ => randomized_sensor(&mut rng, object),
+    };
     let (voxel_range, frames_range) = match (style, object) {
         (Style::Heldout, _) => ([0.006, 0.01], [8, 15]),
+        (Style::HeldoutTof, _) => ([0.005, 0.009], [6, 12]),
         (_, true) => ([0.003, 0.006], [2, 5]),
         _ => ([0.004, 0.010], [8, 20]),
     };
@@ -322,10 +368,14 @@ pub fn generate_styled_scene(
         sensor.height = aspect_height(w, sensor.hfov_deg, sensor.vfov_deg);
         sensor.width = w;
     }
-    let (dark_probability, dark_dropout) =
-        if style == Style::Heldout { (0.0, 0.0) } else { (rng.uniform(0.0, 0.15), rng.uniform(0.4, 0.95)) };
+    let (dark_probability, dark_dropout) = match style {
+        Style::Heldout => (0.0, 0.0),
+        Style::HeldoutTof => (rng.uniform(0.05, 0.2), rng.uniform(0.3, 0.7)),
+        _ => (rng.uniform(0.0, 0.15), rng.uniform(0.4, 0.95)),
+    };
     let mut scene_rng = Rng::derived(seed, STREAM_SCENE);
     let mut pose_rng = Rng::derived(seed, STREAM_POSES);
+    let mut attic = None;
     let (room, poses, kind, room_record, hall, object_record) = if object {
         let family =
             [ObjectFamily::Blob, ObjectFamily::Assembly, ObjectFamily::Miniature, ObjectFamily::Cluster][rng.below(4)];
@@ -354,6 +404,22 @@ pub fn generate_styled_scene(
         let poses = plan_trajectory(&room, &motion, fragments, frames, &mut pose_rng);
         let record = RoomRecord { spec: RoomSpec::default(), motion };
         (room, poses, "hall".to_string(), Some(record), Some(hall), None)
+    } else if style == Style::HeldoutTof {
+        let (room, roof, record) = generate_attic(&mut scene_rng);
+        let motion = MotionModel {
+            yaw_per_fragment_deg: [rng.uniform(12.0, 20.0), rng.uniform(25.0, 35.0)],
+            pitch_deg: [-25.0, 5.0],
+            height: [0.6, 1.2],
+            wall_margin: 0.4,
+            back_fraction: [0.1, 0.7],
+            lateral: 0.6,
+            roll_deg: 3.0,
+        };
+        let planning = camera_room(&room, &roof, motion.height[1], 0.3);
+        let poses = plan_trajectory(&planning, &motion, fragments, frames, &mut pose_rng);
+        attic = Some(record);
+        let record = RoomRecord { spec: RoomSpec::default(), motion };
+        (room, poses, "attic".to_string(), Some(record), None, None)
     } else {
         let shape = match rng.below(20) {
             0..=7 => RoomShape::Rectangle,
@@ -399,7 +465,8 @@ pub fn generate_styled_scene(
     let per_fragment: Vec<(Sensor, f64, f64)> = (0..fragments)
         .map(|k| {
             let mut r = Rng::derived(seed, STREAM_FRAGMENT + k as u64);
-            let noise_scale = if style == Style::Heldout { 1.0 } else { r.uniform(0.7, 1.4) };
+            let noise_scale =
+                if matches!(style, Style::Heldout | Style::HeldoutTof) { 1.0 } else { r.uniform(0.7, 1.4) };
             let dropout = (sensor.dropout + r.uniform(-0.02, 0.05)).clamp(0.0, 0.2);
             let s = Sensor { noise: scaled_noise(&sensor, noise_scale), dropout, ..sensor.clone() };
             (s, noise_scale, dropout)
@@ -437,6 +504,7 @@ pub fn generate_styled_scene(
         dark_dropout,
         room: room_record,
         hall,
+        attic,
         object: object_record,
         fragments: records,
     };
