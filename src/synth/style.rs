@@ -375,8 +375,7 @@ pub fn generate_styled_scene(
     };
     let mut scene_rng = Rng::derived(seed, STREAM_SCENE);
     let mut pose_rng = Rng::derived(seed, STREAM_POSES);
-    let mut attic = None;
-    let (room, poses, kind, room_record, hall, object_record) = if object {
+    let (room, poses, kind, room_record, hall, attic, object_record) = if object {
         let family =
             [ObjectFamily::Blob, ObjectFamily::Assembly, ObjectFamily::Miniature, ObjectFamily::Cluster][rng.below(4)];
         let size = rng.uniform(1.5, 2.5);
@@ -389,7 +388,7 @@ pub fn generate_styled_scene(
         let room =
             Room { polygon: Vec::new(), height: 0.0, kernel_center: [0.0, 0.0], objects, footprints: Vec::new() };
         let record = ObjectRecord { family, size, distance, azimuth_deg, elevation_deg };
-        (room, poses, "object".to_string(), None, None, Some(record))
+        (room, poses, "object".to_string(), None, None, None, Some(record))
     } else if style == Style::Heldout {
         let (room, hall) = generate_hall(&mut scene_rng);
         let motion = MotionModel {
@@ -403,9 +402,9 @@ pub fn generate_styled_scene(
         };
         let poses = plan_trajectory(&room, &motion, fragments, frames, &mut pose_rng);
         let record = RoomRecord { spec: RoomSpec::default(), motion };
-        (room, poses, "hall".to_string(), Some(record), Some(hall), None)
+        (room, poses, "hall".to_string(), Some(record), Some(hall), None, None)
     } else if style == Style::HeldoutTof {
-        let (room, roof, record) = generate_attic(&mut scene_rng);
+        let (room, roof, attic) = generate_attic(&mut scene_rng);
         let motion = MotionModel {
             yaw_per_fragment_deg: [rng.uniform(12.0, 20.0), rng.uniform(25.0, 35.0)],
             pitch_deg: [-25.0, 5.0],
@@ -417,9 +416,8 @@ pub fn generate_styled_scene(
         };
         let planning = camera_room(&room, &roof, motion.height[1], 0.3);
         let poses = plan_trajectory(&planning, &motion, fragments, frames, &mut pose_rng);
-        attic = Some(record);
         let record = RoomRecord { spec: RoomSpec::default(), motion };
-        (room, poses, "attic".to_string(), Some(record), None, None)
+        (room, poses, "attic".to_string(), Some(record), None, Some(attic), None)
     } else {
         let shape = match rng.below(20) {
             0..=7 => RoomShape::Rectangle,
@@ -454,7 +452,7 @@ pub fn generate_styled_scene(
             RoomShape::LShape => "l_room",
             RoomShape::Corridor => "corridor",
         };
-        (room, poses, kind.to_string(), Some(RoomRecord { spec, motion }), None, None)
+        (room, poses, kind.to_string(), Some(RoomRecord { spec, motion }), None, None, None)
     };
     let mut material_rng = Rng::derived(seed, STREAM_MATERIALS);
     let object_dropout: Vec<f64> = room
