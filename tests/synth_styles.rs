@@ -32,6 +32,7 @@ fn styled(style: Style, fragments: usize, width: usize, frames: usize, objects: 
             frames_per_fragment: Some(frames),
             voxel: None,
             object_scenes: objects,
+            repeated: false,
         },
         ground_truth: dpr_gpu::eval::groundtruth::GroundTruthRule {
             min_overlap: style.default_min_overlap(),
@@ -39,6 +40,12 @@ fn styled(style: Style, fragments: usize, width: usize, frames: usize, objects: 
         },
         ..SynthSettings::default()
     }
+}
+
+/// `settings` with rows of identical pieces in its rooms (`synth --scene-kind repeated`).
+fn repeated(mut settings: SynthSettings) -> SynthSettings {
+    settings.overrides.repeated = true;
+    settings
 }
 
 /// Every file under `dir` (relative path -> bytes).
@@ -200,6 +207,7 @@ fn every_style_is_deterministic_per_seed_and_thread_count() {
         ),
         ("randomized_room", styled(Style::Randomized, 2, 48, 3, Some(false))),
         ("randomized_object", styled(Style::Randomized, 2, 64, 1, Some(true))),
+        ("randomized_repeated", repeated(styled(Style::Randomized, 2, 48, 3, Some(false)))),
         ("heldout", styled(Style::Heldout, 2, 48, 3, None)),
         ("heldout_tof", styled(Style::HeldoutTof, 2, 48, 3, None)),
     ] {
@@ -342,6 +350,7 @@ fn ground_truth_realigns_fragments_and_respects_min_overlap() {
     let dir = temp_dir("gt");
     for (name, mut settings, wrong_shows) in [
         ("randomized", styled(Style::Randomized, 4, 64, 3, Some(false)), 0.006),
+        ("randomized_repeated", repeated(styled(Style::Randomized, 4, 64, 3, Some(false))), 0.006),
         ("heldout", styled(Style::Heldout, 4, 64, 3, None), 0.006),
         // The attics' few large planes constrain the wrong transform less (3.4-7.4 mm measured here), and the
         // time-of-flight depth bias leaves up to 1.7 mm where the ground truth is right.

@@ -17,6 +17,9 @@ pub enum SceneKind {
     Room,
     /// Object-scale scenes only.
     Object,
+    /// Rooms and corridors that first get rows of identical pieces (classroom desks, library shelves, rows of
+    /// chairs, canteen tables, cabinets side by side): repetition for training and tuning.
+    Repeated,
 }
 
 /// Arguments of `dpr-gpu synth`.
@@ -44,7 +47,8 @@ pub struct Args {
     /// Smallest overlap for a pair to enter gt.log [default: 0.30 (3DMatch rule); 0.20 for --style randomized].
     #[arg(long)]
     pub min_overlap: Option<f64>,
-    /// Scene kinds of --style randomized: mixed (about 30 % object-scale scenes), room or object.
+    /// Scene kinds of --style randomized: mixed (about 30 % object-scale scenes), room, object, or repeated
+    /// (rooms with rows of identical pieces).
     #[arg(long, value_enum, default_value_t = SceneKind::Mixed)]
     pub scene_kind: SceneKind,
     /// Fusion voxel size in metres [default: 0.006 for kinect; drawn per scene by the other styles].
@@ -134,9 +138,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             width: args.width,
             object_scenes: match args.scene_kind {
                 SceneKind::Mixed => None,
-                SceneKind::Room => Some(false),
+                SceneKind::Room | SceneKind::Repeated => Some(false),
                 SceneKind::Object => Some(true),
             },
+            repeated: args.scene_kind == SceneKind::Repeated,
         },
         ..defaults
     };

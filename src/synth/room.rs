@@ -253,6 +253,10 @@ pub struct RoomSpec {
     pub density: f64,
     /// Also use the furniture families that the `kinect` style lacks ([`furniture::EXTRA_FAMILIES`]).
     pub extra_families: bool,
+    /// First furnish rows of identical pieces ([`furnish_repeated`]): the repetition that makes local patches
+    /// ambiguous.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub repeated: bool,
 }
 
 impl Default for RoomSpec {
@@ -265,6 +269,7 @@ impl Default for RoomSpec {
             corridor_width: [1.6, 2.4],
             density: 1.0,
             extra_families: false,
+            repeated: false,
         }
     }
 }
@@ -300,6 +305,9 @@ pub fn generate_room_with(rng: &mut Rng, spec: &RoomSpec) -> Room {
     };
     let mut room = Room { polygon, height, kernel_center, objects: Vec::new(), footprints: Vec::new() };
     build_shell(&mut room, rng);
+    if spec.repeated {
+        furnish_repeated(&mut room, rng);
+    }
     furnish(&mut room, rng, spec);
     room
 }
@@ -509,6 +517,86 @@ fn build_shell(room: &mut Room, rng: &mut Rng) {
     room.objects.push(Object::new("light", light));
 }
 
+/// Fewest copies of a piece that make a group of [`furnish_repeated`].
+const MIN_COPIES: usize = 3;
+
+/// One or two groups of identical pieces on a regular grid, aligned with the room's axes: classroom desks with
+/// their chairs, library shelves in parallel rows, rows of chairs, canteen tables, or cabinets side by side.
+/// Every copy of a group is the same drawn piece, so its patches differ only by what surrounds them. Copies
+/// that do not fit (walls, other pieces) are left out, and a group with fewer than [`MIN_COPIES`] copies is
+/// drawn again (a few tries).
+fn furnish_repeated(room: &mut Room, rng: &mut Rng) {
+    let wanted = 1 + rng.below(2);
+    let mut groups = 0;
+    for _ in 0..4 * wanted {
+        if groups == wanted {
+            break;
+        }
+        let before = (room.objects.len(), room.footprints.len());
+        // The piece, the gap range between neighbours along its width (local x) and depth (local y), and a
+        // companion placed in front of every copy (a desk's chair).
+        let (piece, gap_x, gap_y, companion) = match rng.below(5) {
+            0 => (furniture::desk(rng), [0.3, 0.9], [0.9, 1.4], Some(furniture::chair(rng))),
+            1 => (furniture::shelf(rng), [0.02, 0.1], [0.9, 1.5], None),
+            2 => (furniture::chair(rng), [0.1, 0.4], [0.4, 0.8], None),
+            3 => (furniture::table(rng), [0.8, 1.5], [0.8, 1.5], None),
+            _ => (furniture::cabinet(rng), [0.02, 0.08], [1.0, 1.6], None),
+        };
+        let pitch_x = 2.0 * piece.half[0] + rng.uniform(gap_x[0], gap_x[1]);
+        let pitch_y = 2.0 * piece.half[1] + rng.uniform(gap_y[0], gap_y[1]);
+        // Quarter-turn yaws only, so the grid stays aligned with the walls of the rectilinear plan.
+        let yaw = rng.below(4) as f64 * FRAC_PI_2;
+        let r = rot_z(yaw);
+        let along_x = r * Vector3::new(pitch_x, 0.0, 0.0);
+        let along_y = r * Vector3::new(0.0, pitch_y, 0.0);
+        // As many columns and rows as drawn, fewer where the room is too small (0.3 m from the walls), the
+        // grid's centre drawn where the whole grid fits.
+        let (lo, hi) = room.bounds();
+        let room_extent = [hi[0] - lo[0] - 0.6, hi[1] - lo[1] - 0.6];
+        let fit = |pitch: Vector3<f64>, half: f64, drawn: usize| {
+            let (step, size) = (pitch.x.abs() + pitch.y.abs(), room_extent[usize::from(pitch.y.abs() > pitch.x.abs())]);
+            drawn.min(((size - 2.0 * half) / step).floor().max(0.0) as usize + 1)
+        };
+        // Half extents of one copy (with its companion) along local x and y, and then along world x and y.
+        let half_local = [piece.half[0], piece.half[1] + companion.as_ref().map_or(0.0, |c| c.half[1] * 1.2)];
+        let columns = fit(along_x, half_local[0], 2 + rng.below(5));
+        let rows = fit(along_y, half_local[1], 1 + rng.below(4));
+        let span = along_x * (columns - 1) as f64 + along_y * (rows - 1) as f64;
+        let turned = yaw.sin().abs() > 0.5;
+        let half_world = if turned { [half_local[1], half_local[0]] } else { half_local };
+        let slack = [
+            (room_extent[0] - span.x.abs() - 2.0 * half_world[0]).max(0.0) / 2.0,
+            (room_extent[1] - span.y.abs() - 2.0 * half_world[1]).max(0.0) / 2.0,
+        ];
+        let centre = [
+            (lo[0] + hi[0]) / 2.0 + rng.uniform(-slack[0], slack[0] + 1e-9),
+            (lo[1] + hi[1]) / 2.0 + rng.uniform(-slack[1], slack[1] + 1e-9),
+        ];
+        let origin = [centre[0] - span.x / 2.0, centre[1] - span.y / 2.0];
+        let mut copies = 0;
+        for row in 0..rows {
+            for column in 0..columns {
+                let offset = along_x * column as f64 + along_y * row as f64;
+                let (x, y) = (origin[0] + offset.x, origin[1] + offset.y);
+                let Some(k) = room.place(&piece, x, y, yaw, 0.01, None) else { continue };
+                copies += 1;
+                if let Some(chair) = &companion {
+                    // In front of the desk (its -y side), facing it.
+                    let reach = piece.half[1] + chair.half[1] * 0.6;
+                    let front = r * Vector3::new(0.0, -reach, 0.0);
+                    room.place(chair, x + front.x, y + front.y, yaw + PI, 0.01, Some(k));
+                }
+            }
+        }
+        if copies >= MIN_COPIES {
+            groups += 1;
+        } else {
+            room.objects.truncate(before.0);
+            room.footprints.truncate(before.1);
+        }
+    }
+}
+
 /// Furniture against the walls, then table groups and small free-standing things.
 fn furnish(room: &mut Room, rng: &mut Rng, spec: &RoomSpec) {
     let perimeter: f64 = room.edges().map(|(a, b)| (b[0] - a[0]).hypot(b[1] - a[1])).sum();
@@ -613,6 +701,35 @@ mod tests {
             for f in &room.footprints {
                 assert!(room.contains(f.center), "seed {seed}: {f:?}");
             }
+        }
+    }
+
+    /// The most copies of one drawn piece in `room`: objects of the same kind whose solids have the same shapes
+    /// in the same order (placement aside).
+    fn most_copies(room: &Room) -> usize {
+        let mut most = 0;
+        for (k, a) in room.objects.iter().enumerate() {
+            let same = |b: &Object| {
+                b.kind == a.kind
+                    && b.primitives.len() == a.primitives.len()
+                    && b.primitives.iter().zip(&a.primitives).all(|(p, q)| p.shape == q.shape)
+            };
+            most = most.max(room.objects[k..].iter().filter(|b| same(b)).count());
+        }
+        most
+    }
+
+    #[test]
+    fn repeated_rooms_hold_rows_of_identical_pieces_and_others_do_not() {
+        let repeated = RoomSpec { repeated: true, extra_families: true, ..RoomSpec::default() };
+        for seed in 0..12 {
+            let room = generate_room_with(&mut Rng::new(seed), &repeated);
+            assert!(most_copies(&room) >= MIN_COPIES, "seed {seed}: at most {} copies", most_copies(&room));
+            for f in &room.footprints {
+                assert!(room.contains(f.center), "seed {seed}: {f:?}");
+            }
+            let plain = generate_room_with(&mut Rng::new(seed), &RoomSpec::default());
+            assert!(most_copies(&plain) < MIN_COPIES, "seed {seed}: a plain room has {} copies", most_copies(&plain));
         }
     }
 }

@@ -62,6 +62,8 @@ pub struct Overrides {
     /// `randomized` only: `Some(true)` makes every scene object-scale, `Some(false)` none (about 30 % are by
     /// default).
     pub object_scenes: Option<bool>,
+    /// `randomized` rooms only: furnish rows of identical pieces first ([`RoomSpec::repeated`]).
+    pub repeated: bool,
 }
 
 /// Fragments larger than this are fused again with a coarser voxel.
@@ -432,6 +434,7 @@ pub fn generate_styled_scene(
             corridor_width: [1.6, 2.6],
             density: rng.uniform(0.6, 1.4),
             extra_families: true,
+            repeated: overrides.repeated,
         };
         let yaw_lo = rng.uniform(15.0, 40.0);
         let pitch_lo = rng.uniform(-45.0, -20.0);
