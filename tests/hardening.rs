@@ -21,6 +21,25 @@ fn text(o: &Output) -> (String, String) {
     (String::from_utf8_lossy(&o.stdout).into_owned(), String::from_utf8_lossy(&o.stderr).into_owned())
 }
 
+/// Output into a pipe whose reader is gone (`dpr-gpu info w | head -1`) ends the process by SIGPIPE, as it ends
+/// other Unix tools: never a panic in `println!`.
+#[cfg(unix)]
+#[test]
+fn output_into_a_closed_pipe_ends_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let o = Command::new(env!("CARGO_BIN_EXE_dpr-gpu"))
+        .args(["info", "weights/default.safetensors"])
+        .stdout(writer)
+        .output()
+        .expect("binary runs");
+    let (_, err) = text(&o);
+    assert!(!err.contains("panicked"), "{err}");
+    // SIGPIPE is 13 on Linux and macOS.
+    assert_eq!(o.status.signal(), Some(13), "status {:?}, stderr: {err}", o.status);
+}
+
 /// Exit status 1 with one `error:` line that contains every needle; no panic, no abort (a signal).
 fn assert_clean_failure(o: &Output, needles: &[&str]) {
     let (_, err) = text(o);

@@ -46,6 +46,7 @@ pub enum Command {
 
 /// Runs the CLI; returns the process exit code. Errors are printed as one line.
 pub fn main() -> std::process::ExitCode {
+    default_sigpipe();
     let cli = Cli::parse();
     cap_thread_pool();
     let mut untrusted = false;
@@ -88,6 +89,16 @@ pub fn one_line(e: &anyhow::Error) -> String {
 
 /// Most threads of the global pool, whatever `RAYON_NUM_THREADS` asks for.
 pub const MAX_THREADS: usize = 256;
+
+/// Restores SIGPIPE's default action (Rust ignores it), so that output into a closed pipe (`dpr-gpu info w |
+/// head -1`) ends the process quietly as it ends other Unix tools, not with a panic in `println!`.
+fn default_sigpipe() {
+    #[cfg(unix)]
+    // SAFETY: called first in `main`, before any other thread exists; SIG_DFL is a valid action for SIGPIPE.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
 
 /// Sizes rayon's global pool: `RAYON_NUM_THREADS` when set, capped at the cores this process may use (and at
 /// [`MAX_THREADS`]), so a value such as 5000 cannot make every parallel stage spawn and schedule thousands of
