@@ -544,26 +544,27 @@ fn furnish_repeated(room: &mut Room, rng: &mut Rng) {
         };
         let pitch_x = 2.0 * piece.half[0] + rng.uniform(gap_x[0], gap_x[1]);
         let pitch_y = 2.0 * piece.half[1] + rng.uniform(gap_y[0], gap_y[1]);
-        // Quarter-turn yaws only, so the grid stays aligned with the walls of the rectilinear plan.
+        // Quarter-turn yaws only, so the grid stays aligned with the walls of the rectilinear plan: local x runs
+        // along world x, or along world y when the piece is turned.
         let yaw = rng.below(4) as f64 * FRAC_PI_2;
         let r = rot_z(yaw);
         let along_x = r * Vector3::new(pitch_x, 0.0, 0.0);
         let along_y = r * Vector3::new(0.0, pitch_y, 0.0);
+        let turned = yaw.sin().abs() > 0.5;
+        let world_axis = |local: usize| local ^ usize::from(turned);
+        // Half extents of one copy (with its companion) along local x and y.
+        let half = [piece.half[0], piece.half[1] + companion.as_ref().map_or(0.0, |c| c.half[1] * 1.2)];
         // As many columns and rows as drawn, fewer where the room is too small (0.3 m from the walls), the
         // grid's centre drawn where the whole grid fits.
         let (lo, hi) = room.bounds();
         let room_extent = [hi[0] - lo[0] - 0.6, hi[1] - lo[1] - 0.6];
-        let fit = |pitch: Vector3<f64>, half: f64, drawn: usize| {
-            let (step, size) = (pitch.x.abs() + pitch.y.abs(), room_extent[usize::from(pitch.y.abs() > pitch.x.abs())]);
-            drawn.min(((size - 2.0 * half) / step).floor().max(0.0) as usize + 1)
+        let fit = |local: usize, pitch: f64, drawn: usize| {
+            drawn.min(((room_extent[world_axis(local)] - 2.0 * half[local]) / pitch).floor().max(0.0) as usize + 1)
         };
-        // Half extents of one copy (with its companion) along local x and y, and then along world x and y.
-        let half_local = [piece.half[0], piece.half[1] + companion.as_ref().map_or(0.0, |c| c.half[1] * 1.2)];
-        let columns = fit(along_x, half_local[0], 2 + rng.below(5));
-        let rows = fit(along_y, half_local[1], 1 + rng.below(4));
+        let columns = fit(0, pitch_x, 2 + rng.below(5));
+        let rows = fit(1, pitch_y, 1 + rng.below(4));
         let span = along_x * (columns - 1) as f64 + along_y * (rows - 1) as f64;
-        let turned = yaw.sin().abs() > 0.5;
-        let half_world = if turned { [half_local[1], half_local[0]] } else { half_local };
+        let half_world = [half[world_axis(0)], half[world_axis(1)]];
         let slack = [
             (room_extent[0] - span.x.abs() - 2.0 * half_world[0]).max(0.0) / 2.0,
             (room_extent[1] - span.y.abs() - 2.0 * half_world[1]).max(0.0) / 2.0,
