@@ -1135,7 +1135,7 @@ fn device_steps_match_cpu_steps() {
 /// feature crosses the bus. The bound is counted from the step's inputs and outputs, independently of the
 /// counters: up, the pose rows' indices, the matched normals and points (repeated per rotation candidate for the
 /// hypotheses); down, the matcher's per-row lists (3 x K_MAX words per source row), a score (8 bytes) per
-/// hypothesis and the best hypothesis (12 floats).
+/// hypothesis and the kept best hypotheses (12 floats each, one per pose candidate).
 fn pair_steps_read_back_only_small_results() {
     let Some(g) = gpu() else { return };
     let s = seed(74);
@@ -1162,7 +1162,7 @@ fn pair_steps_read_back_only_small_results() {
     let (ns, nt) = (fs.keypoints.len() as u64, ft.keypoints.len() as u64);
     let k_max = dpr_gpu::gpu::mutual_knn::K_MAX as u64;
     let up_bound = 4 * 2 * c + 12 * 2 * c + 12 * 2 * c * m + 12 * 2 * c;
-    let down_bound = 3 * 4 * k_max * ns + 8 * c * m + 4 * 12;
+    let down_bound = 3 * 4 * k_max * ns + 8 * c * m + 4 * 12 * settings.pose_candidates as u64;
     assert!(c >= 3 && estimate.hypotheses_scored == (c * m) as usize, "{c} correspondences, seed {s}");
     assert!(moved.host_to_device_bytes <= up_bound, "{} bytes up, bound {up_bound}", moved.host_to_device_bytes);
     assert!(moved.device_to_host_bytes <= down_bound, "{} bytes down, bound {down_bound}", moved.device_to_host_bytes);

@@ -9,7 +9,8 @@ use dpr_gpu::cpu::codeword_distance::codeword_distance;
 use dpr_gpu::cpu::mutual_knn::mutual_knn;
 use dpr_gpu::cpu::patch_features::point_features;
 use dpr_gpu::cpu::rotation_head::quaternion_rotation;
-use dpr_gpu::estimate::{ransac, verify};
+use dpr_gpu::estimate::candidates::same_pose;
+use dpr_gpu::estimate::{ransac, ransac_candidates, refine, verify};
 use dpr_gpu::model::{Model, Weights};
 use dpr_gpu::pose::{
     matrix_from_parts, matrix_from_quaternion, quaternion_from_matrix, rotation_error_deg, transform_point,
@@ -199,6 +200,32 @@ fn ransac_is_deterministic_per_seed() {
     assert_eq!(a.target_from_source, b.target_from_source);
     assert_eq!(a.hypotheses_scored, b.hypotheses_scored);
     assert!(ransac(&p.source[..2], &p.target[..2], 0.05, &RansacSettings::default(), 9).is_err());
+}
+
+#[test]
+fn ransac_candidates_keep_distinct_poses_and_the_first_is_ransacs() {
+    // 30 % of the correspondences follow the true pose, 25 % a second pose (a repeated structure), the rest noise.
+    let mut p = problem(5, 200, 0.3);
+    let mut rng = Rng::new(55);
+    let second = random_pose(&mut rng);
+    for i in 60..110 {
+        p.target[i] = transform_point(&second, p.source[i]);
+    }
+    let settings = RansacSettings::default();
+    let (one, iterations_one) = ransac_candidates(&p.source, &p.target, 0.05, &settings, 4, 1).unwrap();
+    let (many, iterations_many) = ransac_candidates(&p.source, &p.target, 0.05, &settings, 4, 8).unwrap();
+    assert_eq!(one.len(), 1);
+    assert_eq!(iterations_one, iterations_many, "keeping more poses changes neither the samples nor the exit");
+    assert_eq!(many[0].target_from_source, one[0].target_from_source);
+    assert!(rotation_error_deg(&many[0].target_from_source, &p.truth) < 2.0);
+    assert!(many.iter().any(|c| rotation_error_deg(&c.target_from_source, &second) < 2.0), "the second pose is kept");
+    for (a, b) in many.iter().enumerate().flat_map(|(i, a)| many[i + 1..].iter().map(move |b| (a, b))) {
+        assert!(!same_pose(&a.target_from_source, &b.target_from_source, 0.05), "two kept poses are one");
+    }
+    assert!(many.windows(2).all(|w| w[0].inliers >= w[1].inliers), "best first");
+    let refined = ransac(&p.source, &p.target, 0.05, &settings, 4).unwrap();
+    let first = refine(one[0].target_from_source, &p.source, &p.target, 0.05, iterations_one);
+    assert_eq!(refined.target_from_source, first.target_from_source);
 }
 
 #[test]

@@ -58,6 +58,7 @@ class _Settings(TypedDict, total=False):
     min_spread_over_threshold: float
     context_radii: Sequence[tuple[float, float]]
     context_when: Literal["untrusted", "always"]
+    pose_candidates: int
 
 @final
 class Features:
@@ -259,6 +260,7 @@ class Registrar:
         min_spread_over_threshold: float = 2.0,
         context_radii: Sequence[tuple[float, float]] = [(2.0, 1.0)],
         context_when: Literal["untrusted", "always"] = "untrusted",
+        pose_candidates: int = 16,
     ) -> Registrar: ...
     @property
     def settings(self) -> dict[str, object]:

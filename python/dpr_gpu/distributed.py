@@ -467,6 +467,12 @@ def _arguments() -> argparse.ArgumentParser:
         help="context radius, repeatable, or 'off' (default 2:1)",
     )
     reg.add_argument("--context-when", default="untrusted", choices=("untrusted", "always"))
+    reg.add_argument(
+        "--pose-candidates",
+        type=int,
+        default=None,
+        help="how many of the estimator's best distinct poses compete (default: the library's)",
+    )
     return p
 
 
@@ -516,6 +522,7 @@ def _settings_of(a: argparse.Namespace) -> Dict[str, Any]:
         "min_spread_over_threshold": a.min_inlier_spread,
         "context_radii": _context_radii(a.context_radius),
         "context_when": a.context_when,
+        **({} if a.pose_candidates is None else {"pose_candidates": a.pose_candidates}),
     }
 
 

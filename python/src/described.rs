@@ -21,7 +21,7 @@ use pyo3::types::{PyBytes, PyDict, PyTuple};
 use std::sync::{Arc, OnceLock};
 
 /// Magic tags of the pickled states.
-const SCAN_MAGIC: &[u8] = b"dpr-gpu/DescribedScan/3\0";
+const SCAN_MAGIC: &[u8] = b"dpr-gpu/DescribedScan/4\0";
 const PAIR_MAGIC: &[u8] = b"dpr-gpu/PairResult/1\0";
 
 /// A fingerprint of the settings and weights a scan was described with: only a registrar with the same key may
@@ -73,6 +73,7 @@ impl DescribedScan {
             w.i64(c);
         }
         w.f32s(&flat(&f.cloud.points));
+        w.f32s(&f.viewpoint);
         w.u64(u64::from(f.cloud.normals.is_some()));
         w.f32s(&f.cloud.normals.as_deref().map(flat).unwrap_or_default());
         w.f32s(&flat(&f.keypoints));
@@ -103,6 +104,10 @@ impl DescribedScan {
         let index = r.usize()?;
         let origin = [r.i64()?, r.i64()?, r.i64()?];
         let points = triples(r.f32s()?, WHAT)?;
+        let viewpoint: [f32; 3] = match triples(r.f32s()?, WHAT)?.as_slice() {
+            [v] if v.iter().all(|c| c.is_finite()) => *v,
+            _ => return Err(value_error("DescribedScan: the pickled viewpoint is not one finite point")),
+        };
         let has_normals = r.u64()? != 0;
         let normals = triples(r.f32s()?, WHAT)?;
         let keypoints = triples(r.f32s()?, WHAT)?;
@@ -153,6 +158,7 @@ impl DescribedScan {
             .collect::<PyResult<Vec<_>>>()?;
         let features = ScanFeatures {
             cloud: PointCloud { points, normals: has_normals.then_some(normals) },
+            viewpoint,
             keypoints,
             keypoint_normals,
             keypoint_ranks,

@@ -111,6 +111,10 @@ impl Features {
 ///   weighted by ``weight`` (the main radius's by 1); ``[]`` for the main radius alone. ``context_when``:
 ///   ``"untrusted"`` (only a last round on all keypoints, when the main radius gave no trusted result) or
 ///   ``"always"``.
+/// - ``pose_candidates``: how many of the estimator's best distinct poses compete: the one with most inliers
+///   stays unless another with at least half its inliers puts clearly fewer points in space the other scan saw
+///   empty from ``viewpoint`` (in each scan's frame); 1 keeps the pose with most inliers (clouds in a shared
+///   world frame).
 ///
 /// Raises ``ValueError`` for bad settings or weights that do not fit, ``OSError`` when the weights file cannot be
 /// read, ``RuntimeError`` when ``backend="gpu"`` finds no usable GPU.
@@ -168,6 +172,7 @@ impl Registrar {
         min_spread_over_threshold = 2.0,
         context_radii = default_context_radii(),
         context_when = "untrusted".to_string(),
+        pose_candidates = 16,
     ),
     text_signature = "(*, weights=None, radius=None, voxel=None, keypoints=2500, first_keypoints=250, \
         keypoint_mode='random', \
@@ -175,7 +180,7 @@ impl Registrar {
         inlier_threshold=None, ransac_iterations=100000, ransac_confidence=0.999, icp=True, \
         icp_max_correspondence_distance=None, icp_max_iterations=30, drop_zero_points=False, seed=0, \
         backend='auto', min_inliers=12, min_inlier_ratio=0.055, min_spread_over_threshold=2.0, \
-        context_radii=[(2.0, 1.0)], context_when='untrusted')")]
+        context_radii=[(2.0, 1.0)], context_when='untrusted', pose_candidates=16)")]
     #[expect(clippy::too_many_arguments, reason = "one keyword argument per setting, as Python callers expect")]
     fn new(
         py: Python<'_>,
@@ -204,6 +209,7 @@ impl Registrar {
         min_spread_over_threshold: f64,
         context_radii: Vec<(f32, f32)>,
         context_when: String,
+        pose_candidates: i64,
     ) -> PyResult<Registrar> {
         let args = SettingsArgs {
             weights,
@@ -231,6 +237,7 @@ impl Registrar {
             min_spread_over_threshold,
             context_radii,
             context_when,
+            pose_candidates,
         };
         let probe = RegistrationSettings { weights: args.weights.clone(), ..RegistrationSettings::default() };
         let loaded = py.detach(|| load_weights(&probe)).map_err(to_py_err)?;

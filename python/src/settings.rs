@@ -42,6 +42,7 @@ pub(crate) struct SettingsArgs {
     pub min_spread_over_threshold: f64,
     pub context_radii: Vec<(f32, f32)>,
     pub context_when: String,
+    pub pose_candidates: i64,
 }
 
 /// `value` as a count; negative values are refused naming `name`.
@@ -121,6 +122,7 @@ impl SettingsArgs {
                 .map(|&(factor, weight)| ContextRadius { factor, weight })
                 .collect(),
             context_when: choose("context_when", &self.context_when, CONTEXT_WHEN)?,
+            pose_candidates: count("pose_candidates", self.pose_candidates)?,
         })
     }
 }
@@ -158,6 +160,7 @@ pub(crate) fn settings_dict<'py>(py: Python<'py>, s: &RegistrationSettings) -> P
     let context: Vec<(f32, f32)> = s.context_radii.iter().map(|c| (c.factor, c.weight)).collect();
     d.set_item("context_radii", context)?;
     d.set_item("context_when", name_of(s.context_when, CONTEXT_WHEN))?;
+    d.set_item("pose_candidates", s.pose_candidates)?;
     Ok(d)
 }
 

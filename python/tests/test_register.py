@@ -179,6 +179,8 @@ def test_settings_defaults_follow_the_library():
         ({"context_radii": ((0.5, 1.0),)}, "context radius factor"),
         ({"context_radii": ((2.0, 0.0),)}, "context radius weight"),
         ({"context_when": "sometimes"}, "unknown context_when"),
+        ({"pose_candidates": 0}, "pose candidates must be"),
+        ({"pose_candidates": -2}, "pose_candidates must not be negative"),
     ],
 )
 def test_bad_settings_raise_value_error(settings, needle):

@@ -85,6 +85,11 @@ pub struct RegisterOptions {
     /// matching on the main radius alone gave no trusted result), or always.
     #[arg(long, value_name = "WHEN", default_value = "untrusted")]
     pub context_when: String,
+    /// How many of the estimator's best distinct poses compete: the one with most inliers stays unless another
+    /// with at least half its inliers puts clearly fewer points in space the other scan saw empty from its
+    /// sensor (each scan's frame origin); 1: most inliers alone (for clouds in a shared world frame).
+    #[arg(long, value_name = "N", default_value_t = crate::settings::DEFAULT_POSE_CANDIDATES)]
+    pub pose_candidates: usize,
     /// Verdict: fewest inliers for a trusted result.
     #[arg(long, default_value_t = crate::verdict::VerdictSettings::default().min_inliers)]
     pub min_inliers: usize,
@@ -139,6 +144,7 @@ impl RegisterOptions {
             inlier_threshold: self.inlier_threshold,
             seed: self.seed,
             drop_zero_points: self.drop_zero,
+            pose_candidates: self.pose_candidates,
             ..RegistrationSettings::default()
         };
         s.keypoint_mode = match self.keypoint_mode.as_str() {
@@ -424,5 +430,15 @@ mod tests {
         assert_eq!((given.context_radii.as_slice(), given.context_when), (&expected[..], ContextWhen::Always));
         let mixed = settings(&["--context-radius", "off", "--context-radius", "2:1"]).unwrap_err().to_string();
         assert!(mixed.contains("off cannot be combined"), "{mixed}");
+    }
+
+    #[test]
+    fn pose_candidates_default_to_the_library_and_are_bounded() {
+        assert_eq!(settings(&[]).unwrap().pose_candidates, RegistrationSettings::default().pose_candidates);
+        assert_eq!(settings(&["--pose-candidates", "4"]).unwrap().pose_candidates, 4);
+        for bad in ["0", "65"] {
+            let e = settings(&["--pose-candidates", bad]).unwrap_err().to_string();
+            assert!(e.contains("pose candidates must be 1..=64"), "{e}");
+        }
     }
 }

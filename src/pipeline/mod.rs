@@ -6,9 +6,12 @@ use crate::backend::{Backend, ContextRows, CpuBackend, MatchedRows, MatchedSide,
 use crate::cloud::PointCloud;
 use crate::cpu::gemm::Precision;
 use crate::error::{Error, Result};
+use crate::estimate::candidates;
 use crate::estimate::icp::IcpProblem;
-use crate::estimate::{ransac, refine_best};
+use crate::estimate::ransac_candidates;
+use crate::estimate::visibility::PairViews;
 use crate::model::{Model, Weights};
+use crate::pose::matrix_from_hypothesis;
 use crate::preprocess::select_keypoints;
 use crate::rng::Rng;
 use crate::settings::*;
@@ -307,6 +310,7 @@ impl Registrar {
         clock.lap("keypoints");
         let features = ScanFeatures {
             cloud,
+            viewpoint,
             keypoints: Vec::new(),
             keypoint_normals: Vec::new(),
             keypoint_ranks: Vec::new(),
@@ -484,7 +488,8 @@ impl Registrar {
         let src: Vec<[f32; 3]> = correspondences.iter().map(|c| c.source_point).collect();
         let tgt: Vec<[f32; 3]> = correspondences.iter().map(|c| c.target_point).collect();
         let threshold = self.inlier_threshold();
-        let mut estimate = match estimator {
+        let keep = self.settings.pose_candidates;
+        let (poses, scored) = match estimator {
             Estimator::RelativeNet => {
                 let source_rows: Vec<u32> = correspondences.iter().map(|c| c.source_index).collect();
                 let target_rows: Vec<u32> = correspondences.iter().map(|c| c.target_index).collect();
@@ -505,12 +510,24 @@ impl Registrar {
                     MatchedSide { scan: source.rows.as_ref(), rows: &source_rows, points: &src, normals: &ns },
                     MatchedSide { scan: target.rows.as_ref(), rows: &target_rows, points: &tgt, normals: &nt },
                     threshold,
-                    1,
+                    keep,
                 )?;
-                refine_best(&self.backend.verify(request)?, &src, &tgt, threshold)?
+                let verified = self.backend.verify(request)?;
+                (verified.best.iter().map(|b| matrix_from_hypothesis(&b.hypothesis)).collect(), verified.hypotheses)
             }
-            Estimator::Ransac => ransac(&src, &tgt, threshold, &self.settings.ransac, self.settings.seed)?,
+            Estimator::Ransac => {
+                let (best, iterations) =
+                    ransac_candidates(&src, &tgt, threshold, &self.settings.ransac, self.settings.seed, keep)?;
+                (best.iter().map(|b| b.target_from_source).collect::<Vec<_>>(), iterations)
+            }
         };
+        let candidates = candidates::distinct_refined(&poses, &src, &tgt, threshold, scored);
+        let views = || {
+            let (s, t) = (source, target);
+            PairViews::new((&s.cloud.points, s.viewpoint), (&t.cloud.points, t.viewpoint), threshold)
+        };
+        let mut estimate =
+            candidates::choose(candidates, views).ok_or_else(|| Error::invalid("no hypotheses to verify"))?;
         if let Some(icp) = &self.settings.icp {
             let refined = self.refine_by_icp(source, target, estimate.target_from_source, icp)?;
             let scored = estimate.hypotheses_scored;

@@ -18,6 +18,9 @@ pub struct ScanFeatures {
     /// cloud without normals in its file has `normals: None`: normals are estimated only where patches need
     /// them.
     pub cloud: PointCloud,
+    /// Where the scan's sensor sat, in the scan's frame: estimated normals face it, and the choice among pose
+    /// candidates reads lines of sight from it.
+    pub viewpoint: [f32; 3],
     /// Keypoint positions (scan frame), only keypoints with a non-empty patch.
     pub keypoints: Vec<[f32; 3]>,
     /// Their unit normals (scan frame): the normal frames of normal-aligned patches.
