@@ -132,9 +132,10 @@ pub struct RegistrationSettings {
     /// [`ContextWhen::Untrusted`].
     pub context_when: ContextWhen,
     /// How many of the estimator's best distinct poses compete for the result: each is refined on its inliers,
-    /// and the estimator's choice (most inliers) stays unless another with at least half its inliers puts
-    /// clearly fewer points (5 % of those checked) in space the other scan saw empty, along lines of sight from
-    /// each scan's `viewpoint`; then the most consistent of those wins ([`crate::estimate::candidates`]). 1: the
+    /// and the estimator's choice (most inliers) stays when the verdict trusts it, or unless another with at
+    /// least half its inliers puts clearly fewer points (5 % of those checked) in space the other scan saw
+    /// empty, along lines of sight from each scan's `viewpoint`; then the most consistent of those wins
+    /// ([`crate::estimate::candidates`]). 1: the
     /// estimator's choice alone, as for clouds in a shared world frame (where the frame origin is no sensor). In
     /// `1..=MAX_POSE_CANDIDATES`; default [`DEFAULT_POSE_CANDIDATES`].
     pub pose_candidates: usize,

@@ -112,9 +112,9 @@ impl Features {
 ///   ``"untrusted"`` (only a last round on all keypoints, when the main radius gave no trusted result) or
 ///   ``"always"``.
 /// - ``pose_candidates``: how many of the estimator's best distinct poses compete: the one with most inliers
-///   stays unless another with at least half its inliers puts clearly fewer points in space the other scan saw
-///   empty from ``viewpoint`` (in each scan's frame); 1 keeps the pose with most inliers (clouds in a shared
-///   world frame).
+///   stays when the verdict trusts it, or unless another with at least half its inliers puts clearly fewer
+///   points in space the other scan saw empty from ``viewpoint`` (in each scan's frame); 1 keeps the pose with
+///   most inliers (clouds in a shared world frame).
 ///
 /// Raises ``ValueError`` for bad settings or weights that do not fit, ``OSError`` when the weights file cannot be
 /// read, ``RuntimeError`` when ``backend="gpu"`` finds no usable GPU.

@@ -85,9 +85,10 @@ pub struct RegisterOptions {
     /// matching on the main radius alone gave no trusted result), or always.
     #[arg(long, value_name = "WHEN", default_value = "untrusted")]
     pub context_when: String,
-    /// How many of the estimator's best distinct poses compete: the one with most inliers stays unless another
-    /// with at least half its inliers puts clearly fewer points in space the other scan saw empty from its
-    /// sensor (each scan's frame origin); 1: most inliers alone (for clouds in a shared world frame).
+    /// How many of the estimator's best distinct poses compete: the one with most inliers stays when the
+    /// verdict trusts it, or unless another with at least half its inliers puts clearly fewer points in space
+    /// the other scan saw empty from its sensor (each scan's frame origin); 1: most inliers alone (for clouds
+    /// in a shared world frame).
     #[arg(long, value_name = "N", default_value_t = crate::settings::DEFAULT_POSE_CANDIDATES)]
     pub pose_candidates: usize,
     /// Verdict: fewest inliers for a trusted result.

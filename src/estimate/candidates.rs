@@ -4,9 +4,9 @@
 //! structure makes wrong correspondences agree with each other (a row of identical desks, a nearly symmetric
 //! room), a wrong pose can gather as many inliers as the right one. So each estimator hands over its best few
 //! poses; each is refined on its inliers, near-duplicates are merged, and the first (the estimator's choice)
-//! stays unless another with at least [`MIN_INLIER_SHARE`] of its inliers puts clearly fewer points in space
-//! that the other scan saw empty ([`super::visibility`], [`MIN_VIOLATION_DROP`]); then the most consistent of
-//! those wins. With one candidate this is the estimator's own choice.
+//! stays when the verdict trusts it, or unless another with at least [`MIN_INLIER_SHARE`] of its inliers puts
+//! clearly fewer points in space that the other scan saw empty ([`super::visibility`], [`MIN_VIOLATION_DROP`]);
+//! then the most consistent of those wins. With one candidate this is the estimator's own choice.
 
 use super::refine::refine;
 use super::visibility::PairViews;
@@ -53,16 +53,22 @@ pub fn distinct_refined(
     out
 }
 
-/// The estimator's choice, or a candidate that puts markedly fewer points in seen-empty space: among the
-/// candidates (best first, as [`distinct_refined`] gives them) with at least [`MIN_INLIER_SHARE`] of the first's
-/// inliers and a violating share at least [`MIN_VIOLATION_DROP`] below the first's, the one with the highest
-/// consistency score ([`PairViews::score`]; ties keep the earlier); the first when there is none. `None` for no
-/// candidates. `views` is built only when there is a choice to make.
-pub fn choose<'a>(candidates: Vec<PoseEstimate>, views: impl FnOnce() -> PairViews<'a>) -> Option<PoseEstimate> {
+/// The estimator's choice, or a candidate that puts markedly fewer points in seen-empty space. The first
+/// candidate (best first, as [`distinct_refined`] gives them) stays when `trusted(first)` (the verdict
+/// already trusts the estimator's choice: the check only arbitrates where the inliers alone do not settle
+/// it) or when no other candidate has at least [`MIN_INLIER_SHARE`] of its inliers and a violating share at
+/// least [`MIN_VIOLATION_DROP`] below its own; else the one of those with the highest consistency score
+/// ([`PairViews::score`]; ties keep the earlier) wins. `None` for no candidates. `views` is built only when
+/// there is a choice to make.
+pub fn choose<'a>(
+    candidates: Vec<PoseEstimate>,
+    trusted: impl FnOnce(&PoseEstimate) -> bool,
+    views: impl FnOnce() -> PairViews<'a>,
+) -> Option<PoseEstimate> {
     let first = candidates.first()?;
     let floor = MIN_INLIER_SHARE * first.inliers as f64;
     let contenders: Vec<usize> = (1..candidates.len()).filter(|&k| candidates[k].inliers as f64 >= floor).collect();
-    if contenders.is_empty() {
+    if contenders.is_empty() || trusted(first) {
         return candidates.into_iter().next();
     }
     let views = views();
@@ -122,7 +128,7 @@ mod tests {
         let target: Vec<[f32; 3]> = world.iter().map(|&p| transform_point(&target_from_world, p)).collect();
         let wrong = matrix_from_parts(&Matrix3::identity(), &Vector3::new(0.8, 0.0, 0.0)) * truth;
         let views = || PairViews::new((&source, [0.0; 3]), (&target, [0.0; 3]), 0.1);
-        let pick = |candidates| choose(candidates, views).unwrap().target_from_source;
+        let pick = |candidates| choose(candidates, |_| false, views).unwrap().target_from_source;
 
         assert_eq!(pick(vec![estimate(wrong, 20), estimate(truth, 10)]), truth, "half the inliers is enough");
         assert_eq!(pick(vec![estimate(wrong, 20), estimate(truth, 9)]), wrong, "under half the inliers is not");
@@ -131,6 +137,8 @@ mod tests {
         let near = matrix_from_parts(&Matrix3::identity(), &Vector3::new(0.04, 0.0, 0.0)) * truth;
         assert_eq!(pick(vec![estimate(near, 20), estimate(truth, 20)]), near, "no clear drop, no override");
         assert_eq!(pick(vec![estimate(wrong, 20)]), wrong, "one candidate: the estimator's choice");
-        assert!(choose(Vec::new(), views).is_none());
+        assert!(choose(Vec::new(), |_| false, views).is_none());
+        let trusted = choose(vec![estimate(wrong, 20), estimate(truth, 15)], |_| true, views).unwrap();
+        assert_eq!(trusted.target_from_source, wrong, "a trusted first pose stays");
     }
 }

@@ -526,8 +526,9 @@ impl Registrar {
             let (s, t) = (source, target);
             PairViews::new((&s.cloud.points, s.viewpoint), (&t.cloud.points, t.viewpoint), threshold)
         };
+        let trusted = |first: &PoseEstimate| self.judge(first, correspondences).success;
         let mut estimate =
-            candidates::choose(candidates, views).ok_or_else(|| Error::invalid("no hypotheses to verify"))?;
+            candidates::choose(candidates, trusted, views).ok_or_else(|| Error::invalid("no hypotheses to verify"))?;
         if let Some(icp) = &self.settings.icp {
             let refined = self.refine_by_icp(source, target, estimate.target_from_source, icp)?;
             let scored = estimate.hypotheses_scored;
