@@ -3,10 +3,11 @@
 //! Both estimators rank poses by their inliers among the correspondences. Where repeated or symmetric
 //! structure makes wrong correspondences agree with each other (a row of identical desks, a nearly symmetric
 //! room), a wrong pose can gather as many inliers as the right one. So each estimator hands over its best few
-//! poses; each is refined on its inliers, near-duplicates are merged, and the first (the estimator's choice)
-//! stays when the verdict trusts it, or unless another with at least [`MIN_INLIER_SHARE`] of its inliers puts
-//! clearly fewer points in space that the other scan saw empty ([`super::visibility`], [`MIN_VIOLATION_DROP`]);
-//! then the most consistent of those wins. With one candidate this is the estimator's own choice.
+//! poses; each is refined on its inliers and near-duplicates are merged. The first (the estimator's choice)
+//! stays when the verdict trusts its result (the pipeline asks before anything here), or unless another with
+//! at least [`MIN_INLIER_SHARE`] of its inliers puts clearly fewer points in space that the other scan saw
+//! empty ([`super::visibility`], [`MIN_VIOLATION_DROP`]); then the most consistent of those wins. With one
+//! candidate this is the estimator's own choice.
 
 use super::refine::refine;
 use super::visibility::PairViews;
@@ -53,25 +54,18 @@ pub fn distinct_refined(
     out
 }
 
-/// The estimator's choice, or a candidate that puts markedly fewer points in seen-empty space. The first
-/// candidate (best first, as [`distinct_refined`] gives them) stays when `trusted(first)` (the verdict
-/// already trusts the estimator's choice: the check only arbitrates where the inliers alone do not settle
-/// it) or when no other candidate has at least [`MIN_INLIER_SHARE`] of its inliers and a violating share at
-/// least [`MIN_VIOLATION_DROP`] below its own; else the one of those with the highest consistency score
-/// ([`PairViews::score`]; ties keep the earlier) wins. `None` for no candidates. `views` is built only when
-/// there is a choice to make.
-pub fn choose<'a>(
-    candidates: Vec<PoseEstimate>,
-    trusted: impl FnOnce(&PoseEstimate) -> bool,
-    views: impl FnOnce() -> PairViews<'a>,
-) -> Option<PoseEstimate> {
-    let first = candidates.first()?;
+/// The index of the estimator's choice (0), or of a candidate that puts markedly fewer points in seen-empty
+/// space: among the candidates (best first, as [`distinct_refined`] gives them) with at least
+/// [`MIN_INLIER_SHARE`] of the first's inliers and a violating share at least [`MIN_VIOLATION_DROP`] below the
+/// first's, the one with the highest consistency score ([`PairViews::score`]; ties keep the earlier); 0 when
+/// there is none. The pipeline asks only when the verdict does not trust the first.
+pub fn choose(candidates: &[PoseEstimate], views: &PairViews<'_>) -> usize {
+    let Some(first) = candidates.first() else { return 0 };
     let floor = MIN_INLIER_SHARE * first.inliers as f64;
     let contenders: Vec<usize> = (1..candidates.len()).filter(|&k| candidates[k].inliers as f64 >= floor).collect();
-    if contenders.is_empty() || trusted(first) {
-        return candidates.into_iter().next();
+    if contenders.is_empty() {
+        return 0;
     }
-    let views = views();
     let ceiling = views.consistency(&first.target_from_source).violate - MIN_VIOLATION_DROP;
     let mut best: Option<(f64, usize)> = None;
     for k in contenders {
@@ -81,7 +75,7 @@ pub fn choose<'a>(
             best = Some((score, k));
         }
     }
-    candidates.into_iter().nth(best.map_or(0, |(_, k)| k))
+    best.map_or(0, |(_, k)| k)
 }
 
 #[cfg(test)]
@@ -127,8 +121,8 @@ mod tests {
         let source: Vec<[f32; 3]> = world.iter().map(|&p| transform_point(&source_from_world, p)).collect();
         let target: Vec<[f32; 3]> = world.iter().map(|&p| transform_point(&target_from_world, p)).collect();
         let wrong = matrix_from_parts(&Matrix3::identity(), &Vector3::new(0.8, 0.0, 0.0)) * truth;
-        let views = || PairViews::new((&source, [0.0; 3]), (&target, [0.0; 3]), 0.1);
-        let pick = |candidates| choose(candidates, |_| false, views).unwrap().target_from_source;
+        let views = PairViews::new((&source, [0.0; 3]), (&target, [0.0; 3]), 0.1);
+        let pick = |candidates: Vec<PoseEstimate>| candidates[choose(&candidates, &views)].target_from_source;
 
         assert_eq!(pick(vec![estimate(wrong, 20), estimate(truth, 10)]), truth, "half the inliers is enough");
         assert_eq!(pick(vec![estimate(wrong, 20), estimate(truth, 9)]), wrong, "under half the inliers is not");
@@ -137,8 +131,6 @@ mod tests {
         let near = matrix_from_parts(&Matrix3::identity(), &Vector3::new(0.04, 0.0, 0.0)) * truth;
         assert_eq!(pick(vec![estimate(near, 20), estimate(truth, 20)]), near, "no clear drop, no override");
         assert_eq!(pick(vec![estimate(wrong, 20)]), wrong, "one candidate: the estimator's choice");
-        assert!(choose(Vec::new(), |_| false, views).is_none());
-        let trusted = choose(vec![estimate(wrong, 20), estimate(truth, 15)], |_| true, views).unwrap();
-        assert_eq!(trusted.target_from_source, wrong, "a trusted first pose stays");
+        assert_eq!(choose(&[], &views), 0);
     }
 }

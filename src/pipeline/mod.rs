@@ -522,19 +522,26 @@ impl Registrar {
             }
         };
         let candidates = candidates::distinct_refined(&poses, &src, &tgt, threshold, scored);
-        let views = || {
-            let (s, t) = (source, target);
-            PairViews::new((&s.cloud.points, s.viewpoint), (&t.cloud.points, t.viewpoint), threshold)
-        };
-        let trusted = |first: &PoseEstimate| self.judge(first, correspondences).success;
-        let mut estimate =
-            candidates::choose(candidates, trusted, views).ok_or_else(|| Error::invalid("no hypotheses to verify"))?;
-        if let Some(icp) = &self.settings.icp {
+        // ICP when enabled, then the estimate over the correspondences.
+        let finish = |estimate: &PoseEstimate| -> Result<PoseEstimate> {
+            let Some(icp) = &self.settings.icp else { return Ok(estimate.clone()) };
             let refined = self.refine_by_icp(source, target, estimate.target_from_source, icp)?;
-            let scored = estimate.hypotheses_scored;
-            estimate = crate::estimate::evaluate(refined, &src, &tgt, threshold, scored);
+            Ok(crate::estimate::evaluate(refined, &src, &tgt, threshold, estimate.hypotheses_scored))
+        };
+        // The estimator's choice as today; the others compete only when the verdict does not trust it.
+        let first = finish(candidates.first().ok_or_else(|| Error::invalid("no hypotheses to verify"))?)?;
+        if candidates.len() == 1 || self.judge(&first, correspondences).success {
+            return Ok(first);
         }
-        Ok(estimate)
+        let views = PairViews::new(
+            (&source.cloud.points, source.viewpoint),
+            (&target.cloud.points, target.viewpoint),
+            threshold,
+        );
+        match candidates::choose(&candidates, &views) {
+            0 => Ok(first),
+            k => finish(&candidates[k]),
+        }
     }
 
     /// Point-to-plane ICP from `initial` on a voxel-downsampled copy of the target (voxel: half the largest
