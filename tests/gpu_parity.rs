@@ -1415,8 +1415,10 @@ fn device_register_reads_back_no_per_point_data() {
         let k_max = dpr_gpu::gpu::mutual_knn::K_MAX as u64;
         // Per scan: grid words and status of two cell tables (radius cells; kNN cells for the normals).
         let meta = 2 * (32 + 4);
-        // ICP, per round: grid words of the target's two tables, then 28 f32 sums per iteration.
-        let (icp_down, icp_up) = (meta + 4 * 28 * icp.max_iterations as u64, 2 * (32 + 4));
+        // ICP, per round: grid words of the target's two tables, then 28 f32 sums per iteration; twice when the
+        // estimator's choice is not trusted and another pose candidate replaces it.
+        let icps = if settings.pose_candidates > 1 { 2 } else { 1 };
+        let (icp_down, icp_up) = (icps * (meta + 4 * 28 * icp.max_iterations as u64), icps * 2 * (32 + 4));
         let down_bound = rounds * (2 * (meta + k * (4 * block + 24)) + 3 * 4 * k_max * k + icp_down);
         let up_bound = 12 * n + rounds * (2 * (2 * (32 + 4) + k * (4 + 4 * block + 2 * 16)) + icp_up);
         assert!(result.result.correspondences >= 3, "seed {s}");
