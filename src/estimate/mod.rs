@@ -11,4 +11,4 @@ pub mod visibility;
 pub use icp::icp_point_to_plane;
 pub use ransac::{ransac, ransac_candidates};
 pub use refine::{evaluate, inlier_set, refine};
-pub use verify::{best_hypothesis, refine_best, verify};
+pub use verify::{best_hypothesis, verify};

@@ -3,7 +3,7 @@
 //! then smallest residual sum, then lowest index) is refined on its inliers.
 
 use super::refine::refine;
-use crate::backend::{Backend, Verified};
+use crate::backend::Backend;
 use crate::cpu::score_hypotheses::HypothesisScore;
 use crate::error::Result;
 use crate::pose::matrix_from_hypothesis;
@@ -69,16 +69,4 @@ pub fn hypotheses_of<B: Backend + ?Sized>(
             &repeat_per_candidate(target, candidates),
         )
     }
-}
-
-/// The pose of [`Backend::verify`]'s best hypothesis, refined on its inliers among the correspondences
-/// (`source`, `target`: the matched keypoints).
-pub fn refine_best(
-    verified: &Verified,
-    source: &[[f32; 3]],
-    target: &[[f32; 3]],
-    threshold: f32,
-) -> Result<PoseEstimate> {
-    let best = verified.best.first().ok_or_else(|| crate::Error::invalid("no hypotheses to verify"))?;
-    Ok(refine(matrix_from_hypothesis(&best.hypothesis), source, target, threshold, verified.hypotheses))
 }
