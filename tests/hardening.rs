@@ -465,9 +465,9 @@ fn register_reports_a_verdict_and_exits_3_when_untrusted() {
     let dir = temp_dir("hard-verdict");
     let weights = small_weights(&dir);
     let (sp, tp, truth) = pair_files(&dir, 1, 20_000);
-    // One round (no progressive schedule, no context round), so that the untrusted run below ends with the
-    // same pose.
-    let one_round = ["--first-keypoints", "0", "--context-radius", "off"];
+    // One round (no progressive schedule, no context round) and the estimator's choice alone (no pose
+    // candidates compete for an untrusted result), so that the untrusted run below ends with the same pose.
+    let one_round = ["--first-keypoints", "0", "--context-radius", "off", "--pose-candidates", "1"];
     let o = dpr(&[&["register", s(&sp), s(&tp), "--weights", s(&weights), "--json"], QUICK, &one_round].concat());
     let (stdout, stderr) = text(&o);
     assert_eq!(o.status.code(), Some(0), "{stderr}");

@@ -538,6 +538,9 @@ impl Registrar {
             (&target.cloud.points, target.viewpoint),
             threshold,
         );
+        // The others compete with the finished choice, the pose that would be returned.
+        let mut candidates = candidates;
+        candidates[0] = first.clone();
         match candidates::choose(&candidates, &views) {
             0 => Ok(first),
             k => finish(&candidates[k]),
