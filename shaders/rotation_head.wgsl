@@ -6,8 +6,9 @@
 // neighbours (clamped to half a bin), give one rotation each) is the rotation between the two patches as
 // PC-FoldNet saw them;
 // with normal-aligned patches (frame = 1) the fragment-frame rotation is F(n_t)^T R F(n_s), F(n) the normal frame
-// of a keypoint normal (rows t1, t2, n; Duff et al. 2017). A degenerate output (norm not above min_norm, or NaN)
-// gives the identity; a zero normal gives the identity frame. One invocation per row, the workgroup grid
+// of a keypoint normal (rows t1, t2, n; Duff et al. 2017). A degenerate output (norm not above min_norm, or NaN;
+// for 6-D also a second column whose part orthogonal to the first is not above min_orthogonal_share of its
+// length) gives the identity; a zero normal gives the identity frame. One invocation per row, the workgroup grid
 // linearised.
 // Bindings: 0 params (uniform) | 1 raw (width per row) | 2 source_normals, 3 target_normals (xyz per row)
 //           (read) | 4 out (candidates x 9 per row, row-major, written).
@@ -20,7 +21,7 @@ struct RotationHeadParams {
     mode: u32,
     candidates: u32,
     min_norm: f32,
-    _pad0: u32,
+    min_orthogonal_share: f32,
     _pad1: u32,
 }
 
@@ -96,7 +97,7 @@ fn six_d_rotation(base: u32) -> array<f32, 9> {
     let d = dot3(b1, a2);
     let u2 = vec3<f32>(a2.x - d * b1.x, a2.y - d * b1.y, a2.z - d * b1.z);
     let n2 = sqrt(dot3(u2, u2));
-    if !usable(n2) {
+    if !usable(n2) || !(n2 > params.min_orthogonal_share * sqrt(dot3(a2, a2))) {
         return identity();
     }
     let b2 = u2 / n2;

@@ -79,6 +79,11 @@ const HYPOTHESIS_ULPS: f32 = 16.0;
 /// `n * eps * sum` of the exact sum.
 const RESIDUAL_SUM_ULPS_PER_TERM: f32 = 2.0;
 
+/// score_hypotheses: each component of a residual `q - R p - t` is three products and four sums of terms up to
+/// `3 max|p| + max|t| + max|q|`; a GPU may contract them into FMAs (naga emits no `NoContraction`) and round
+/// each differently, a few ulp of that magnitude, not of the (possibly far smaller) residual.
+const RESIDUAL_ULPS: f64 = 8.0;
+
 /// score_hypotheses: a residual this close (relative) to the threshold may be classified differently when
 /// the GPU rounds the residual differently; the count may differ by at most the number of such pairs.
 const BORDERLINE_RTOL: f64 = 1e-5;
@@ -94,6 +99,17 @@ const NETWORK_RTOL: f32 = 1e-4;
 const NETWORK_RTOL_F16: f32 = 1e-2;
 
 /// The end-to-end tolerance for the GEMM variant the test device runs.
+/// The shared device where its GEMM is f32, else a device of its own on the `fast` (f32) GEMM.
+fn f32_gemm_gpu() -> Option<Arc<Gpu>> {
+    let g = gpu()?;
+    if g.gemm_variant().is_f32() {
+        return Some(g);
+    }
+    let mut own = new_gpu_or_skip()?;
+    own.set_gemm_variant(GemmVariant::Fast).unwrap();
+    Some(Arc::new(own))
+}
+
 fn network_rtol() -> f32 {
     match gpu() {
         Some(g) if !g.gemm_variant().is_f32() => NETWORK_RTOL_F16,
@@ -635,13 +651,23 @@ fn scoring_problem(rng: &mut Rng, hyps: usize, corr: usize) -> (Vec<Hypothesis>,
     (hypotheses, source, target)
 }
 
+/// How far another rounding of a squared residual `r2` of `h` on `(p, q)` can move it: `(r + d)^2 - r^2` for a
+/// shift of `d` per component (`RESIDUAL_ULPS` of the terms' magnitude), plus the squares' own rounding.
+fn residual_slack(h: &Hypothesis, p: [f32; 3], q: [f32; 3], r2: f64) -> f64 {
+    let max_abs3 = |v: [f32; 3]| f64::from(v.iter().fold(0f32, |m, x| m.max(x.abs())));
+    let d = RESIDUAL_ULPS * f64::from(EPS) * (3.0 * max_abs3(p) + max_abs3(h.translation) + max_abs3(q));
+    2.0 * 3f64.sqrt() * r2.sqrt() * d + 3.0 * d * d + 4.0 * f64::from(EPS) * r2
+}
+
 fn check_scores(s: u64, h: &[Hypothesis], src: &[[f32; 3]], tgt: &[[f32; 3]], thr: f32, got: &[HypothesisScore]) {
     let want = ScoreHypotheses::CPU_TWIN(h, src, tgt, thr);
     assert_eq!(got.len(), want.len());
     let t2 = f64::from(thr) * f64::from(thr);
     for (i, (a, e)) in got.iter().zip(&want).enumerate() {
         let r2: Vec<f64> = src.iter().zip(tgt).map(|(&p, &q)| f64::from(squared_residual(&h[i], p, q))).collect();
-        let borderline = r2.iter().filter(|&&r| (r - t2).abs() <= BORDERLINE_RTOL * t2).count();
+        let slack: Vec<f64> =
+            src.iter().zip(tgt).zip(&r2).map(|((&p, &q), &r2)| residual_slack(&h[i], p, q, r2)).collect();
+        let borderline = r2.iter().zip(&slack).filter(|&(&r, &d)| (r - t2).abs() <= d + BORDERLINE_RTOL * t2).count();
         let dc = a.inliers.abs_diff(e.inliers) as usize;
         assert!(
             dc <= borderline,
@@ -649,7 +675,9 @@ fn check_scores(s: u64, h: &[Hypothesis], src: &[[f32; 3]], tgt: &[[f32; 3]], th
             a.inliers,
             e.inliers
         );
+        let inlier_slack: f64 = r2.iter().zip(&slack).filter(|&(&r, _)| r < t2).map(|(_, &d)| d).sum();
         let tol = RESIDUAL_SUM_ULPS_PER_TERM * (e.inliers as f32 + 2.0) * EPS * e.residual_sum
+            + inlier_slack as f32
             + borderline as f32 * thr * thr;
         assert!(
             (a.residual_sum - e.residual_sum).abs() <= tol,
@@ -693,7 +721,8 @@ fn inlier_mask_matches_cpu() {
     let t2 = 0.1f32 * 0.1;
     for (c, (&p, &q)) in src.iter().zip(&tgt).enumerate() {
         let r2 = squared_residual(&h[0], p, q);
-        let borderline = (f64::from(r2) - f64::from(t2)).abs() <= BORDERLINE_RTOL * f64::from(t2);
+        let slack = residual_slack(&h[0], p, q, f64::from(r2));
+        let borderline = (f64::from(r2) - f64::from(t2)).abs() <= slack + BORDERLINE_RTOL * f64::from(t2);
         assert!(mask[c] <= 1, "inlier_mask[{c}] = {:#x} was not written (seed {s})", mask[c]);
         if !borderline {
             assert_eq!(mask[c] == 1, r2 < t2, "inlier_mask[{c}] (r2 {r2}, seed {s})");
@@ -871,8 +900,9 @@ fn invalid_calls_are_errors_not_panics() {
 /// `fast` on lavapipe) and with the CPU reference. With an f32 GEMM the codewords agree to `NETWORK_RTOL`, far
 /// below the distance gaps mutual matching decides on, so the correspondences must be identical; RANSAC then
 /// sees identical inputs, so the poses must agree to `POSE_ATOL`. With the f16 cooperative-matrix GEMM the
-/// codewords agree to `NETWORK_RTOL_F16`, which can flip a near tie: most correspondences must be shared and
-/// the poses close. RelativeNet's estimate is compared in `register_with_relativenet_matches_cpu_on_a_generated_pair`.
+/// codewords agree to `NETWORK_RTOL_F16`, which can flip a near tie: most correspondences must be shared, and
+/// the CPU estimator on the GPU's correspondences must give the GPU's pose (on an H200 the random weights' RANSAC
+/// pose moved 150 degrees with a few flipped correspondences). RelativeNet's estimate is compared in `register_with_relativenet_matches_cpu_on_a_generated_pair`.
 fn register_matches_cpu_on_a_generated_pair() {
     let Some(g) = gpu() else { return };
     register_matches_cpu_with(g, seed(70));
@@ -891,9 +921,6 @@ fn register_matches_cpu_with(g: Arc<Gpu>, s: u64) {
     const POSE_ATOL: f64 = 1e-9;
     /// f16 GEMM: share of the CPU's correspondences the GPU must also find (near ties may flip).
     const F16_SHARED_FRACTION: f64 = 0.9;
-    /// f16 GEMM: RANSAC on mostly the same correspondences lands on the same inlier set up to a few pairs.
-    const F16_ROTATION_DEG_TOL: f64 = 1.0;
-    const F16_TRANSLATION_TOL: f64 = 0.02;
     let variant = g.gemm_variant();
     let s_msg = format!("seed {s}, GEMM {variant}");
     let (gpu_b, cpu_b) = backends_for(g, small_model(s));
@@ -937,9 +964,12 @@ fn register_matches_cpu_with(g: Arc<Gpu>, s: u64) {
             "{shared} of {} correspondences shared, {s_msg}",
             c_corr.len()
         );
-        let angle = dpr_gpu::pose::rotation_error_deg(&g_pose.target_from_source, &c_pose.target_from_source);
-        let shift = dpr_gpu::pose::translation_error(&g_pose.target_from_source, &c_pose.target_from_source);
-        assert!(angle < F16_ROTATION_DEG_TOL && shift < F16_TRANSLATION_TOL, "{angle} deg, {shift}, {s_msg}");
+        // The seeded random weights give few right correspondences, so RANSAC's pose hangs on which ones flipped;
+        // on the GPU's own correspondences the CPU estimator must land where the GPU's did.
+        let c_on_g = on_cpu.estimate(&cs, &ct, &g_corr, dpr_gpu::Estimator::Ransac).unwrap();
+        let diff = (g_pose.target_from_source - c_on_g.target_from_source).abs().max();
+        assert!(diff < POSE_ATOL, "pose on the GPU's correspondences {diff:e} from the CPU's, {s_msg}");
+        assert_eq!(g_pose.inliers, c_on_g.inliers, "{s_msg}");
     }
 }
 
@@ -1085,9 +1115,13 @@ fn pose_feature_matches_cpu_scattered() {
 /// The step seam on the device: scans described on the GPU give the CPU's codewords; a CPU scan adopted by the
 /// GPU backend reads back bit for bit; `verify` on matched rows gives the CPU's rotations (asked for) and the
 /// same number of hypotheses, and its best hypothesis scores like the CPU's.
+///
+/// On an f32 GEMM (a device of its own where the default is the f16 cooperative-matrix one): what is checked
+/// here is where the data lives, not the GEMM's precision (`networks_match_cpu_at_default_widths`), and f16
+/// codewords move the RelativeNet rotations past the f32 tolerances used here.
 fn device_steps_match_cpu_steps() {
     use dpr_gpu::backend::{MatchedRows, MatchedSide};
-    let Some(g) = gpu() else { return };
+    let Some(g) = f32_gemm_gpu() else { return };
     let s = seed(73);
     let (gpu_b, cpu_b) = backends_for(g, small_model(s));
     let settings = dpr_gpu::RegistrationSettings { keypoints: 80, seed: s, ..Default::default() };

@@ -15,6 +15,12 @@ use crate::model::config::{PoseFrame, RotationOutput};
 /// Norms not above this (or NaN) make a raw output degenerate: it becomes the identity.
 pub const MIN_NORM: f32 = 1e-12;
 
+/// A 6-D output is degenerate too when the part of its second column orthogonal to the first is not above this
+/// share of the second column's length (the columns within 0.06 degrees of parallel): that part is then mostly
+/// rounding, amplified up to 1 / share times, so it names no second axis and two backends that round
+/// differently (FMA contraction, GPU division) would return unrelated rotations.
+pub const MIN_ORTHOGONAL_SHARE: f32 = 1e-3;
+
 /// The identity, row-major.
 pub const IDENTITY: [f32; 9] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
 
@@ -59,7 +65,8 @@ fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
 }
 
 /// Rotation whose first two columns are the raw `[a1 | a2]` made orthonormal (Gram-Schmidt), the third their
-/// cross product. Identity when `a1` or the part of `a2` orthogonal to it is degenerate.
+/// cross product. Identity when `a1` is degenerate or the part of `a2` orthogonal to it is not above
+/// `MIN_NORM` and [`MIN_ORTHOGONAL_SHARE`] of `|a2|`.
 pub fn six_d_rotation(raw: [f32; 6]) -> [f32; 9] {
     let a1 = [raw[0], raw[1], raw[2]];
     let a2 = [raw[3], raw[4], raw[5]];
@@ -71,7 +78,7 @@ pub fn six_d_rotation(raw: [f32; 6]) -> [f32; 9] {
     let d = dot(b1, a2);
     let u2 = [a2[0] - d * b1[0], a2[1] - d * b1[1], a2[2] - d * b1[2]];
     let n2 = dot(u2, u2).sqrt();
-    if n2.is_nan() || n2 <= MIN_NORM {
+    if n2.is_nan() || n2 <= MIN_NORM || n2 <= MIN_ORTHOGONAL_SHARE * dot(a2, a2).sqrt() {
         return IDENTITY;
     }
     let b2 = u2.map(|v| v / n2);
@@ -244,6 +251,13 @@ mod tests {
         assert_eq!(quaternion_rotation([0.0; 4]), IDENTITY);
         assert_eq!(six_d_rotation([1.0, 0.0, 0.0, 2.0, 0.0, 0.0]), IDENTITY);
         assert_eq!(six_d_rotation([f32::NAN; 6]), IDENTITY);
+        // Parallel columns whose orthogonal part is rounding, and one just under the share: the identity; just
+        // over it, the rotation the columns name (second axis +y).
+        assert_eq!(six_d_rotation([1.0, 2.0, 3.0, 2.0, 4.0, 6.0]), IDENTITY);
+        assert_eq!(six_d_rotation([1.0, 0.0, 0.0, 1.0, 0.9 * MIN_ORTHOGONAL_SHARE, 0.0]), IDENTITY);
+        let r = six_d_rotation([1.0, 0.0, 0.0, 1.0, 1.5 * MIN_ORTHOGONAL_SHARE, 0.0]);
+        assert_rotation(&r);
+        assert!((r[4] - 1.0).abs() < 1e-6, "{r:?}");
     }
 
     #[test]

@@ -4,7 +4,7 @@
 use super::kernel::{BindKind, GpuKernel, gpu_params};
 use super::recorder::Recorder;
 use super::{Gpu, to_u32, workgroups};
-use crate::cpu::rotation_head::MIN_NORM;
+use crate::cpu::rotation_head::{MIN_NORM, MIN_ORTHOGONAL_SHARE};
 use crate::error::{Error, Result};
 use crate::model::config::{PoseFrame, RotationOutput};
 
@@ -23,8 +23,8 @@ gpu_params! {
         pub candidates: u32,
         /// Norms not above this give the identity ([`MIN_NORM`]).
         pub min_norm: f32,
-        /// Padding.
-        pub _pad0: u32,
+        /// `cpu::rotation_head::MIN_ORTHOGONAL_SHARE`.
+        pub min_orthogonal_share: f32,
         /// Padding.
         pub _pad1: u32,
     }
@@ -45,7 +45,7 @@ impl RotationHeadParams {
             mode,
             candidates: to_u32(output.candidates(), "rotation candidates")?,
             min_norm: MIN_NORM,
-            _pad0: 0,
+            min_orthogonal_share: MIN_ORTHOGONAL_SHARE,
             _pad1: 0,
         })
     }

@@ -133,7 +133,7 @@ fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
 }
 
 /// The 6-D output's rotation in f64 (as `crate::cpu::rotation_head::six_d_rotation`): columns
-/// `b1 = a1 / |a1|`, `b2 = (a2 - (b1.a2) b1) / |..|`, `b3 = b1 x b2`; `None` when degenerate.
+/// `b1 = a1 / |a1|`, `b2 = (a2 - (b1.a2) b1) / |..|`, `b3 = b1 x b2`; `None` when degenerate (the same rule).
 fn gram_schmidt(raw: [f32; 6]) -> Option<([[f64; 3]; 3], f64, f64)> {
     let a1 = [raw[0], raw[1], raw[2]].map(f64::from);
     let a2 = [raw[3], raw[4], raw[5]].map(f64::from);
@@ -145,7 +145,8 @@ fn gram_schmidt(raw: [f32; 6]) -> Option<([[f64; 3]; 3], f64, f64)> {
     let d = dot3(b1, a2);
     let u2 = [0, 1, 2].map(|i| a2[i] - d * b1[i]);
     let n2 = norm(&u2);
-    if n2.is_nan() || n2 <= MIN_QUATERNION_NORM {
+    let min_share = f64::from(crate::cpu::rotation_head::MIN_ORTHOGONAL_SHARE);
+    if n2.is_nan() || n2 <= MIN_QUATERNION_NORM || n2 <= min_share * norm(&a2) {
         return None;
     }
     let b2 = u2.map(|v| v / n2);

@@ -107,8 +107,8 @@ fn icp_normal_equations_matches_cpu() {
 /// about ten such flips plus the convergence threshold: 5e-4 in translation and 1e-2 degrees. Both must
 /// also land near the truth (independent samples: within 1 cm and 0.5 degrees).
 ///
-/// The device ICP must also be deterministic and independent of where the points come from: scans described
-/// on the device (points held there) and scans described on the host (points uploaded) give the same bits.
+/// The device ICP must also be deterministic and independent of where the points come from: the same points
+/// held on the device or uploaded give the same bits.
 /// Per call it reads back two tables' grid words (72 bytes) and 112 bytes per iteration, nothing per point.
 fn device_icp_converges_like_the_host() {
     let Some(g) = gpu() else { return };
@@ -134,8 +134,14 @@ fn device_icp_converges_like_the_host() {
     let device = on_gpu.backend().refine_icp(&gs, &gt, initial, &problem).unwrap();
     let moved = g.context.transfers().since(before);
     let host = on_cpu.backend().refine_icp(&cs, &ct, initial, &problem).unwrap();
-    let uploaded = on_gpu.backend().refine_icp(&cs, &ct, initial, &problem).unwrap();
+    // The same points uploaded: the device-described scans without their held points (their clouds are the
+    // held points read back). Host-described scans differ in the last bits of their voxel averages and normals
+    // where the GPU rounds differently (FMA contraction, e.g. on NVIDIA), so they get the host tolerance below.
+    let unheld =
+        |scan: &dpr_gpu::pipeline::ScanFeatures| dpr_gpu::pipeline::ScanFeatures { held_points: None, ..scan.clone() };
+    let uploaded = on_gpu.backend().refine_icp(&unheld(&gs), &unheld(&gt), initial, &problem).unwrap();
     assert_eq!(device, uploaded, "held and uploaded points give the same pose (seed {s})");
+    let host_uploaded = on_gpu.backend().refine_icp(&cs, &ct, initial, &problem).unwrap();
     assert_eq!(device, on_gpu.backend().refine_icp(&gs, &gt, initial, &problem).unwrap(), "deterministic");
     let down_bound = 2 * (32 + 4) + 112 * problem.max_iterations as u64;
     assert!(moved.device_to_host_bytes <= down_bound, "{} bytes down, bound {down_bound}", moved.device_to_host_bytes);
@@ -148,8 +154,11 @@ fn device_icp_converges_like_the_host() {
             "{name} ICP: {angle} deg, {shift} from the truth (start {start:?}; seed {s})"
         );
     }
+    for (name, other) in [("host ICP", &host), ("device ICP on host-described scans", &host_uploaded)] {
+        let (angle, shift) = (rotation_error_deg(&device, other), translation_error(&device, other));
+        assert!(angle < 1e-2 && shift < 5e-4, "device ICP and {name} differ by {angle} deg and {shift} (seed {s})");
+    }
     let (angle, shift) = (rotation_error_deg(&device, &host), translation_error(&device, &host));
-    assert!(angle < 1e-2 && shift < 5e-4, "device and host ICP differ by {angle} deg and {shift} (seed {s})");
     eprintln!(
         "device ICP vs host ICP: {angle:.2e} deg / {shift:.2e} apart; {} bytes down (seed {s})",
         moved.device_to_host_bytes
