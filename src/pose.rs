@@ -25,6 +25,12 @@ pub fn matrix_from_parts(r: &Matrix3<f64>, t: &Vector3<f64>) -> Matrix4<f64> {
     m
 }
 
+/// The inverse of a rigid transform: [Rᵀ | −Rᵀ t] (`source_from_target` of a `target_from_source`).
+pub fn rigid_inverse(t: &Matrix4<f64>) -> Matrix4<f64> {
+    let r = t.fixed_view::<3, 3>(0, 0).transpose();
+    matrix_from_parts(&r, &(-(r * t.fixed_view::<3, 1>(0, 3))))
+}
+
 /// 4x4 matrix of a hypothesis.
 pub fn matrix_from_hypothesis(h: &Hypothesis) -> Matrix4<f64> {
     let r = Matrix3::from_row_slice(&h.rotation.map(|v| v as f64));

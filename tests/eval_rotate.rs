@@ -7,8 +7,9 @@
 use dpr_gpu::eval::dataset::{SceneData, load_dataset};
 use dpr_gpu::eval::gtlog::{LogRecord, format_log};
 use dpr_gpu::eval::metrics::information_error;
-use dpr_gpu::eval::rotate::{FragmentRotation, RotationSweep, angle_label, rigid_inverse};
+use dpr_gpu::eval::rotate::{FragmentRotation, RotationSweep, angle_label};
 use dpr_gpu::eval::run::{EvalOptions, load_cloud, score_log, score_log_sweep};
+use dpr_gpu::pose::rigid_inverse;
 use dpr_gpu::pose::rotation_error_deg;
 use nalgebra::{Matrix4, Rotation3, Unit, Vector3};
 use serde_json::Value;

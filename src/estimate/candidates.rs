@@ -117,7 +117,7 @@ mod tests {
         let truth =
             matrix_from_parts(&Rotation3::from_euler_angles(0.0, 0.1, 2.0).into_inner(), &Vector3::new(0.3, 0.2, 0.0));
         let target_from_world = matrix_from_parts(&Matrix3::identity(), &Vector3::new(-0.4, 0.1, 0.2));
-        let source_from_world = crate::eval::metrics::inverse(&truth) * target_from_world;
+        let source_from_world = crate::pose::rigid_inverse(&truth) * target_from_world;
         let source: Vec<[f32; 3]> = world.iter().map(|&p| transform_point(&source_from_world, p)).collect();
         let target: Vec<[f32; 3]> = world.iter().map(|&p| transform_point(&target_from_world, p)).collect();
         let wrong = matrix_from_parts(&Matrix3::identity(), &Vector3::new(0.8, 0.0, 0.0)) * truth;

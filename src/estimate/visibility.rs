@@ -14,7 +14,7 @@
 //! (as for normal orientation). For clouds in a shared world frame the check is meaningless; choose by inliers
 //! alone there (`pose_candidates` 1).
 
-use crate::pose::transform_point;
+use crate::pose::{rigid_inverse, transform_point};
 use nalgebra::Matrix4;
 
 /// Direction bins per degree of azimuth and of elevation (0.5 degree bins).
@@ -134,7 +134,7 @@ impl<'a> PairViews<'a> {
     /// The consistency of `target_from_source` both ways: source points in the target's view and target points
     /// in the source's, averaged.
     pub fn consistency(&self, target_from_source: &Matrix4<f64>) -> Consistency {
-        let source_from_target = crate::eval::metrics::inverse(target_from_source);
+        let source_from_target = rigid_inverse(target_from_source);
         let a = consistency(self.source, target_from_source, &self.target_image, self.tolerance);
         let b = consistency(self.target, &source_from_target, &self.source_image, self.tolerance);
         Consistency { agree: (a.agree + b.agree) / 2.0, violate: (a.violate + b.violate) / 2.0 }

@@ -21,6 +21,7 @@
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
+use crate::pose::rigid_inverse;
 use crate::rng::Rng;
 use nalgebra::{Matrix4, Rotation3, Unit, Vector3};
 use serde::Serialize;
@@ -70,12 +71,6 @@ pub fn rotation_about(axis: &Unit<Vector3<f64>>, center: &Vector3<f64>, degrees:
     }
     let r = Rotation3::from_axis_angle(axis, degrees.to_radians()).into_inner();
     crate::pose::matrix_from_parts(&r, &(center - r * center))
-}
-
-/// The inverse of a rigid transform: [Rᵀ | −Rᵀ t].
-pub fn rigid_inverse(t: &Matrix4<f64>) -> Matrix4<f64> {
-    let r = t.fixed_view::<3, 3>(0, 0).transpose();
-    crate::pose::matrix_from_parts(&r, &(-(r * t.fixed_view::<3, 1>(0, 3))))
 }
 
 /// The ground truth on the moved data: target_from_rotated_source = T_gt M⁻¹.
