@@ -135,9 +135,8 @@ pub struct RegistrationSettings {
     /// and the estimator's choice (most inliers) stays when the verdict trusts it, or unless another with at
     /// least half its inliers puts clearly fewer points (5 % of those checked) in space the other scan saw
     /// empty, along lines of sight from each scan's `viewpoint`; then the most consistent of those wins
-    /// ([`crate::estimate::candidates`]). 1: the
-    /// estimator's choice alone, as for clouds in a shared world frame (where the frame origin is no sensor). In
-    /// `1..=MAX_POSE_CANDIDATES`; default [`DEFAULT_POSE_CANDIDATES`].
+    /// ([`crate::estimate::candidates`]). 1: the estimator's choice alone, as for clouds in a shared world frame
+    /// (where the frame origin is no sensor). In `1..=MAX_POSE_CANDIDATES`; default [`DEFAULT_POSE_CANDIDATES`].
     pub pose_candidates: usize,
 }
 
@@ -179,8 +178,8 @@ pub const MAX_CONTEXT_RADII: usize = 4;
 
 /// The default of `RegistrationSettings::pose_candidates`: the 16 best distinct poses compete. Chosen on the
 /// synthetic tuning sets (weights/README.md, "Choosing among the best poses by what both scans saw"): on the
-/// repetition tuning set RelativeNet registration recall 65 -> 70 of 75 and RANSAC's 63 -> 65, on the
-/// randomized one RelativeNet 80 -> 82 of 85 (RANSAC unchanged), no false alarm added.
+/// repetition tuning set RelativeNet registration recall 65 -> 72 of 75 and RANSAC's 63 -> 65, on the
+/// randomized one RelativeNet 80 -> 81 of 85 (RANSAC unchanged), no false alarm added.
 pub const DEFAULT_POSE_CANDIDATES: usize = 16;
 /// Most pose candidates.
 pub const MAX_POSE_CANDIDATES: usize = 64;
