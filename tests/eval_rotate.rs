@@ -4,6 +4,8 @@
 //!
 //! Datasets are tiny `synth` scenes (64 x 48 rays, 4 frames per fragment), as in tests/synth_eval.rs.
 
+mod common;
+use common::temp_dir;
 use dpr_gpu::eval::dataset::{SceneData, load_dataset};
 use dpr_gpu::eval::gtlog::{LogRecord, format_log};
 use dpr_gpu::eval::metrics::information_error;
@@ -14,18 +16,10 @@ use dpr_gpu::pose::rotation_error_deg;
 use nalgebra::{Matrix4, Rotation3, Unit, Vector3};
 use serde_json::Value;
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 
 const EXE: &str = env!("CARGO_BIN_EXE_dpr-gpu");
-
-/// A fresh, empty temporary folder for one test.
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("dpr_eval_rotate_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
 
 fn run(args: &[&str]) -> Output {
     let out = Command::new(EXE).args(args).output().unwrap();

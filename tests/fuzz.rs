@@ -161,9 +161,9 @@ fn seeds() -> &'static Vec<(&'static str, Vec<u8>)> {
     })
 }
 
-/// A fresh path for one fuzz case.
+/// A fresh path for one fuzz case (each case removes its file; the folder, a static, stays in `target/tmp`).
 fn case_path(ext: &str) -> PathBuf {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    static DIR: OnceLock<common::TestDir> = OnceLock::new();
     static N: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
     let dir = DIR.get_or_init(|| common::temp_dir("fuzz-cases"));
     let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);

@@ -4,6 +4,8 @@
 //!
 //! Scenes here use a coarse camera (64 x 48 rays, 4 frames per fragment) so the whole file runs in seconds.
 
+mod common;
+use common::temp_dir;
 use dpr_gpu::eval::dataset::{GtEntry, Protocol, SceneData, load_dataset};
 use dpr_gpu::eval::gtlog::{LogRecord, format_log, parse_log, read_log};
 use dpr_gpu::eval::metrics::{error_vector, information_error, information_matrix, inverse};
@@ -24,14 +26,6 @@ fn tiny(fragments: usize) -> SynthSettings {
         camera: CameraModel { width: 64, height: 48, ..CameraModel::default() },
         ..SynthSettings::default()
     }
-}
-
-/// A fresh, empty temporary folder for one test.
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("dpr_synth_eval_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 fn transform(axis: [f64; 3], angle_deg: f64, t: [f64; 3]) -> Matrix4<f64> {

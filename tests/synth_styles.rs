@@ -4,6 +4,8 @@
 //!
 //! Scenes use coarse overrides (few rays, few frames) so the file runs in well under a minute in release mode.
 
+mod common;
+use common::temp_dir;
 use dpr_gpu::eval::gtlog::read_log;
 use dpr_gpu::io::{LoadOptions, read_cloud};
 use dpr_gpu::synth::camera::CameraModel;
@@ -12,15 +14,7 @@ use dpr_gpu::synth::style::{Overrides, Style};
 use dpr_gpu::synth::{SynthSettings, write_dataset};
 use nalgebra::{Matrix4, Vector3};
 use std::collections::{BTreeMap, HashMap};
-use std::path::{Path, PathBuf};
-
-/// A fresh, empty temporary folder for one test.
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("dpr_synth_styles_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
+use std::path::Path;
 
 /// A styled configuration with coarse overrides.
 fn styled(style: Style, fragments: usize, width: usize, frames: usize, objects: Option<bool>) -> SynthSettings {

@@ -22,9 +22,8 @@ fn round_trip_keeps_config_tensors_and_notes() {
     w.notes.insert("trained".into(), "no".into());
     let back = Weights::from_bytes(&w.to_bytes().unwrap(), "mem").unwrap();
     assert_eq!(back, w);
-    let dir = std::env::temp_dir().join(format!("dpr-weights-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("w.safetensors");
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("w.safetensors");
     w.save(&path).unwrap();
     assert_eq!(Weights::load(&path).unwrap(), w);
     assert_ne!(Weights::init(&small(), 6).unwrap().tensors, w.tensors);

@@ -472,11 +472,9 @@ mod tests {
 
     #[test]
     fn train_checkpoints_resumes_exactly_and_writes_notes() {
-        let tag = module_path!().replace("::", "-");
-        let dir = std::env::temp_dir().join(format!("dpr-gpu-{tag}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        write_data(&dir);
+        let scratch = tempfile::tempdir().unwrap();
+        let dir = scratch.path();
+        write_data(dir);
         let d = dir.display();
         let common = format!(
             "--data {d}/pairs.txt --points 8 --grid 3 --batch 2 --voxel 0.03 --checkpoint-every 2 --lr-decay-every 3"
@@ -514,6 +512,5 @@ mod tests {
         let clash =
             run(parse(&format!("--out {d}/a.safetensors --steps 7 --resume {d}/a.ckpt.safetensors --radius 1")));
         assert!(clash.unwrap_err().to_string().contains("--radius"));
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -211,8 +211,8 @@ mod tests {
 
     #[test]
     fn pairs_files_number_files_by_first_appearance() {
-        let dir = std::env::temp_dir().join(format!("dpr_pairs_{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let scratch = tempfile::tempdir().unwrap();
+        let dir = scratch.path();
         let id = "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1";
         std::fs::write(dir.join("pairs.txt"), format!("# c\na.ply b.ply {id}\nc.ply a.ply {id}\n")).unwrap();
         let s = load_pairs_file(&dir.join("pairs.txt")).unwrap();
@@ -223,6 +223,5 @@ mod tests {
         std::fs::write(dir.join("bad.txt"), format!("a.ply b.ply {id} 7\n")).unwrap();
         let e = load_pairs_file(&dir.join("bad.txt")).unwrap_err().to_string();
         assert!(e.contains("bad.txt") && e.contains("line 1"), "{e}");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

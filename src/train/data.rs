@@ -459,8 +459,8 @@ mod tests {
     fn grouped_samples_share_a_pair_and_lie_a_radius_apart() {
         // Two pairs of 2 m x 2 m planes (each fragment paired with a copy of itself): room for many keypoints a
         // 0.3 m radius apart.
-        let dir = std::env::temp_dir().join(format!("dpr-gpu-group-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let scratch = tempfile::tempdir().unwrap();
+        let dir = scratch.path();
         let plane: Vec<[f32; 3]> =
             (0..100).flat_map(|i| (0..100).map(move |j| [i as f32 * 0.02, j as f32 * 0.02, 0.0])).collect();
         let mut pairs = Vec::new();
@@ -494,6 +494,5 @@ mod tests {
         assert_eq!(seen, [true, true]);
         // A batch that is not a multiple of the group size ends with a smaller group.
         assert_eq!(sampler.batch(3, 0, 6).unwrap().len(), 6);
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

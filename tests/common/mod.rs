@@ -6,14 +6,29 @@ use dpr_gpu::model::ModelConfig;
 use dpr_gpu::pose::{matrix_from_parts, matrix_from_quaternion, transform_point};
 use dpr_gpu::rng::Rng;
 use nalgebra::{Matrix4, Vector3};
-use std::path::PathBuf;
+use std::path::Path;
 
-/// A fresh, empty temp directory unique to this process and `name`.
-pub fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("dpr-gpu-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A fresh, empty scratch folder for one test, under Cargo's scratch folder for integration tests (`target/tmp`),
+/// removed with everything in it when dropped. It dereferences to its path.
+pub struct TestDir(tempfile::TempDir);
+
+impl std::ops::Deref for TestDir {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        self.0.path()
+    }
+}
+
+impl AsRef<Path> for TestDir {
+    fn as_ref(&self) -> &Path {
+        self.0.path()
+    }
+}
+
+/// A new [`TestDir`] whose name starts with `name`.
+pub fn temp_dir(name: &str) -> TestDir {
+    let dir = tempfile::Builder::new().prefix(&format!("{name}-")).tempdir_in(env!("CARGO_TARGET_TMPDIR"));
+    TestDir(dir.unwrap())
 }
 
 /// `n` points sampled uniformly (by count per part) from a small room corner: floor, two walls, a box, a sphere
