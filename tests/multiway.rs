@@ -215,8 +215,9 @@ fn ate_of_a_perturbed_trajectory_matches_a_brute_force_search() {
     assert!(best.0 - e.ate_rmse < 1e-6, "brute force {} vs Kabsch {}", best.0, e.ate_rmse);
 }
 
-/// A small generated scene on disk: 4 fragments, coarse camera (128 x 96 rays, 6 frames per fragment).
-fn small_scene(name: &str) -> std::path::PathBuf {
+/// A small generated scene on disk: 4 fragments, coarse camera (128 x 96 rays, 6 frames per fragment). Returns the
+/// scratch folder (removed when dropped) and the scene's folder in it.
+fn small_scene(name: &str) -> (common::TestDir, std::path::PathBuf) {
     let dir = common::temp_dir(name);
     let settings = SynthSettings {
         fragments: 4,
@@ -225,7 +226,8 @@ fn small_scene(name: &str) -> std::path::PathBuf {
         ..SynthSettings::default()
     };
     write_dataset(&dir, 7, 1, &settings, false, |_| {}).unwrap();
-    dir.join("scene_00")
+    let scene = dir.join("scene_00");
+    (dir, scene)
 }
 
 fn dpr(args: &[&str]) -> String {
@@ -237,7 +239,7 @@ fn dpr(args: &[&str]) -> String {
 
 #[test]
 fn multiway_cli_recovers_a_small_scene_and_resumes_to_the_same_trajectory() {
-    let scene = small_scene("multiway-cli");
+    let (_scratch, scene) = small_scene("multiway-cli");
     let out = scene.parent().unwrap().join("multiway");
     let (scene_s, out_s) = (scene.to_str().unwrap(), out.to_str().unwrap());
     let options =
