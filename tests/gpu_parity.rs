@@ -44,6 +44,7 @@ use std::sync::Arc;
 mod common;
 mod gpu_icp;
 mod gpu_preprocess;
+mod gpu_train;
 
 const EPS: f32 = f32::EPSILON;
 
@@ -1311,7 +1312,12 @@ fn every_registered_kernel_has_a_parity_test() {
     for spec in KERNELS {
         let prefix = format!("{}_matches_cpu", spec.name);
         assert!(
-            TESTS.iter().chain(gpu_preprocess::TESTS).chain(gpu_icp::TESTS).any(|(name, _)| name.starts_with(&prefix)),
+            TESTS
+                .iter()
+                .chain(gpu_preprocess::TESTS)
+                .chain(gpu_icp::TESTS)
+                .chain(gpu_train::TESTS)
+                .any(|(name, _)| name.starts_with(&prefix)),
             "kernel '{}' is registered in gpu::registry::KERNELS but has no parity test named {prefix}*",
             spec.name
         );
@@ -1595,7 +1601,7 @@ fn device_context_radii_match_cpu() {
 }
 
 fn main() -> std::process::ExitCode {
-    dpr_gpu::gpu::testing::run_tests(&[TESTS, gpu_preprocess::TESTS, gpu_icp::TESTS].concat())
+    dpr_gpu::gpu::testing::run_tests(&[TESTS, gpu_preprocess::TESTS, gpu_icp::TESTS, gpu_train::TESTS].concat())
 }
 
 /// Every test of this binary.

@@ -14,12 +14,15 @@ use super::context::GpuContext;
 use super::dense::Dense;
 use super::dense_coop_f16::DenseCoopF16;
 use super::dense_fast::DenseFast;
+use super::dense_input_grad::DenseInputGrad;
+use super::dense_weight_grad::DenseWeightGrad;
 use super::farthest_point::FarthestPoint;
 use super::grid_knn::GridKnn;
 use super::hypotheses::Hypotheses;
 use super::icp_normal_equations::IcpNormalEquations;
 use super::kernel::{GpuKernel, Kernel, KernelSpec};
 use super::max_pool::MaxPool;
+use super::max_pool_backward::MaxPoolBackward;
 use super::mutual_knn::MutualKnn;
 use super::patch_features::PatchFeatures;
 use super::patch_gather::PatchGather;
@@ -34,7 +37,7 @@ use super::unit_rows::UnitRows;
 use super::voxel_average::VoxelAverage;
 use crate::error::{Error, Result};
 
-/// Every kernel, in pipeline order.
+/// Every kernel, in pipeline order (inference, then training).
 pub const KERNELS: &[KernelSpec] = &[
     CellBounds::SPEC,
     CellKeys::SPEC,
@@ -60,6 +63,10 @@ pub const KERNELS: &[KernelSpec] = &[
     Hypotheses::SPEC,
     ScoreHypotheses::SPEC,
     IcpNormalEquations::SPEC,
+    // Training: the backward passes.
+    MaxPoolBackward::SPEC,
+    DenseWeightGrad::SPEC,
+    DenseInputGrad::SPEC,
 ];
 
 /// Every pipeline of [`KERNELS`] the device can run, compiled once per device.

@@ -5,7 +5,9 @@
 //! are *accumulated* into the buffers the caller passes, so several uses of a layer (or several samples) can
 //! share one gradient buffer.
 
-use crate::cpu::gemm::{gemm_acc, gemm_acc_at};
+use crate::cpu::dense_input_grad::dense_input_grad;
+use crate::cpu::dense_weight_grad::{SliceShape, bias_grad, dense_weight_grad};
+pub use crate::cpu::max_pool_backward::{max_pool_backward, max_pool_backward_acc};
 
 /// One per-row input slice of a dense layer: `x` is `rows x width`, and it multiplies the weight columns
 /// `offset..offset + width`.
@@ -74,77 +76,31 @@ pub fn dense_backward(
     debug_assert_eq!(out.len(), rows * n_out);
     debug_assert_eq!(d_out.len(), rows * n_out);
     let dz = if layer.relu { relu_backward(out, d_out) } else { d_out.to_vec() };
-    for r in 0..rows {
-        for (b, &g) in grads.bias.iter_mut().zip(&dz[r * n_out..][..n_out]) {
-            *b += g;
-        }
-    }
-    if !segments.is_empty() {
-        for (s, seg) in segments.iter().enumerate() {
-            // dW[:, off..off + w] += dz^T · x_s
-            gemm_acc_at(n_out, seg.width, rows, &dz, n_out, seg.x, seg.width, &mut grads.weight[seg.offset..], n_in);
-            // dx_s += dz · W[:, off..off + w]
-            if let Some(Some(dx)) = grads.segments.get_mut(s) {
-                gemm_acc(rows, seg.width, n_out, &dz, n_out, &layer.weight[seg.offset..], n_in, dx, seg.width);
-            }
+    let shape = |width: usize, offset: usize, rows_per_group: usize| SliceShape {
+        rows,
+        rows_per_group,
+        out_dim: n_out,
+        in_dim: n_in,
+        width,
+        offset,
+    };
+    let mut bias = Some(&mut *grads.bias);
+    for (s, seg) in segments.iter().enumerate() {
+        let slice = shape(seg.width, seg.offset, 1);
+        dense_weight_grad(&slice, &dz, seg.x, grads.weight, bias.take());
+        if let Some(Some(dx)) = grads.segments.get_mut(s) {
+            dense_input_grad(&slice, &dz, layer.weight, dx);
         }
     }
     if let Some(g) = group {
-        let rpg = rows_per_group.max(1);
-        let groups = rows / rpg;
-        // The group term's input is shared by the group's rows: sum their output gradients first.
-        let mut dz_sum = vec![0.0f32; groups * n_out];
-        for r in 0..groups * rpg {
-            let dst = &mut dz_sum[(r / rpg) * n_out..][..n_out];
-            for (d, &v) in dst.iter_mut().zip(&dz[r * n_out..][..n_out]) {
-                *d += v;
-            }
-        }
-        gemm_acc_at(n_out, g.width, groups, &dz_sum, n_out, g.x, g.width, &mut grads.weight[g.offset..], n_in);
+        // The group term's input is shared by the group's rows: its gradients sum over them.
+        let slice = shape(g.width, g.offset, rows_per_group.max(1));
+        dense_weight_grad(&slice, &dz, g.x, grads.weight, bias.take());
         if let Some(dg) = grads.group.as_deref_mut() {
-            gemm_acc(groups, g.width, n_out, &dz_sum, n_out, &layer.weight[g.offset..], n_in, dg, g.width);
+            dense_input_grad(&slice, &dz, layer.weight, dg);
         }
     }
-}
-
-/// Backward of `crate::cpu::max_pool::max_pool`: each output's gradient goes to the row that attains the
-/// maximum in its group and channel, the lowest such row on ties. Returns `groups * rows_per_group x channels`.
-pub fn max_pool_backward(x: &[f32], groups: usize, rows_per_group: usize, channels: usize, d_out: &[f32]) -> Vec<f32> {
-    let mut dx = vec![0.0; x.len()];
-    max_pool_backward_acc(x, groups, rows_per_group, channels, d_out, &mut dx);
-    dx
-}
-
-/// [`max_pool_backward`], accumulating into `dx`.
-pub fn max_pool_backward_acc(
-    x: &[f32],
-    groups: usize,
-    rows_per_group: usize,
-    channels: usize,
-    d_out: &[f32],
-    dx: &mut [f32],
-) {
-    if rows_per_group == 0 {
-        return;
-    }
-    let mut best_row = vec![0usize; channels];
-    let mut best_val = vec![0f32; channels];
-    for g in 0..groups {
-        let base = g * rows_per_group;
-        best_row.fill(0);
-        best_val.copy_from_slice(&x[base * channels..][..channels]);
-        for r in 1..rows_per_group {
-            let row = &x[(base + r) * channels..][..channels];
-            for c in 0..channels {
-                // Strictly greater: the lowest row keeps a tie.
-                if row[c] > best_val[c] {
-                    best_val[c] = row[c];
-                    best_row[c] = r;
-                }
-            }
-        }
-        for (c, &r) in best_row.iter().enumerate() {
-            dx[(base + r) * channels + c] += d_out[g * channels + c];
-        }
+    if let Some(b) = bias {
+        bias_grad(rows, n_out, &dz, b);
     }
 }
