@@ -1,25 +1,24 @@
 // SPDX-License-Identifier: MIT OR Apache-2.0
-// dense_weight_grad: the weight (and optionally bias) gradient of one input slice of a dense layer, added to
-// what the gradient buffers hold. `dz` is the gradient w.r.t. the layer's pre-activation (rows x out_dim, ReLU's
-// mask applied); the slice `x` has one row per group of rows_per_group consecutive output rows (1 for a per-row
-// input). Invocation (o, c) < (out_dim, width) adds sum_g dz_g[g, o] * x[g, c] to weight_grad[o, offset + c],
-// where dz_g sums dz over the group's rows from zero in row order; with `bias` set, invocations out_dim * width
-// + o add sum_r dz[r, o] to bias_grad[o]. Each element is its starting value plus the terms added one by one in
-// increasing g (r), the twin's order. One invocation per element: no two touch the same one. The per-group path
-// recomputes the group sums in every invocation (correct; slow for large groups).
-// Bindings: 0 params (uniform) | 1 dz (read) | 2 x (read, groups x width)
+// dense_weight_grad: the weight (and optionally bias) gradient of one per-row input slice of a dense layer,
+// added to what the gradient buffers hold. `dz` is the gradient w.r.t. the layer's pre-activation
+// (rows x out_dim, ReLU's mask applied by relu_backward; for a slice shared by a group of rows, the group sums
+// of group_row_sums). Invocation (o, c) < (out_dim, width) adds sum_r dz[r, o] * x[r, c] to
+// weight_grad[o, offset + c]; with `bias` set, invocation out_dim * width + o adds sum_r dz[r, o] to
+// bias_grad[o]. Each element is its starting value plus the terms added one by one in increasing r, the
+// twin's order. One invocation per element: no two touch the same one.
+// Bindings: 0 params (uniform) | 1 dz (read) | 2 x (read, rows x width)
 //           | 3 weight_grad (read_write, out_dim x in_dim) | 4 bias_grad (read_write, out_dim; unused without bias).
 // CPU twin: src/cpu/dense_weight_grad.rs
 
 struct DenseWeightGradParams {
     rows: u32,
-    rows_per_group: u32,
     out_dim: u32,
     in_dim: u32,
     width: u32,
     offset: u32,
     bias: u32,
-    _pad: u32,
+    _pad0: u32,
+    _pad1: u32,
 }
 
 const WG_SIZE: u32 = 64u;
@@ -40,7 +39,6 @@ fn main(
     let out_dim = params.out_dim;
     let width = params.width;
     let weights = out_dim * width;
-    let rpg = max(params.rows_per_group, 1u);
     if i >= weights {
         let o = i - weights;
         if params.bias == 0u || o >= out_dim {
@@ -57,19 +55,8 @@ fn main(
     let c = i % width;
     let at = o * params.in_dim + params.offset + c;
     var acc = weight_grad[at];
-    let groups = params.rows / rpg;
-    if rpg == 1u {
-        for (var r = 0u; r < groups; r++) {
-            acc = acc + dz[r * out_dim + o] * x[r * width + c];
-        }
-    } else {
-        for (var g = 0u; g < groups; g++) {
-            var sum = 0.0;
-            for (var r = g * rpg; r < (g + 1u) * rpg; r++) {
-                sum = sum + dz[r * out_dim + o];
-            }
-            acc = acc + sum * x[g * width + c];
-        }
+    for (var r = 0u; r < params.rows; r++) {
+        acc = acc + dz[r * out_dim + o] * x[r * width + c];
     }
     weight_grad[at] = acc;
 }

@@ -1,20 +1,18 @@
-//! Host side of `shaders/dense_input_grad.wgsl`: the gradient w.r.t. one input slice of a dense layer, added to
+//! Host side of `shaders/dense_input_grad.wgsl`: the gradient w.r.t. one per-row input slice of a dense layer, added to
 //! the slice's gradient buffer. CPU twin: [`crate::cpu::dense_input_grad`].
 
 use super::dense_weight_grad::slice_sizes;
 use super::kernel::{BindKind, GpuKernel, gpu_params};
 use super::recorder::Recorder;
-use super::{Gpu, to_u32, workgroups};
+use super::{Gpu, workgroups};
 use crate::cpu::dense_weight_grad::SliceShape;
 use crate::error::{Error, Result};
 
 gpu_params! {
     /// Mirrors `struct DenseInputGradParams` in shaders/dense_input_grad.wgsl.
     pub struct DenseInputGradParams {
-        /// Output rows of the layer.
+        /// Rows of `dz` and of the slice.
         pub rows: u32,
-        /// Output rows sharing one row of the slice.
-        pub rows_per_group: u32,
         /// Output width.
         pub out_dim: u32,
         /// Full input width (the weight's row length).
@@ -27,6 +25,8 @@ gpu_params! {
         pub _pad0: u32,
         /// Padding.
         pub _pad1: u32,
+        /// Padding.
+        pub _pad2: u32,
     }
 }
 
@@ -51,14 +51,13 @@ impl GpuKernel for DenseInputGrad {
 impl DenseInputGradParams {
     /// Parameters for `shape`.
     pub fn new(shape: &SliceShape) -> Result<DenseInputGradParams> {
-        let [rows, rows_per_group, out_dim, in_dim, width, offset] = slice_sizes(shape, "dense_input_grad")?;
-        to_u32(shape.groups() * shape.width, "dense_input_grad invocations")?;
-        Ok(DenseInputGradParams { rows, rows_per_group, out_dim, in_dim, width, offset, _pad0: 0, _pad1: 0 })
+        let [rows, out_dim, in_dim, width, offset] = slice_sizes(shape, "dense_input_grad")?;
+        Ok(DenseInputGradParams { rows, out_dim, in_dim, width, offset, _pad0: 0, _pad1: 0, _pad2: 0 })
     }
 }
 
 /// Records the gradient of one slice: `dz` (`rows x out_dim`) and the layer's `weight` (`out_dim x in_dim`),
-/// added to `dx` (`groups x width`).
+/// added to `dx` (`rows x width`).
 pub fn record<'a>(
     rec: &mut Recorder<'a>,
     params: &DenseInputGradParams,
@@ -66,7 +65,7 @@ pub fn record<'a>(
     weight: &wgpu::Buffer,
     dx: &wgpu::Buffer,
 ) -> Result<()> {
-    let n = (params.rows / params.rows_per_group.max(1)) as usize * params.width as usize;
+    let n = params.rows as usize * params.width as usize;
     rec.dispatch::<DenseInputGrad>(params, &[dz, weight, dx], workgroups(n, WG_SIZE))
 }
 
@@ -75,7 +74,7 @@ pub fn run(gpu: &Gpu, shape: &SliceShape, dz: &[f32], weight: &[f32], dx: &mut [
     let params = DenseInputGradParams::new(shape)?;
     if dz.len() != shape.rows * shape.out_dim
         || weight.len() != shape.out_dim * shape.in_dim
-        || dx.len() != shape.groups() * shape.width
+        || dx.len() != shape.rows * shape.width
     {
         return Err(Error::invalid("dense_input_grad: slice lengths do not match the shape"));
     }

@@ -1,5 +1,5 @@
-//! Host side of `shaders/dense_weight_grad.wgsl`: the weight (and optionally bias) gradient of one input slice
-//! of a dense layer, added to the gradient buffers. CPU twin: [`crate::cpu::dense_weight_grad`].
+//! Host side of `shaders/dense_weight_grad.wgsl`: the weight (and optionally bias) gradient of one per-row input
+//! slice of a dense layer, added to the gradient buffers. CPU twin: [`crate::cpu::dense_weight_grad`].
 
 use super::kernel::{BindKind, GpuKernel, gpu_params};
 use super::recorder::Recorder;
@@ -10,10 +10,8 @@ use crate::error::{Error, Result};
 gpu_params! {
     /// Mirrors `struct DenseWeightGradParams` in shaders/dense_weight_grad.wgsl.
     pub struct DenseWeightGradParams {
-        /// Output rows of the layer.
+        /// Rows of `dz` and of the slice.
         pub rows: u32,
-        /// Output rows sharing one row of the slice.
-        pub rows_per_group: u32,
         /// Output width.
         pub out_dim: u32,
         /// Full input width (the weight's row length).
@@ -25,7 +23,9 @@ gpu_params! {
         /// 1: also add the bias gradient.
         pub bias: u32,
         /// Padding.
-        pub _pad: u32,
+        pub _pad0: u32,
+        /// Padding.
+        pub _pad1: u32,
     }
 }
 
@@ -47,24 +47,25 @@ impl GpuKernel for DenseWeightGrad {
     const CPU_TWIN: Self::CpuTwin = crate::cpu::dense_weight_grad::dense_weight_grad;
 }
 
-/// Checks `shape` and converts it to 32-bit kernel sizes: `[rows, rows_per_group, out_dim, in_dim, width,
-/// offset]`. Shared with [`super::dense_input_grad`].
-pub(crate) fn slice_sizes(shape: &SliceShape, kernel: &str) -> Result<[u32; 6]> {
+/// Checks `shape` and converts it to 32-bit kernel sizes: `[rows, out_dim, in_dim, width, offset]`. Shared
+/// with [`super::dense_input_grad`].
+pub(crate) fn slice_sizes(shape: &SliceShape, kernel: &str) -> Result<[u32; 5]> {
     if !shape.is_valid() {
         return Err(Error::invalid(format!("{kernel}: the slice does not fit the layer: {shape:?}")));
     }
     to_u32(shape.rows * shape.out_dim.max(shape.width), &format!("{kernel} elements"))?;
     to_u32(shape.out_dim * shape.in_dim, &format!("{kernel} weights"))?;
     let s = shape;
-    Ok([s.rows, s.rows_per_group, s.out_dim, s.in_dim, s.width, s.offset].map(|v| v as u32))
+    Ok([s.rows, s.out_dim, s.in_dim, s.width, s.offset].map(|v| v as u32))
 }
 
 impl DenseWeightGradParams {
     /// Parameters for `shape`, with or without the bias gradient.
     pub fn new(shape: &SliceShape, bias: bool) -> Result<DenseWeightGradParams> {
-        let [rows, rows_per_group, out_dim, in_dim, width, offset] = slice_sizes(shape, "dense_weight_grad")?;
+        let [rows, out_dim, in_dim, width, offset] = slice_sizes(shape, "dense_weight_grad")?;
         to_u32(shape.out_dim * (shape.width + 1), "dense_weight_grad invocations")?;
-        Ok(DenseWeightGradParams { rows, rows_per_group, out_dim, in_dim, width, offset, bias: bias as u32, _pad: 0 })
+        let bias = bias as u32;
+        Ok(DenseWeightGradParams { rows, out_dim, in_dim, width, offset, bias, _pad0: 0, _pad1: 0 })
     }
 
     fn invocations(&self) -> usize {
@@ -72,7 +73,7 @@ impl DenseWeightGradParams {
     }
 }
 
-/// Records the gradient of one slice: `dz` (`rows x out_dim`), `x` (`groups x width`), added to `weight_grad`
+/// Records the gradient of one slice: `dz` (`rows x out_dim`), `x` (`rows x width`), added to `weight_grad`
 /// (`out_dim x in_dim`) and, with `params.bias`, to `bias_grad` (`out_dim`; any buffer without it).
 pub fn record<'a>(
     rec: &mut Recorder<'a>,
@@ -97,7 +98,7 @@ pub fn run(
     let params = DenseWeightGradParams::new(shape, bias_grad.is_some())?;
     let bias_ok = bias_grad.as_ref().is_none_or(|b| b.len() == shape.out_dim);
     if dz.len() != shape.rows * shape.out_dim
-        || x.len() != shape.groups() * shape.width
+        || x.len() != shape.rows * shape.width
         || weight_grad.len() != shape.out_dim * shape.in_dim
         || !bias_ok
     {

@@ -18,6 +18,7 @@ use super::dense_input_grad::DenseInputGrad;
 use super::dense_weight_grad::DenseWeightGrad;
 use super::farthest_point::FarthestPoint;
 use super::grid_knn::GridKnn;
+use super::group_row_sums::GroupRowSums;
 use super::hypotheses::Hypotheses;
 use super::icp_normal_equations::IcpNormalEquations;
 use super::kernel::{GpuKernel, Kernel, KernelSpec};
@@ -30,6 +31,7 @@ use super::patch_sample::PatchSample;
 use super::pca_normals::PcaNormals;
 use super::pose_feature::PoseFeature;
 use super::prefix_scan::PrefixScan;
+use super::relu_backward::ReluBackward;
 use super::rotation_head::RotationHead;
 use super::score_hypotheses::ScoreHypotheses;
 use super::segments::SegmentsKernel;
@@ -64,6 +66,8 @@ pub const KERNELS: &[KernelSpec] = &[
     ScoreHypotheses::SPEC,
     IcpNormalEquations::SPEC,
     // Training: the backward passes.
+    ReluBackward::SPEC,
+    GroupRowSums::SPEC,
     MaxPoolBackward::SPEC,
     DenseWeightGrad::SPEC,
     DenseInputGrad::SPEC,

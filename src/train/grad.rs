@@ -7,7 +7,9 @@
 
 use crate::cpu::dense_input_grad::dense_input_grad;
 use crate::cpu::dense_weight_grad::{SliceShape, bias_grad, dense_weight_grad};
+use crate::cpu::group_row_sums::group_row_sums;
 pub use crate::cpu::max_pool_backward::{max_pool_backward, max_pool_backward_acc};
+pub use crate::cpu::relu_backward::relu_backward;
 
 /// One per-row input slice of a dense layer: `x` is `rows x width`, and it multiplies the weight columns
 /// `offset..offset + width`.
@@ -48,12 +50,6 @@ pub struct DenseGrads<'a> {
     pub segments: Vec<Option<&'a mut [f32]>>,
 }
 
-/// `d_out` masked by ReLU's derivative: passes where the layer's (post-ReLU) output is positive. At exactly
-/// zero the derivative is taken as 0 (the output there is clamped).
-pub fn relu_backward(out: &[f32], d_out: &[f32]) -> Vec<f32> {
-    out.iter().zip(d_out).map(|(&y, &g)| if y > 0.0 { g } else { 0.0 }).collect()
-}
-
 /// Backward of one dense layer
 /// `out[r] = act(b + W_g · g[r / rows_per_group] + sum_s W_s · x_s[r])` over `rows` rows.
 ///
@@ -76,28 +72,24 @@ pub fn dense_backward(
     debug_assert_eq!(out.len(), rows * n_out);
     debug_assert_eq!(d_out.len(), rows * n_out);
     let dz = if layer.relu { relu_backward(out, d_out) } else { d_out.to_vec() };
-    let shape = |width: usize, offset: usize, rows_per_group: usize| SliceShape {
-        rows,
-        rows_per_group,
-        out_dim: n_out,
-        in_dim: n_in,
-        width,
-        offset,
-    };
+    let shape =
+        |rows: usize, width: usize, offset: usize| SliceShape { rows, out_dim: n_out, in_dim: n_in, width, offset };
     let mut bias = Some(&mut *grads.bias);
     for (s, seg) in segments.iter().enumerate() {
-        let slice = shape(seg.width, seg.offset, 1);
+        let slice = shape(rows, seg.width, seg.offset);
         dense_weight_grad(&slice, &dz, seg.x, grads.weight, bias.take());
         if let Some(Some(dx)) = grads.segments.get_mut(s) {
             dense_input_grad(&slice, &dz, layer.weight, dx);
         }
     }
     if let Some(g) = group {
-        // The group term's input is shared by the group's rows: its gradients sum over them.
-        let slice = shape(g.width, g.offset, rows_per_group.max(1));
-        dense_weight_grad(&slice, &dz, g.x, grads.weight, bias.take());
+        // The group term's input is shared by the group's rows: sum their output gradients first.
+        let rpg = rows_per_group.max(1);
+        let sums = group_row_sums(&dz, rpg, n_out);
+        let slice = shape(rows / rpg, g.width, g.offset);
+        dense_weight_grad(&slice, &sums, g.x, grads.weight, None);
         if let Some(dg) = grads.group.as_deref_mut() {
-            dense_input_grad(&slice, &dz, layer.weight, dg);
+            dense_input_grad(&slice, &sums, layer.weight, dg);
         }
     }
     if let Some(b) = bias {
