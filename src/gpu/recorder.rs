@@ -45,6 +45,11 @@ impl<'a> Recorder<'a> {
         Recorder { gpu, label, params: Vec::new(), ops: Vec::new(), reads: Vec::new() }
     }
 
+    /// The device this batch runs on.
+    pub fn gpu(&self) -> &'a Gpu {
+        self.gpu
+    }
+
     /// Dispatches `workgroups` workgroups of kernel `K` (folded into 2-D past the per-dimension limit) with
     /// `params` at binding 0 and `buffers` at bindings 1...
     pub fn dispatch<K: GpuKernel>(

@@ -4,14 +4,18 @@
 use super::{EPS, SENTINEL, SUM_ERROR_FACTOR, assert_close, normals, seed};
 use dpr_gpu::cpu::dense_weight_grad::SliceShape;
 use dpr_gpu::gpu;
+use dpr_gpu::gpu::backward::{DeviceDenseLayer, DeviceSlice, record_dense_backward};
+use dpr_gpu::gpu::buffer::GpuBuffer;
 use dpr_gpu::gpu::dense_input_grad::DenseInputGrad;
 use dpr_gpu::gpu::dense_weight_grad::DenseWeightGrad;
 use dpr_gpu::gpu::group_row_sums::GroupRowSums;
 use dpr_gpu::gpu::kernel::GpuKernel;
 use dpr_gpu::gpu::max_pool_backward::MaxPoolBackward;
+use dpr_gpu::gpu::recorder::Recorder;
 use dpr_gpu::gpu::relu_backward::ReluBackward;
 use dpr_gpu::gpu::testing::gpu_or_skip as gpu;
 use dpr_gpu::rng::Rng;
+use dpr_gpu::train::grad::{DenseGrads, DenseLayer, Segment, dense_backward};
 
 /// The training kernels' parity tests, run by `gpu_parity`'s `main`.
 pub const TESTS: &[(&str, fn())] = &[
@@ -23,6 +27,7 @@ pub const TESTS: &[(&str, fn())] = &[
     ),
     ("dense_weight_grad_matches_cpu_ragged", dense_weight_grad_matches_cpu_ragged),
     ("dense_input_grad_matches_cpu_ragged", dense_input_grad_matches_cpu_ragged),
+    ("dense_backward_on_the_device_matches_the_cpu_trainer", dense_backward_on_the_device_matches_the_cpu_trainer),
 ];
 
 /// Slices of a layer: a full layer, the skip concatenation's second part, ragged sizes past a workgroup, one
@@ -150,5 +155,192 @@ fn dense_input_grad_matches_cpu_ragged() {
             sum_tolerance(shape.out_dim, start[i], terms)
         };
         assert_close(&format!("dense_input_grad {shape:?}"), s, &got, &want, tol);
+    }
+}
+
+/// An input slice, host side: `(x, width, offset, gradient start or None when not wanted)`.
+type Slice = (Vec<f32>, usize, usize, Option<Vec<f32>>);
+
+/// A dense layer's gradients: (weight, bias, shared input, per-row inputs).
+type LayerGrads = (Vec<f32>, Vec<f32>, Option<Vec<f32>>, Vec<Option<Vec<f32>>>);
+
+/// A dense layer's inputs and gradients, host side: what [`dense_backward`] and the device composition take.
+struct LayerCase {
+    rows: usize,
+    rows_per_group: usize,
+    in_dim: usize,
+    out_dim: usize,
+    relu: bool,
+    weight: Vec<f32>,
+    out: Vec<f32>,
+    d_out: Vec<f32>,
+    /// The input shared by each group of rows.
+    group: Slice,
+    /// The per-row inputs.
+    segments: Vec<Slice>,
+    weight_grad: Vec<f32>,
+    bias_grad: Vec<f32>,
+}
+
+impl LayerCase {
+    /// Random data: per-row slices of `widths` (gradient wanted where `want`), then the group input of
+    /// `group_width` at `group_offset`; gradients start nonzero.
+    #[expect(clippy::too_many_arguments, reason = "a layer's shape")]
+    fn new(
+        rng: &mut Rng,
+        rows: usize,
+        rows_per_group: usize,
+        out_dim: usize,
+        relu: bool,
+        widths: &[(usize, usize, bool)],
+        group_width: usize,
+        group_offset: usize,
+    ) -> LayerCase {
+        let in_dim = widths.iter().map(|w| w.0).sum::<usize>() + group_width;
+        let segments = widths
+            .iter()
+            .map(|&(w, offset, want)| (normals(rng, rows * w), w, offset, want.then(|| normals(rng, rows * w))))
+            .collect();
+        let groups = rows / rows_per_group;
+        LayerCase {
+            rows,
+            rows_per_group,
+            in_dim,
+            out_dim,
+            relu,
+            weight: normals(rng, out_dim * in_dim),
+            out: normals(rng, rows * out_dim),
+            d_out: normals(rng, rows * out_dim),
+            group: (
+                normals(rng, groups * group_width),
+                group_width,
+                group_offset,
+                Some(normals(rng, groups * group_width)),
+            ),
+            segments,
+            weight_grad: normals(rng, out_dim * in_dim),
+            bias_grad: normals(rng, out_dim),
+        }
+    }
+
+    /// Every value replaced by its magnitude (`out` kept: it only masks): run through the same sums, it gives
+    /// `|start| + sum |terms|` of every gradient element, the scale of its rounding error.
+    fn magnitudes(&self) -> LayerCase {
+        let abs = |v: &Vec<f32>| v.iter().map(|x| x.abs()).collect::<Vec<f32>>();
+        let slice = |s: &Slice| (abs(&s.0), s.1, s.2, s.3.as_ref().map(abs));
+        LayerCase {
+            weight: abs(&self.weight),
+            out: self.out.clone(),
+            d_out: abs(&self.d_out),
+            group: slice(&self.group),
+            segments: self.segments.iter().map(slice).collect(),
+            weight_grad: abs(&self.weight_grad),
+            bias_grad: abs(&self.bias_grad),
+            ..*self
+        }
+    }
+
+    /// The CPU trainer's backward pass: (weight, bias, group, segments) gradients.
+    fn cpu(&self) -> LayerGrads {
+        let (mut w, mut b) = (self.weight_grad.clone(), self.bias_grad.clone());
+        let mut dg = self.group.3.clone();
+        let mut ds: Vec<Option<Vec<f32>>> = self.segments.iter().map(|s| s.3.clone()).collect();
+        let layer = DenseLayer { weight: &self.weight, in_dim: self.in_dim, out_dim: self.out_dim, relu: self.relu };
+        let segments: Vec<Segment<'_>> =
+            self.segments.iter().map(|s| Segment { x: &s.0, width: s.1, offset: s.2 }).collect();
+        let group = Segment { x: &self.group.0, width: self.group.1, offset: self.group.2 };
+        let mut grads = DenseGrads {
+            weight: &mut w,
+            bias: &mut b,
+            group: dg.as_deref_mut(),
+            segments: ds.iter_mut().map(|d| d.as_deref_mut()).collect(),
+        };
+        dense_backward(
+            &layer,
+            self.rows,
+            self.rows_per_group,
+            &self.out,
+            &self.d_out,
+            Some(group),
+            &segments,
+            &mut grads,
+        );
+        (w, b, dg, ds)
+    }
+
+    /// The same on the device, in one submission; only the gradients come back.
+    fn device(&self, g: &gpu::Gpu) -> LayerGrads {
+        let up = |v: &[f32]| GpuBuffer::from_slice(&g.context, "case", v).unwrap();
+        let (weight, out, d_out) = (up(&self.weight), up(&self.out), up(&self.d_out));
+        let (wg, bg) = (up(&self.weight_grad), up(&self.bias_grad));
+        let slice_buffers = |s: &Slice| (up(&s.0), s.3.as_deref().map(up));
+        let group_buffers = slice_buffers(&self.group);
+        let segment_buffers: Vec<_> = self.segments.iter().map(slice_buffers).collect();
+        fn device_slice<'b>(s: &Slice, b: &'b (GpuBuffer<f32>, Option<GpuBuffer<f32>>)) -> DeviceSlice<'b> {
+            DeviceSlice { x: b.0.raw(), width: s.1, offset: s.2, dx: b.1.as_ref().map(|d| d.raw()) }
+        }
+        let layer = DeviceDenseLayer {
+            weight: weight.raw(),
+            in_dim: self.in_dim,
+            out_dim: self.out_dim,
+            relu: self.relu,
+            weight_grad: wg.raw(),
+            bias_grad: bg.raw(),
+        };
+        let group = device_slice(&self.group, &group_buffers);
+        let segments: Vec<DeviceSlice<'_>> =
+            self.segments.iter().zip(&segment_buffers).map(|(s, b)| device_slice(s, b)).collect();
+        let mut rec = Recorder::new(g, "dense backward test");
+        record_dense_backward(
+            &mut rec,
+            &layer,
+            self.rows,
+            self.rows_per_group,
+            out.raw(),
+            d_out.raw(),
+            Some(group),
+            &segments,
+        )
+        .unwrap();
+        let read = |rec: &mut Recorder<'_>, b: &GpuBuffer<f32>| rec.read(b.raw(), 0, (b.len() * 4) as u64);
+        let (rw, rb) = (read(&mut rec, &wg), read(&mut rec, &bg));
+        let rg = group_buffers.1.as_ref().map(|d| read(&mut rec, d));
+        let rs: Vec<Option<usize>> = segment_buffers.iter().map(|b| b.1.as_ref().map(|d| read(&mut rec, d))).collect();
+        let bytes = rec.finish().unwrap();
+        let floats = |i: usize| bytemuck::cast_slice::<u8, f32>(&bytes[i]).to_vec();
+        (floats(rw), floats(rb), rg.map(floats), rs.into_iter().map(|r| r.map(floats)).collect())
+    }
+}
+
+/// The device composition of a dense layer's backward pass against the CPU trainer's, on the two shapes the
+/// networks use: the head's first layer (the encoder outputs side by side with the global feature shared by
+/// the patch, ReLU) and a fold's first layer (the codeword shared by the grid, then per-point coordinates whose
+/// gradient is not wanted, no ReLU). Tolerance: the sequential-sum bound at each element's own magnitudes.
+fn dense_backward_on_the_device_matches_the_cpu_trainer() {
+    let Some(g) = gpu() else { return };
+    let s = seed(146);
+    let mut rng = Rng::new(s);
+    let cases = [
+        LayerCase::new(&mut rng, 3 * 20, 20, 24, true, &[(8, 0, true), (12, 8, true)], 12, 20),
+        LayerCase::new(&mut rng, 2 * 25, 25, 10, false, &[(2, 16, false)], 16, 0),
+    ];
+    for (k, case) in cases.iter().enumerate() {
+        let (want, got, scale) = (case.cpu(), case.device(&g), case.magnitudes().cpu());
+        let terms = case.rows + case.out_dim;
+        let tol = |scale: &[f32]| {
+            let scale = scale.to_vec();
+            move |i: usize| sum_tolerance(terms, 0.0, scale[i])
+        };
+        let what = |part: &str| format!("dense backward on the device, case {k}: {part}");
+        assert_close(&what("weight"), s, &got.0, &want.0, tol(&scale.0));
+        assert_close(&what("bias"), s, &got.1, &want.1, tol(&scale.1));
+        let (gg, wg, sg) = (got.2.unwrap(), want.2.unwrap(), scale.2.unwrap());
+        assert_close(&what("shared input"), s, &gg, &wg, tol(&sg));
+        for (i, ((a, e), m)) in got.3.iter().zip(&want.3).zip(&scale.3).enumerate() {
+            assert_eq!(a.is_some(), e.is_some());
+            if let (Some(a), Some(e), Some(m)) = (a, e, m) {
+                assert_close(&what(&format!("slice {i}")), s, a, e, tol(m));
+            }
+        }
     }
 }
