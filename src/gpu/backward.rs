@@ -2,17 +2,20 @@
 //! their twins ([`crate::train::grad::dense_backward`]): ReLU's mask ([`super::relu_backward`]), then per input
 //! slice the weight gradient ([`super::dense_weight_grad`], the bias with the first slice) and the slice's
 //! gradient ([`super::dense_input_grad`]); an input shared by a group of rows goes through its group sums
-//! ([`super::group_row_sums`]). Everything stays on the device: gradients are added to the buffers the caller
-//! holds.
+//! ([`super::group_row_sums`]). The encoder's backward pass chains them with the max-pools' backward passes
+//! ([`super::max_pool_backward`]) as [`crate::train::backward::encode_backward`] does. Everything stays on the
+//! device: gradients are added to the buffers the caller holds.
 
 use super::buffer::storage_buffer;
 use super::dense_input_grad::DenseInputGradParams;
 use super::dense_weight_grad::DenseWeightGradParams;
 use super::group_row_sums::GroupRowSumsParams;
+use super::max_pool_backward::MaxPoolBackwardParams;
 use super::recorder::Recorder;
 use super::relu_backward::ReluBackwardParams;
 use crate::cpu::dense_weight_grad::SliceShape;
 use crate::error::{Error, Result};
+use crate::model::{FoldNet, linear::Linear};
 
 /// One input slice of a dense layer on the device.
 #[derive(Clone, Copy, Debug)]
@@ -98,6 +101,113 @@ pub fn record_dense_backward(
         if let Some(dx) = g.dx {
             super::dense_input_grad::record(rec, &DenseInputGradParams::new(&slice)?, &sums, layer.weight, dx)?;
         }
+    }
+    Ok(())
+}
+
+/// A model's layers on the device, indexed in `model::params::all_layers` order: each weight (`out x in`,
+/// PyTorch layout) and the gradient buffers its backward pass adds to.
+#[derive(Clone, Debug)]
+pub struct DeviceLayers<'b> {
+    /// Weights.
+    pub weights: Vec<&'b wgpu::Buffer>,
+    /// Weight gradients.
+    pub weight_grads: Vec<&'b wgpu::Buffer>,
+    /// Bias gradients.
+    pub bias_grads: Vec<&'b wgpu::Buffer>,
+}
+
+impl DeviceLayers<'_> {
+    /// The dense-layer view of layer `index` with `linear`'s shape.
+    fn layer(&self, index: usize, linear: &Linear, relu: bool) -> Result<DeviceDenseLayer<'_>> {
+        let missing = || Error::invalid(format!("device layers: no layer {index}"));
+        Ok(DeviceDenseLayer {
+            weight: self.weights.get(index).ok_or_else(missing)?,
+            in_dim: linear.in_dim,
+            out_dim: linear.out_dim,
+            relu,
+            weight_grad: self.weight_grads.get(index).ok_or_else(missing)?,
+            bias_grad: self.bias_grads.get(index).ok_or_else(missing)?,
+        })
+    }
+}
+
+/// A FoldNet encoder's forward activations on the device: what [`crate::model::foldnet::EncodeTape`] holds.
+#[derive(Clone, Debug)]
+pub struct DeviceEncodeTape<'b> {
+    /// Patches encoded.
+    pub patches: usize,
+    /// Points per patch.
+    pub points: usize,
+    /// The encoder's input, `patches * points x in_dim`.
+    pub input: &'b wgpu::Buffer,
+    /// Output of each encoder layer (after ReLU).
+    pub encoder: Vec<&'b wgpu::Buffer>,
+    /// Max-pool of the last encoder output, `patches x width`.
+    pub global: &'b wgpu::Buffer,
+    /// Output of each head layer (after ReLU).
+    pub head: Vec<&'b wgpu::Buffer>,
+}
+
+/// A zeroed device buffer of `floats` f32 (wgpu zero-initialises new buffers).
+fn zeros(rec: &Recorder<'_>, label: &str, floats: usize) -> Result<wgpu::Buffer> {
+    storage_buffer(&rec.gpu().context, label, (floats * 4) as u64)
+}
+
+/// Records the encoder's backward pass, as [`crate::train::backward::encode_backward`]: `d_codeword`
+/// (`patches x codeword`) is the loss gradient w.r.t. the codewords; parameter gradients are added to
+/// `layers` (the network's first layer at `base`).
+pub fn record_encode_backward(
+    rec: &mut Recorder<'_>,
+    net: &FoldNet,
+    layers: &DeviceLayers<'_>,
+    base: usize,
+    tape: &DeviceEncodeTape<'_>,
+    d_codeword: &wgpu::Buffer,
+) -> Result<()> {
+    let (patches, points) = (tape.patches, tape.points);
+    let rows = patches * points;
+    let (n_enc, n_head) = (net.encoder.len(), net.head.len());
+    if n_enc == 0 || n_head == 0 || tape.encoder.len() != n_enc || tape.head.len() != n_head {
+        return Err(Error::invalid("device encode backward: the tape does not match the network"));
+    }
+    let head_base = base + n_enc;
+    let width = |l: &Linear| l.out_dim;
+    // The codewords are the max-pool of the last head output.
+    let mut d = zeros(rec, "d head", rows * net.codeword_len())?;
+    let pool = MaxPoolBackwardParams::new(patches, points, net.codeword_len())?;
+    super::max_pool_backward::record(rec, &pool, tape.head[n_head - 1], d_codeword, &d)?;
+    // Head layers after the first, last to first.
+    for i in (1..n_head).rev() {
+        let dx = zeros(rec, "d head", rows * net.head[i].in_dim)?;
+        let seg = DeviceSlice { x: tape.head[i - 1], width: net.head[i].in_dim, offset: 0, dx: Some(&dx) };
+        let layer = layers.layer(head_base + i, &net.head[i], true)?;
+        record_dense_backward(rec, &layer, rows, rows, tape.head[i], &d, None, &[seg])?;
+        d = dx;
+    }
+    // The first head layer reads [encoder outputs... | global feature broadcast over the patch].
+    let d_enc: Vec<wgpu::Buffer> =
+        net.encoder.iter().map(|l| zeros(rec, "d encoder", rows * width(l))).collect::<Result<_>>()?;
+    let last_width = width(&net.encoder[n_enc - 1]);
+    let d_global = zeros(rec, "d global", patches * last_width)?;
+    let mut offset = 0;
+    let mut segments = Vec::with_capacity(n_enc);
+    for ((a, l), da) in tape.encoder.iter().zip(&net.encoder).zip(&d_enc) {
+        segments.push(DeviceSlice { x: a, width: width(l), offset, dx: Some(da) });
+        offset += width(l);
+    }
+    let global = DeviceSlice { x: tape.global, width: last_width, offset, dx: Some(&d_global) };
+    let layer = layers.layer(head_base, &net.head[0], true)?;
+    record_dense_backward(rec, &layer, rows, points, tape.head[0], &d, Some(global), &segments)?;
+    // The global max-pool routes its gradient to the argmax rows of the last encoder output.
+    let pool = MaxPoolBackwardParams::new(patches, points, last_width)?;
+    super::max_pool_backward::record(rec, &pool, tape.encoder[n_enc - 1], &d_global, &d_enc[n_enc - 1])?;
+    // Encoder layers, last to first; each adds into the gradient of the previous layer's output.
+    for i in (0..n_enc).rev() {
+        let (x, dx) = if i == 0 { (tape.input, None) } else { (tape.encoder[i - 1], Some(&d_enc[i - 1])) };
+        let seg = DeviceSlice { x, width: net.encoder[i].in_dim, offset: 0, dx };
+        let layer = layers.layer(base + i, &net.encoder[i], true)?;
+        record_dense_backward(rec, &layer, rows, rows, tape.encoder[i], &d_enc[i], None, &[seg])?;
     }
     Ok(())
 }

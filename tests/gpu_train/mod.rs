@@ -4,7 +4,9 @@
 use super::{EPS, SENTINEL, SUM_ERROR_FACTOR, assert_close, normals, seed};
 use dpr_gpu::cpu::dense_weight_grad::SliceShape;
 use dpr_gpu::gpu;
-use dpr_gpu::gpu::backward::{DeviceDenseLayer, DeviceSlice, record_dense_backward};
+use dpr_gpu::gpu::backward::{
+    DeviceDenseLayer, DeviceEncodeTape, DeviceLayers, DeviceSlice, record_dense_backward, record_encode_backward,
+};
 use dpr_gpu::gpu::buffer::GpuBuffer;
 use dpr_gpu::gpu::dense_input_grad::DenseInputGrad;
 use dpr_gpu::gpu::dense_weight_grad::DenseWeightGrad;
@@ -14,7 +16,9 @@ use dpr_gpu::gpu::max_pool_backward::MaxPoolBackward;
 use dpr_gpu::gpu::recorder::Recorder;
 use dpr_gpu::gpu::relu_backward::ReluBackward;
 use dpr_gpu::gpu::testing::gpu_or_skip as gpu;
+use dpr_gpu::model::{Model, ModelConfig, Weights};
 use dpr_gpu::rng::Rng;
+use dpr_gpu::train::backward::{Gradients, LayerWeights, encode_backward};
 use dpr_gpu::train::grad::{DenseGrads, DenseLayer, Segment, dense_backward};
 
 /// The training kernels' parity tests, run by `gpu_parity`'s `main`.
@@ -28,6 +32,7 @@ pub const TESTS: &[(&str, fn())] = &[
     ("dense_weight_grad_matches_cpu_ragged", dense_weight_grad_matches_cpu_ragged),
     ("dense_input_grad_matches_cpu_ragged", dense_input_grad_matches_cpu_ragged),
     ("dense_backward_on_the_device_matches_the_cpu_trainer", dense_backward_on_the_device_matches_the_cpu_trainer),
+    ("encode_backward_on_the_device_matches_the_cpu_trainer", encode_backward_on_the_device_matches_the_cpu_trainer),
 ];
 
 /// Slices of a layer: a full layer, the skip concatenation's second part, ragged sizes past a workgroup, one
@@ -341,6 +346,68 @@ fn dense_backward_on_the_device_matches_the_cpu_trainer() {
             if let (Some(a), Some(e), Some(m)) = (a, e, m) {
                 assert_close(&what(&format!("slice {i}")), s, a, e, tol(m));
             }
+        }
+    }
+}
+
+/// PPF-FoldNet's encoder backward pass on the device, from its forward tape uploaded, against the CPU trainer's
+/// `encode_backward`: the gradient of every encoder and head layer (max-pool routing, the skip concatenation, the
+/// broadcast global feature), and no other layer touched. The same sums in the same order on both sides, up to
+/// FMA contraction through the chain: within 1e-3 of each tensor's largest element.
+fn encode_backward_on_the_device_matches_the_cpu_trainer() {
+    let Some(g) = gpu() else { return };
+    let s = seed(147);
+    let mut rng = Rng::new(s);
+    let weights = Weights::init(&ModelConfig { points_per_patch: 16, ..ModelConfig::default() }, s).unwrap();
+    let model = Model::from_weights(&weights).unwrap();
+    let net = &model.ppf;
+    let (patches, points) = (5, 16);
+    let input = normals(&mut rng, patches * points * net.encoder[0].in_dim);
+    let tape = net.encode_tape(&input, patches, points);
+    let d_codeword = normals(&mut rng, patches * net.codeword_len());
+    let w = LayerWeights::new(&weights).unwrap();
+    let mut want = Gradients::zeros(&weights.config);
+    encode_backward(net, &w, 0, &input, &tape, &d_codeword, &mut want);
+
+    let up = |v: &[f32]| GpuBuffer::from_slice(&g.context, "encode backward", v).unwrap();
+    let weight_buffers: Vec<_> = w.weights.iter().map(|x| up(x)).collect();
+    let weight_grads: Vec<_> = want.layers.iter().map(|l| up(&vec![0.0; l.weight.len()])).collect();
+    let bias_grads: Vec<_> = want.layers.iter().map(|l| up(&vec![0.0; l.bias.len()])).collect();
+    let layers = DeviceLayers {
+        weights: weight_buffers.iter().map(|b| b.raw()).collect(),
+        weight_grads: weight_grads.iter().map(|b| b.raw()).collect(),
+        bias_grads: bias_grads.iter().map(|b| b.raw()).collect(),
+    };
+    let (input_b, global_b, d_cw) = (up(&input), up(&tape.global), up(&d_codeword));
+    let encoder_b: Vec<_> = tape.encoder.iter().map(|a| up(a)).collect();
+    let head_b: Vec<_> = tape.head.iter().map(|a| up(a)).collect();
+    let device_tape = DeviceEncodeTape {
+        patches,
+        points,
+        input: input_b.raw(),
+        encoder: encoder_b.iter().map(|b| b.raw()).collect(),
+        global: global_b.raw(),
+        head: head_b.iter().map(|b| b.raw()).collect(),
+    };
+    let mut rec = Recorder::new(&g, "encode backward test");
+    record_encode_backward(&mut rec, net, &layers, 0, &device_tape, d_cw.raw()).unwrap();
+    let reads: Vec<(usize, usize)> = weight_grads
+        .iter()
+        .zip(&bias_grads)
+        .map(|(wb, bb)| (rec.read(wb.raw(), 0, (wb.len() * 4) as u64), rec.read(bb.raw(), 0, (bb.len() * 4) as u64)))
+        .collect();
+    let bytes = rec.finish().unwrap();
+    let floats = |i: usize| bytemuck::cast_slice::<u8, f32>(&bytes[i]).to_vec();
+    let encoder_layers = net.encoder.len() + net.head.len();
+    for (i, ((rw, rb), layer)) in reads.iter().zip(&want.layers).enumerate() {
+        for (part, got, expected) in [("weight", floats(*rw), &layer.weight), ("bias", floats(*rb), &layer.bias)] {
+            let largest = expected.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            if i >= encoder_layers {
+                assert!(largest == 0.0, "the CPU trainer touched layer {i}");
+            } else {
+                assert!(largest > 0.0, "layer {i} {part}: a zero gradient tests nothing");
+            }
+            assert_close(&format!("encode backward, layer {i} {part}"), s, &got, expected, |_| 1e-3 * largest);
         }
     }
 }
