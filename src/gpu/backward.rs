@@ -3,8 +3,9 @@
 //! slice the weight gradient ([`super::dense_weight_grad`], the bias with the first slice) and the slice's
 //! gradient ([`super::dense_input_grad`]); an input shared by a group of rows goes through its group sums
 //! ([`super::group_row_sums`]). The encoder's backward pass chains them with the max-pools' backward passes
-//! ([`super::max_pool_backward`]) as [`crate::train::backward::encode_backward`] does. Everything stays on the
-//! device: gradients are added to the buffers the caller holds.
+//! ([`super::max_pool_backward`]) as [`crate::train::backward::encode_backward`] does; the decoder's and
+//! RelativeNet's follow `decode_backward` and `relative_backward` the same way. Everything stays on the device:
+//! gradients are added to the buffers the caller holds.
 
 use super::buffer::storage_buffer;
 use super::dense_input_grad::DenseInputGradParams;
@@ -15,7 +16,7 @@ use super::recorder::Recorder;
 use super::relu_backward::ReluBackwardParams;
 use crate::cpu::dense_weight_grad::SliceShape;
 use crate::error::{Error, Result};
-use crate::model::{FoldNet, linear::Linear};
+use crate::model::{FoldNet, RelativeNet, linear::Linear};
 
 /// One input slice of a dense layer on the device.
 #[derive(Clone, Copy, Debug)]
@@ -174,17 +175,11 @@ pub fn record_encode_backward(
     let head_base = base + n_enc;
     let width = |l: &Linear| l.out_dim;
     // The codewords are the max-pool of the last head output.
-    let mut d = zeros(rec, "d head", rows * net.codeword_len())?;
+    let d = zeros(rec, "d head", rows * net.codeword_len())?;
     let pool = MaxPoolBackwardParams::new(patches, points, net.codeword_len())?;
     super::max_pool_backward::record(rec, &pool, tape.head[n_head - 1], d_codeword, &d)?;
     // Head layers after the first, last to first.
-    for i in (1..n_head).rev() {
-        let dx = zeros(rec, "d head", rows * net.head[i].in_dim)?;
-        let seg = DeviceSlice { x: tape.head[i - 1], width: net.head[i].in_dim, offset: 0, dx: Some(&dx) };
-        let layer = layers.layer(head_base + i, &net.head[i], true)?;
-        record_dense_backward(rec, &layer, rows, rows, tape.head[i], &d, None, &[seg])?;
-        d = dx;
-    }
+    let d = record_chain_backward(rec, layers, head_base, &net.head, &tape.head, rows, |_| true, d)?;
     // The first head layer reads [encoder outputs... | global feature broadcast over the patch].
     let d_enc: Vec<wgpu::Buffer> =
         net.encoder.iter().map(|l| zeros(rec, "d encoder", rows * width(l))).collect::<Result<_>>()?;
@@ -210,4 +205,160 @@ pub fn record_encode_backward(
         record_dense_backward(rec, &layer, rows, rows, tape.encoder[i], &d_enc[i], None, &[seg])?;
     }
     Ok(())
+}
+
+/// A chain of plain layers `first..first + outs.len()` (outputs `outs`, ReLU where `relu(i)`), as the CPU
+/// trainer's `chain_backward`: back-propagates `d_last` (w.r.t. the last output) down to the gradient w.r.t. the
+/// first layer's output, which it returns; the first layer itself is left to the caller.
+#[expect(clippy::too_many_arguments, reason = "layer-shaped signature, as the CPU trainer's chain_backward")]
+fn record_chain_backward(
+    rec: &mut Recorder<'_>,
+    layers: &DeviceLayers<'_>,
+    first: usize,
+    linears: &[Linear],
+    outs: &[&wgpu::Buffer],
+    rows: usize,
+    relu: impl Fn(usize) -> bool,
+    d_last: wgpu::Buffer,
+) -> Result<wgpu::Buffer> {
+    let mut d = d_last;
+    for i in (1..linears.len()).rev() {
+        let dx = zeros(rec, "d chain", rows * linears[i].in_dim)?;
+        let seg = DeviceSlice { x: outs[i - 1], width: linears[i].in_dim, offset: 0, dx: Some(&dx) };
+        let layer = layers.layer(first + i, &linears[i], relu(i))?;
+        record_dense_backward(rec, &layer, rows, rows, outs[i], &d, None, &[seg])?;
+        d = dx;
+    }
+    Ok(d)
+}
+
+/// A FoldNet decoder's forward activations on the device: what [`crate::model::foldnet::DecodeTape`] holds,
+/// with the decoder's inputs.
+#[derive(Clone, Debug)]
+pub struct DeviceDecodeTape<'b> {
+    /// Patches decoded.
+    pub patches: usize,
+    /// The codewords decoded, `patches x codeword`.
+    pub codewords: &'b wgpu::Buffer,
+    /// The folding grid repeated for every patch (`FoldNet::tiled_grid`), `patches * grid_points x 2`.
+    pub grid: &'b wgpu::Buffer,
+    /// Output of each first-fold layer.
+    pub fold1: Vec<&'b wgpu::Buffer>,
+    /// Output of each second-fold layer; the last is the reconstruction.
+    pub fold2: Vec<&'b wgpu::Buffer>,
+}
+
+/// Records one fold's backward pass, as the CPU trainer's `fold_backward`: `x` is the per-point input of its
+/// first layer (after the codeword); the codeword gradient is added to `d_codeword`; returns the gradient
+/// w.r.t. `x` when `want_x`.
+#[expect(clippy::too_many_arguments, reason = "layer-shaped signature, as the CPU trainer's fold_backward")]
+fn record_fold_backward(
+    rec: &mut Recorder<'_>,
+    layers: &DeviceLayers<'_>,
+    first: usize,
+    linears: &[Linear],
+    outs: &[&wgpu::Buffer],
+    tape: &DeviceDecodeTape<'_>,
+    codeword: usize,
+    grid_points: usize,
+    x: &wgpu::Buffer,
+    d_out: wgpu::Buffer,
+    d_codeword: &wgpu::Buffer,
+    want_x: bool,
+) -> Result<Option<wgpu::Buffer>> {
+    let n = linears.len();
+    let rows = tape.patches * grid_points;
+    let d0 = record_chain_backward(rec, layers, first, linears, outs, rows, |i| i + 1 < n, d_out)?;
+    let x_width = linears[0].in_dim - codeword;
+    let dx = if want_x { Some(zeros(rec, "d fold input", rows * x_width)?) } else { None };
+    let group = DeviceSlice { x: tape.codewords, width: codeword, offset: 0, dx: Some(d_codeword) };
+    let seg = DeviceSlice { x, width: x_width, offset: codeword, dx: dx.as_ref() };
+    let layer = layers.layer(first, &linears[0], n > 1)?;
+    record_dense_backward(rec, &layer, rows, grid_points, outs[0], &d0, Some(group), &[seg])?;
+    Ok(dx)
+}
+
+/// Records the decoder's backward pass, as [`crate::train::backward::decode_backward`]: `d_recon` is the loss
+/// gradient w.r.t. the reconstruction; the codeword gradient is added to `d_codeword` (`patches x codeword`)
+/// and parameter gradients to `layers` (the network's first layer at `base`).
+pub fn record_decode_backward(
+    rec: &mut Recorder<'_>,
+    net: &FoldNet,
+    layers: &DeviceLayers<'_>,
+    base: usize,
+    tape: &DeviceDecodeTape<'_>,
+    d_recon: wgpu::Buffer,
+    d_codeword: &wgpu::Buffer,
+) -> Result<()> {
+    let (fold1, fold2) = (&net.fold1, &net.fold2);
+    if fold1.is_empty() || fold2.is_empty() || tape.fold1.len() != fold1.len() || tape.fold2.len() != fold2.len() {
+        return Err(Error::invalid("device decode backward: the tape does not match the network"));
+    }
+    let fold1_base = base + net.encoder.len() + net.head.len();
+    let fold2_base = fold1_base + fold1.len();
+    let (codeword, grid_points) = (net.codeword_len(), net.grid.len() / 2);
+    let first_out = tape.fold1[fold1.len() - 1];
+    let folds = (codeword, grid_points);
+    let d_first = record_fold_backward(
+        rec,
+        layers,
+        fold2_base,
+        fold2,
+        &tape.fold2,
+        tape,
+        folds.0,
+        folds.1,
+        first_out,
+        d_recon,
+        d_codeword,
+        true,
+    )?
+    .expect("asked for");
+    record_fold_backward(
+        rec,
+        layers,
+        fold1_base,
+        fold1,
+        &tape.fold1,
+        tape,
+        folds.0,
+        folds.1,
+        tape.grid,
+        d_first,
+        d_codeword,
+        false,
+    )?;
+    Ok(())
+}
+
+/// Records RelativeNet's backward pass, as [`crate::train::backward::relative_backward`]: `outs` are its layers'
+/// outputs over `rows` rows of `[source | target]` features and `d_raw` the loss gradient w.r.t. the raw
+/// rotation outputs; parameter gradients are added to `layers` (RelativeNet's first layer at `base`). Returns
+/// the gradients w.r.t. the source and target features.
+#[expect(clippy::too_many_arguments, reason = "layer-shaped signature, as the CPU trainer's relative_backward")]
+pub fn record_relative_backward(
+    rec: &mut Recorder<'_>,
+    net: &RelativeNet,
+    layers: &DeviceLayers<'_>,
+    base: usize,
+    source: &wgpu::Buffer,
+    target: &wgpu::Buffer,
+    rows: usize,
+    outs: &[&wgpu::Buffer],
+    d_raw: wgpu::Buffer,
+) -> Result<(wgpu::Buffer, wgpu::Buffer)> {
+    let n = net.layers.len();
+    if n == 0 || outs.len() != n {
+        return Err(Error::invalid("device relative backward: the outputs do not match the network"));
+    }
+    let d0 = record_chain_backward(rec, layers, base, &net.layers, outs, rows, |i| i + 1 < n, d_raw)?;
+    let f = net.layers[0].in_dim / 2;
+    let (d_source, d_target) = (zeros(rec, "d source", rows * f)?, zeros(rec, "d target", rows * f)?);
+    let segments = [
+        DeviceSlice { x: source, width: f, offset: 0, dx: Some(&d_source) },
+        DeviceSlice { x: target, width: f, offset: f, dx: Some(&d_target) },
+    ];
+    let layer = layers.layer(base, &net.layers[0], n > 1)?;
+    record_dense_backward(rec, &layer, rows, rows, outs[0], &d0, None, &segments)?;
+    Ok((d_source, d_target))
 }

@@ -5,7 +5,8 @@ use super::{EPS, SENTINEL, SUM_ERROR_FACTOR, assert_close, normals, seed};
 use dpr_gpu::cpu::dense_weight_grad::SliceShape;
 use dpr_gpu::gpu;
 use dpr_gpu::gpu::backward::{
-    DeviceDenseLayer, DeviceEncodeTape, DeviceLayers, DeviceSlice, record_dense_backward, record_encode_backward,
+    DeviceDecodeTape, DeviceDenseLayer, DeviceEncodeTape, DeviceLayers, DeviceSlice, record_decode_backward,
+    record_dense_backward, record_encode_backward, record_relative_backward,
 };
 use dpr_gpu::gpu::buffer::GpuBuffer;
 use dpr_gpu::gpu::dense_input_grad::DenseInputGrad;
@@ -16,9 +17,10 @@ use dpr_gpu::gpu::max_pool_backward::MaxPoolBackward;
 use dpr_gpu::gpu::recorder::Recorder;
 use dpr_gpu::gpu::relu_backward::ReluBackward;
 use dpr_gpu::gpu::testing::gpu_or_skip as gpu;
+use dpr_gpu::model::params::all_layers;
 use dpr_gpu::model::{Model, ModelConfig, Weights};
 use dpr_gpu::rng::Rng;
-use dpr_gpu::train::backward::{Gradients, LayerWeights, encode_backward};
+use dpr_gpu::train::backward::{Gradients, LayerWeights, decode_backward, encode_backward, relative_backward};
 use dpr_gpu::train::grad::{DenseGrads, DenseLayer, Segment, dense_backward};
 
 /// The training kernels' parity tests, run by `gpu_parity`'s `main`.
@@ -33,6 +35,11 @@ pub const TESTS: &[(&str, fn())] = &[
     ("dense_input_grad_matches_cpu_ragged", dense_input_grad_matches_cpu_ragged),
     ("dense_backward_on_the_device_matches_the_cpu_trainer", dense_backward_on_the_device_matches_the_cpu_trainer),
     ("encode_backward_on_the_device_matches_the_cpu_trainer", encode_backward_on_the_device_matches_the_cpu_trainer),
+    ("decode_backward_on_the_device_matches_the_cpu_trainer", decode_backward_on_the_device_matches_the_cpu_trainer),
+    (
+        "relative_backward_on_the_device_matches_the_cpu_trainer",
+        relative_backward_on_the_device_matches_the_cpu_trainer,
+    ),
 ];
 
 /// Slices of a layer: a full layer, the skip concatenation's second part, ragged sizes past a workgroup, one
@@ -350,16 +357,82 @@ fn dense_backward_on_the_device_matches_the_cpu_trainer() {
     }
 }
 
+/// Every layer of a model on the device, with zeroed gradient buffers: what the device backward passes take.
+struct UploadedLayers {
+    weights: Vec<GpuBuffer<f32>>,
+    weight_grads: Vec<GpuBuffer<f32>>,
+    bias_grads: Vec<GpuBuffer<f32>>,
+}
+
+impl UploadedLayers {
+    fn new(g: &gpu::Gpu, w: &LayerWeights<'_>, config: &ModelConfig) -> UploadedLayers {
+        let up = |v: &[f32]| GpuBuffer::from_slice(&g.context, "layers", v).unwrap();
+        let zeros = Gradients::zeros(config);
+        UploadedLayers {
+            weights: w.weights.iter().map(|x| up(x)).collect(),
+            weight_grads: zeros.layers.iter().map(|l| up(&l.weight)).collect(),
+            bias_grads: zeros.layers.iter().map(|l| up(&l.bias)).collect(),
+        }
+    }
+
+    fn view(&self) -> DeviceLayers<'_> {
+        fn raw(v: &[GpuBuffer<f32>]) -> Vec<&wgpu::Buffer> {
+            v.iter().map(|b| b.raw()).collect()
+        }
+        DeviceLayers {
+            weights: raw(&self.weights),
+            weight_grads: raw(&self.weight_grads),
+            bias_grads: raw(&self.bias_grads),
+        }
+    }
+
+    /// Queues the read-back of every gradient: `(weight, bias)` read indices per layer.
+    fn read(&self, rec: &mut Recorder<'_>) -> Vec<(usize, usize)> {
+        let mut read = |b: &GpuBuffer<f32>| rec.read(b.raw(), 0, (b.len() * 4) as u64);
+        self.weight_grads.iter().zip(&self.bias_grads).map(|(w, b)| (read(w), read(b))).collect()
+    }
+}
+
+/// The layers `touched` (indices into `all_layers`) must match the CPU trainer's gradients within 1e-3 of each
+/// tensor's largest element (the same sums in the same order on both sides, up to FMA contraction through the
+/// chain) and be nonzero there; every other layer must stay zero on both sides.
+fn assert_gradients(
+    what: &str,
+    seed: u64,
+    bytes: &[Vec<u8>],
+    reads: &[(usize, usize)],
+    want: &Gradients,
+    touched: std::ops::Range<usize>,
+) {
+    let floats = |i: usize| bytemuck::cast_slice::<u8, f32>(&bytes[i]).to_vec();
+    for (i, ((rw, rb), layer)) in reads.iter().zip(&want.layers).enumerate() {
+        for (part, got, expected) in [("weight", floats(*rw), &layer.weight), ("bias", floats(*rb), &layer.bias)] {
+            let largest = expected.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            if touched.contains(&i) {
+                assert!(largest > 0.0, "{what}, layer {i} {part}: a zero gradient tests nothing");
+            } else {
+                assert!(largest == 0.0, "{what}: the CPU trainer touched layer {i}");
+            }
+            assert_close(&format!("{what}, layer {i} {part}"), seed, &got, expected, |_| 1e-3 * largest);
+        }
+    }
+}
+
+/// A small model and its layers for the network tests.
+fn small_model(seed: u64) -> (Weights, Model) {
+    let weights = Weights::init(&ModelConfig { points_per_patch: 16, ..ModelConfig::default() }, seed).unwrap();
+    let model = Model::from_weights(&weights).unwrap();
+    (weights, model)
+}
+
 /// PPF-FoldNet's encoder backward pass on the device, from its forward tape uploaded, against the CPU trainer's
 /// `encode_backward`: the gradient of every encoder and head layer (max-pool routing, the skip concatenation, the
-/// broadcast global feature), and no other layer touched. The same sums in the same order on both sides, up to
-/// FMA contraction through the chain: within 1e-3 of each tensor's largest element.
+/// broadcast global feature), and no other layer touched.
 fn encode_backward_on_the_device_matches_the_cpu_trainer() {
     let Some(g) = gpu() else { return };
     let s = seed(147);
     let mut rng = Rng::new(s);
-    let weights = Weights::init(&ModelConfig { points_per_patch: 16, ..ModelConfig::default() }, s).unwrap();
-    let model = Model::from_weights(&weights).unwrap();
+    let (weights, model) = small_model(s);
     let net = &model.ppf;
     let (patches, points) = (5, 16);
     let input = normals(&mut rng, patches * points * net.encoder[0].in_dim);
@@ -370,14 +443,7 @@ fn encode_backward_on_the_device_matches_the_cpu_trainer() {
     encode_backward(net, &w, 0, &input, &tape, &d_codeword, &mut want);
 
     let up = |v: &[f32]| GpuBuffer::from_slice(&g.context, "encode backward", v).unwrap();
-    let weight_buffers: Vec<_> = w.weights.iter().map(|x| up(x)).collect();
-    let weight_grads: Vec<_> = want.layers.iter().map(|l| up(&vec![0.0; l.weight.len()])).collect();
-    let bias_grads: Vec<_> = want.layers.iter().map(|l| up(&vec![0.0; l.bias.len()])).collect();
-    let layers = DeviceLayers {
-        weights: weight_buffers.iter().map(|b| b.raw()).collect(),
-        weight_grads: weight_grads.iter().map(|b| b.raw()).collect(),
-        bias_grads: bias_grads.iter().map(|b| b.raw()).collect(),
-    };
+    let layers = UploadedLayers::new(&g, &w, &weights.config);
     let (input_b, global_b, d_cw) = (up(&input), up(&tape.global), up(&d_codeword));
     let encoder_b: Vec<_> = tape.encoder.iter().map(|a| up(a)).collect();
     let head_b: Vec<_> = tape.head.iter().map(|a| up(a)).collect();
@@ -390,24 +456,108 @@ fn encode_backward_on_the_device_matches_the_cpu_trainer() {
         head: head_b.iter().map(|b| b.raw()).collect(),
     };
     let mut rec = Recorder::new(&g, "encode backward test");
-    record_encode_backward(&mut rec, net, &layers, 0, &device_tape, d_cw.raw()).unwrap();
-    let reads: Vec<(usize, usize)> = weight_grads
-        .iter()
-        .zip(&bias_grads)
-        .map(|(wb, bb)| (rec.read(wb.raw(), 0, (wb.len() * 4) as u64), rec.read(bb.raw(), 0, (bb.len() * 4) as u64)))
-        .collect();
+    record_encode_backward(&mut rec, net, &layers.view(), 0, &device_tape, d_cw.raw()).unwrap();
+    let reads = layers.read(&mut rec);
     let bytes = rec.finish().unwrap();
-    let floats = |i: usize| bytemuck::cast_slice::<u8, f32>(&bytes[i]).to_vec();
-    let encoder_layers = net.encoder.len() + net.head.len();
-    for (i, ((rw, rb), layer)) in reads.iter().zip(&want.layers).enumerate() {
-        for (part, got, expected) in [("weight", floats(*rw), &layer.weight), ("bias", floats(*rb), &layer.bias)] {
-            let largest = expected.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-            if i >= encoder_layers {
-                assert!(largest == 0.0, "the CPU trainer touched layer {i}");
-            } else {
-                assert!(largest > 0.0, "layer {i} {part}: a zero gradient tests nothing");
-            }
-            assert_close(&format!("encode backward, layer {i} {part}"), s, &got, expected, |_| 1e-3 * largest);
-        }
+    assert_gradients("encode backward", s, &bytes, &reads, &want, 0..net.encoder.len() + net.head.len());
+}
+
+/// PC-FoldNet's decoder backward pass on the device (both folds: the codeword shared by the grid, the first
+/// fold's output feeding the second) against the CPU trainer's `decode_backward`: every fold layer's gradient
+/// and the codeword gradient, added to a nonzero start.
+fn decode_backward_on_the_device_matches_the_cpu_trainer() {
+    let Some(g) = gpu() else { return };
+    let s = seed(148);
+    let mut rng = Rng::new(s);
+    let (weights, model) = small_model(s);
+    let net = &model.pc;
+    let base = all_layers(&weights.config).iter().position(|l| l.name.starts_with("pc")).unwrap();
+    let patches = 3;
+    let codewords = normals(&mut rng, patches * net.codeword_len());
+    let tape = net.decode_tape(&codewords, patches);
+    let d_recon = normals(&mut rng, tape.output().len());
+    let d_codeword_start = normals(&mut rng, codewords.len());
+    let w = LayerWeights::new(&weights).unwrap();
+    let mut want = Gradients::zeros(&weights.config);
+    let mut want_d_codeword = d_codeword_start.clone();
+    decode_backward(net, &w, base, &codewords, &tape, d_recon.clone(), &mut want_d_codeword, &mut want);
+
+    let up = |v: &[f32]| GpuBuffer::from_slice(&g.context, "decode backward", v).unwrap();
+    let layers = UploadedLayers::new(&g, &w, &weights.config);
+    let (codewords_b, grid_b) = (up(&codewords), up(&net.tiled_grid(patches)));
+    let fold1_b: Vec<_> = tape.fold1.iter().map(|a| up(a)).collect();
+    let fold2_b: Vec<_> = tape.fold2.iter().map(|a| up(a)).collect();
+    let (d_recon_b, d_codeword_b) = (up(&d_recon), up(&d_codeword_start));
+    let device_tape = DeviceDecodeTape {
+        patches,
+        codewords: codewords_b.raw(),
+        grid: grid_b.raw(),
+        fold1: fold1_b.iter().map(|b| b.raw()).collect(),
+        fold2: fold2_b.iter().map(|b| b.raw()).collect(),
+    };
+    let mut rec = Recorder::new(&g, "decode backward test");
+    let d_recon_raw = d_recon_b.raw().clone();
+    record_decode_backward(&mut rec, net, &layers.view(), base, &device_tape, d_recon_raw, d_codeword_b.raw()).unwrap();
+    let reads = layers.read(&mut rec);
+    let r_cw = rec.read(d_codeword_b.raw(), 0, (codewords.len() * 4) as u64);
+    let bytes = rec.finish().unwrap();
+    let fold_layers = base + net.encoder.len() + net.head.len();
+    assert_gradients(
+        "decode backward",
+        s,
+        &bytes,
+        &reads,
+        &want,
+        fold_layers..fold_layers + net.fold1.len() + net.fold2.len(),
+    );
+    let got_d_codeword = bytemuck::cast_slice::<u8, f32>(&bytes[r_cw]).to_vec();
+    let largest = want_d_codeword.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    assert_close("decode backward, codeword gradient", s, &got_d_codeword, &want_d_codeword, |_| 1e-3 * largest);
+}
+
+/// RelativeNet's backward pass on the device against the CPU trainer's `relative_backward`: every layer's
+/// gradient and the gradients w.r.t. the source and target features.
+fn relative_backward_on_the_device_matches_the_cpu_trainer() {
+    let Some(g) = gpu() else { return };
+    let s = seed(149);
+    let mut rng = Rng::new(s);
+    let (weights, model) = small_model(s);
+    let net = &model.relative;
+    let base = all_layers(&weights.config).iter().position(|l| l.name.starts_with("relative")).unwrap();
+    let (rows, f) = (7, net.layers[0].in_dim / 2);
+    let (source, target) = (normals(&mut rng, rows * f), normals(&mut rng, rows * f));
+    let outs = net.forward_tape(&source, &target, rows);
+    let d_raw = normals(&mut rng, outs.last().unwrap().len());
+    let w = LayerWeights::new(&weights).unwrap();
+    let mut want = Gradients::zeros(&weights.config);
+    let (want_ds, want_dt) = relative_backward(net, &w, base, &source, &target, rows, &outs, d_raw.clone(), &mut want);
+
+    let up = |v: &[f32]| GpuBuffer::from_slice(&g.context, "relative backward", v).unwrap();
+    let layers = UploadedLayers::new(&g, &w, &weights.config);
+    let (source_b, target_b, d_raw_b) = (up(&source), up(&target), up(&d_raw));
+    let outs_b: Vec<_> = outs.iter().map(|a| up(a)).collect();
+    let outs_raw: Vec<&wgpu::Buffer> = outs_b.iter().map(|b| b.raw()).collect();
+    let mut rec = Recorder::new(&g, "relative backward test");
+    let (ds, dt) = record_relative_backward(
+        &mut rec,
+        net,
+        &layers.view(),
+        base,
+        source_b.raw(),
+        target_b.raw(),
+        rows,
+        &outs_raw,
+        d_raw_b.raw().clone(),
+    )
+    .unwrap();
+    let reads = layers.read(&mut rec);
+    let (r_ds, r_dt) = (rec.read(&ds, 0, (rows * f * 4) as u64), rec.read(&dt, 0, (rows * f * 4) as u64));
+    let bytes = rec.finish().unwrap();
+    assert_gradients("relative backward", s, &bytes, &reads, &want, base..base + net.layers.len());
+    for (part, r, expected) in [("source", r_ds, &want_ds), ("target", r_dt, &want_dt)] {
+        let got = bytemuck::cast_slice::<u8, f32>(&bytes[r]).to_vec();
+        let largest = expected.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        assert!(largest > 0.0, "relative backward, {part}: a zero gradient tests nothing");
+        assert_close(&format!("relative backward, {part} features"), s, &got, expected, |_| 1e-3 * largest);
     }
 }
