@@ -3,6 +3,7 @@
 //! kernel is checked against, and the fallback on machines without a GPU. [`gemm`] is not a twin: it is the
 //! vectorised, bit-identical form of [`dense::dense`] that the CPU backend runs.
 
+pub mod adam_step;
 pub mod bitonic_sort;
 pub mod cell_bounds;
 pub mod cell_keys;

@@ -11,6 +11,7 @@
 //! kernel, and a cooperative-matrix f16 kernel where the adapter has one), chosen per device; every other
 //! kernel is its portable f32 version.
 
+pub mod adam_step;
 pub mod backward;
 pub mod bitonic_sort;
 pub mod buffer;

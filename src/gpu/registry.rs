@@ -6,6 +6,7 @@
 //! `tests/shaders.rs` then validates it and `tests/gpu_parity.rs` insists on a parity test for it. Host code
 //! dispatches through the type (`Recorder::dispatch::<K>`), which looks the compiled pipeline up by name.
 
+use super::adam_step::AdamStep;
 use super::bitonic_sort::BitonicSort;
 use super::cell_bounds::CellBounds;
 use super::cell_keys::CellKeys;
@@ -71,6 +72,7 @@ pub const KERNELS: &[KernelSpec] = &[
     MaxPoolBackward::SPEC,
     DenseWeightGrad::SPEC,
     DenseInputGrad::SPEC,
+    AdamStep::SPEC,
 ];
 
 /// Every pipeline of [`KERNELS`] the device can run, compiled once per device.

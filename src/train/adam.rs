@@ -6,6 +6,7 @@
 //! per-element step size. It applies to the tensors the caller marks (weight matrices, not biases).
 //! The learning rate decays smoothly: `lr_t = lr * lr_decay^(t / lr_decay_every)`.
 
+use crate::cpu::adam_step::{AdamStep, adam_step};
 use crate::error::{Error, Result};
 use serde::{Deserialize, Serialize};
 
@@ -115,18 +116,17 @@ impl Adam {
         let lr = s.lr_at(self.steps);
         self.steps += 1;
         let t = self.steps as i32;
-        let (c1, c2) = (1.0 - s.beta1.powi(t), 1.0 - s.beta2.powi(t));
+        let step = AdamStep {
+            lr,
+            beta1: s.beta1,
+            beta2: s.beta2,
+            eps: s.eps,
+            weight_decay: s.weight_decay,
+            c1: 1.0 - s.beta1.powi(t),
+            c2: 1.0 - s.beta2.powi(t),
+        };
         for ((p, m), v) in params.iter_mut().zip(&mut self.m).zip(&mut self.v) {
-            let wd = if p.decay { s.weight_decay } else { 0.0 };
-            for (((x, &g), mi), vi) in p.value.iter_mut().zip(p.grad).zip(m.iter_mut()).zip(v.iter_mut()) {
-                let g = g as f64;
-                let m_new = s.beta1 * *mi as f64 + (1.0 - s.beta1) * g;
-                let v_new = s.beta2 * *vi as f64 + (1.0 - s.beta2) * g * g;
-                *mi = m_new as f32;
-                *vi = v_new as f32;
-                let update = (m_new / c1) / ((v_new / c2).sqrt() + s.eps) + wd * *x as f64;
-                *x = (*x as f64 - lr * update) as f32;
-            }
+            adam_step(&step, p.decay, p.value, p.grad, m, v);
         }
         Ok(())
     }

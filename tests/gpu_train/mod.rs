@@ -2,8 +2,10 @@
 //! Part of the `gpu_parity` binary (its `main` runs [`TESTS`] too).
 
 use super::{EPS, SENTINEL, SUM_ERROR_FACTOR, assert_close, normals, seed};
+use dpr_gpu::cpu::adam_step::AdamStep as Step;
 use dpr_gpu::cpu::dense_weight_grad::SliceShape;
 use dpr_gpu::gpu;
+use dpr_gpu::gpu::adam_step::AdamStep;
 use dpr_gpu::gpu::backward::{
     DeviceDecodeTape, DeviceDenseLayer, DeviceEncodeTape, DeviceLayers, DeviceSlice, record_decode_backward,
     record_dense_backward, record_encode_backward, record_relative_backward,
@@ -40,6 +42,7 @@ pub const TESTS: &[(&str, fn())] = &[
         "relative_backward_on_the_device_matches_the_cpu_trainer",
         relative_backward_on_the_device_matches_the_cpu_trainer,
     ),
+    ("adam_step_matches_cpu_within_f32_rounding", adam_step_matches_cpu_within_f32_rounding),
 ];
 
 /// Slices of a layer: a full layer, the skip concatenation's second part, ragged sizes past a workgroup, one
@@ -559,5 +562,51 @@ fn relative_backward_on_the_device_matches_the_cpu_trainer() {
         let largest = expected.iter().fold(0.0f32, |m, v| m.max(v.abs()));
         assert!(largest > 0.0, "relative backward, {part}: a zero gradient tests nothing");
         assert_close(&format!("relative backward, {part} features"), s, &got, expected, |_| 1e-3 * largest);
+    }
+}
+
+/// AdamW on the device (f32) against its twin (f64 per element): at the first step (large bias corrections)
+/// and a late one, with and without weight decay, over gradients with zeros and tiny values. Each result within
+/// a few f32 roundings of its terms: 4 eps of the moments' terms, and of `x` plus 1e-5 of the step.
+fn adam_step_matches_cpu_within_f32_rounding() {
+    let Some(g) = gpu() else { return };
+    let s = seed(150);
+    let mut rng = Rng::new(s);
+    let n = 1000;
+    for (t, decay) in [(1, true), (1000, false), (37, true)] {
+        let (beta1, beta2): (f64, f64) = (0.9, 0.999);
+        let step = Step {
+            lr: 3e-4,
+            beta1,
+            beta2,
+            eps: 1e-8,
+            weight_decay: 1e-2,
+            c1: 1.0 - beta1.powi(t),
+            c2: 1.0 - beta2.powi(t),
+        };
+        let value = normals(&mut rng, n);
+        let mut grad = normals(&mut rng, n);
+        grad[..10].fill(0.0);
+        grad[10..20].iter_mut().for_each(|v| *v *= 1e-6);
+        let m: Vec<f32> = normals(&mut rng, n).iter().map(|v| v * 0.1).collect();
+        let v: Vec<f32> = normals(&mut rng, n).iter().map(|v| v.abs() * 0.01).collect();
+        let (mut want_x, mut want_m, mut want_v) = (value.clone(), m.clone(), v.clone());
+        AdamStep::CPU_TWIN(&step, decay, &mut want_x, &grad, &mut want_m, &mut want_v);
+        let (mut got_x, mut got_m, mut got_v) = (value.clone(), m.clone(), v.clone());
+        gpu::adam_step::run(&g, &step, decay, &mut got_x, &grad, &mut got_m, &mut got_v).unwrap();
+        let what = |part: &str| format!("adam_step t={t} decay={decay}: {part}");
+        let b = |x: f64| x as f32;
+        let tol_m = |i: usize| 4.0 * EPS * (b(beta1) * m[i].abs() + b(1.0 - beta1) * grad[i].abs());
+        let tol_v = |i: usize| 4.0 * EPS * (b(beta2) * v[i] + b(1.0 - beta2) * grad[i] * grad[i]);
+        let wd = if decay { step.weight_decay } else { 0.0 };
+        let tol_x = |i: usize| {
+            let adam = (want_m[i] as f64 / step.c1) / ((want_v[i] as f64 / step.c2).sqrt() + step.eps);
+            let size = step.lr * (adam.abs() + (wd * value[i] as f64).abs());
+            4.0 * EPS * value[i].abs() + 1e-5 * size as f32
+        };
+        assert_close(&what("first moment"), s, &got_m, &want_m, tol_m);
+        assert_close(&what("second moment"), s, &got_v, &want_v, tol_v);
+        assert_close(&what("value"), s, &got_x, &want_x, tol_x);
+        assert!(got_x.iter().zip(&value).filter(|(a, b)| a != b).count() > n / 2, "{}", what("the step moved nothing"));
     }
 }
