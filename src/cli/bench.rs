@@ -117,6 +117,8 @@ pub struct Config {
     pub peak_tflops: Option<f64>,
     /// Points per scan of the synthetic pair.
     pub pair_points: usize,
+    /// Patches of the `encode_backward ppf` stage: `min(keypoints, 128)`, a training batch's size.
+    pub backward_patches: usize,
 }
 
 /// The CPU the reference ran on.
@@ -391,11 +393,20 @@ pub fn synthetic_pair(seed: u64, points: usize) -> (PointCloud, PointCloud) {
 
 /// The model `args` describe: the weights file or seeded random weights, with `--points` applied.
 pub fn bench_model(args: &Args) -> anyhow::Result<Model> {
-    let weights = match &args.weights {
+    model_of(&bench_weights(args)?, args)
+}
+
+/// The weights `bench` times: `--weights`, or seeded random weights of the default configuration.
+pub fn bench_weights(args: &Args) -> anyhow::Result<Weights> {
+    Ok(match &args.weights {
         Some(path) => Weights::load(path).with_context(|| format!("loading {}", path.display()))?,
         None => Weights::init(&ModelConfig::default(), args.seed)?,
-    };
-    let mut model = Model::from_weights(&weights)?;
+    })
+}
+
+/// The model of `weights`, with `--points` points per patch.
+fn model_of(weights: &Weights, args: &Args) -> anyhow::Result<Model> {
+    let mut model = Model::from_weights(weights)?;
     if let Some(p) = args.points {
         model.config.points_per_patch = p;
     }
@@ -476,7 +487,8 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
     if args.points == Some(0) {
         bail!("--points must be at least 1");
     }
-    let model = bench_model(args)?;
+    let weights = bench_weights(args)?;
+    let model = model_of(&weights, args)?;
     let (k, p) = (args.keypoints, model.config.points_per_patch);
     let cw = model.config.codeword();
     let radius = model.config.radius;
@@ -590,6 +602,8 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
         }
         stages.push(row);
     }
+    let backward_patches = k.min(BACKWARD_PATCHES);
+    stages.push(measure_encode_backward(args, &weights, &model, &ppf, backward_patches, cpu.is_some(), gpu.as_ref())?);
     let (gemm, gemm_unavailable) =
         gemm_variants(args, gpu.as_ref().map(GpuBackend::gpu), use_cpu.then_some(precision), k * p)?;
     let pair = if args.pair_points == 0 {
@@ -611,8 +625,82 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
         weights: args.weights.as_ref().map(|w| w.display().to_string()),
         peak_tflops: peak,
         pair_points: args.pair_points,
+        backward_patches,
     };
     Ok(Report { schema: SCHEMA, config, cpu: cpu_info, gpu: info, stages, gemm, gemm_unavailable, pair })
+}
+
+/// Patches of the training stage at most: a training batch (32 pairs x 2 scans x 2 samples) rather than K, so the
+/// forward activations it reads fit the smallest storage-binding limit (128 MiB) at 256 points per patch.
+const BACKWARD_PATCHES: usize = 128;
+
+/// The training stage `encode_backward ppf`: PPF-FoldNet's encoder backward pass over `patches` of the
+/// synthetic patches, from a codeword gradient, on the CPU trainer (`train::backward::encode_backward`) and on
+/// the device (`gpu::backward::record_encode_backward`, activations and weights uploaded before timing, so a
+/// call moves no bytes: gradients stay there). Flops: twice the forward's (weight and input gradients).
+fn measure_encode_backward(
+    args: &Args,
+    weights: &Weights,
+    model: &Model,
+    ppf: &[f32],
+    patches: usize,
+    use_cpu: bool,
+    gpu: Option<&GpuBackend>,
+) -> anyhow::Result<StageReport> {
+    use crate::gpu::backward::{DeviceEncodeTape, DeviceLayers, record_encode_backward};
+    use crate::train::backward::{Gradients, LayerWeights, encode_backward};
+    let p = model.config.points_per_patch;
+    let net = &model.ppf;
+    let input = &ppf[..patches * p * net.encoder[0].in_dim];
+    let tape = net.encode_tape(input, patches, p);
+    let mut rng = Rng::new(args.seed ^ 0x6261_636b);
+    let d_codeword: Vec<f32> = (0..patches * net.codeword_len()).map(|_| rng.normal() as f32).collect();
+    let layer_weights = LayerWeights::new(weights)?;
+    let flops = Some(2.0 * encode_flops(model, patches, p));
+    let mut row = StageReport { stage: "encode_backward ppf".into(), flops, cpu: None, gpu: None };
+    if use_cpu {
+        let m = measure(args.repeat, None, || -> anyhow::Result<()> {
+            let mut grads = Gradients::zeros(&weights.config);
+            encode_backward(net, &layer_weights, 0, input, &tape, &d_codeword, &mut grads);
+            Ok(())
+        })?;
+        row.cpu = Some(cpu_timing(m, flops));
+    }
+    if let Some(backend) = gpu {
+        let g = backend.gpu();
+        let up = |v: &[f32]| GpuBuffer::from_slice(&g.context, "encode backward bench", v);
+        let weight_buffers = layer_weights.weights.iter().map(|w| up(w)).collect::<crate::Result<Vec<_>>>()?;
+        let zeros = Gradients::zeros(&weights.config);
+        let weight_grads = zeros.layers.iter().map(|l| up(&l.weight)).collect::<crate::Result<Vec<_>>>()?;
+        let bias_grads = zeros.layers.iter().map(|l| up(&l.bias)).collect::<crate::Result<Vec<_>>>()?;
+        let (input_b, global_b, d_cw) = (up(input)?, up(&tape.global)?, up(&d_codeword)?);
+        let encoder_b = tape.encoder.iter().map(|a| up(a)).collect::<crate::Result<Vec<_>>>()?;
+        let head_b = tape.head.iter().map(|a| up(a)).collect::<crate::Result<Vec<_>>>()?;
+        let raw = |v: &[GpuBuffer<f32>]| -> Vec<wgpu::Buffer> { v.iter().map(|b| b.raw().clone()).collect() };
+        let (wb, wg, bg, eb, hb) =
+            (raw(&weight_buffers), raw(&weight_grads), raw(&bias_grads), raw(&encoder_b), raw(&head_b));
+        let layers = DeviceLayers {
+            weights: wb.iter().collect(),
+            weight_grads: wg.iter().collect(),
+            bias_grads: bg.iter().collect(),
+        };
+        let device_tape = DeviceEncodeTape {
+            patches,
+            points: p,
+            input: input_b.raw(),
+            encoder: eb.iter().collect(),
+            global: global_b.raw(),
+            head: hb.iter().collect(),
+        };
+        let m = measure(args.repeat, Some(g), || -> anyhow::Result<()> {
+            let mut rec = Recorder::new(g, "encode backward bench");
+            record_encode_backward(&mut rec, net, &layers, 0, &device_tape, d_cw.raw())?;
+            rec.finish()?;
+            Ok(())
+        })?;
+        row.gpu = Some(gpu_timing(m, flops, args.peak_tflops));
+    }
+    Ok(row)
 }
 
 /// Registers the synthetic pair with `backend` (on `gpu` when given): fastest wall and device times, and the
