@@ -259,14 +259,14 @@ fn record_fold_backward(
     linears: &[Linear],
     outs: &[&wgpu::Buffer],
     tape: &DeviceDecodeTape<'_>,
-    codeword: usize,
-    grid_points: usize,
+    net: &FoldNet,
     x: &wgpu::Buffer,
     d_out: wgpu::Buffer,
     d_codeword: &wgpu::Buffer,
     want_x: bool,
 ) -> Result<Option<wgpu::Buffer>> {
     let n = linears.len();
+    let (codeword, grid_points) = (net.codeword_len(), net.grid.len() / 2);
     let rows = tape.patches * grid_points;
     let d0 = record_chain_backward(rec, layers, first, linears, outs, rows, |i| i + 1 < n, d_out)?;
     let x_width = linears[0].in_dim - codeword;
@@ -296,9 +296,7 @@ pub fn record_decode_backward(
     }
     let fold1_base = base + net.encoder.len() + net.head.len();
     let fold2_base = fold1_base + fold1.len();
-    let (codeword, grid_points) = (net.codeword_len(), net.grid.len() / 2);
     let first_out = tape.fold1[fold1.len() - 1];
-    let folds = (codeword, grid_points);
     let d_first = record_fold_backward(
         rec,
         layers,
@@ -306,14 +304,13 @@ pub fn record_decode_backward(
         fold2,
         &tape.fold2,
         tape,
-        folds.0,
-        folds.1,
+        net,
         first_out,
         d_recon,
         d_codeword,
         true,
     )?
-    .expect("asked for");
+    .ok_or_else(|| Error::Gpu("device decode backward: the second fold returned no input gradient".into()))?;
     record_fold_backward(
         rec,
         layers,
@@ -321,8 +318,7 @@ pub fn record_decode_backward(
         fold1,
         &tape.fold1,
         tape,
-        folds.0,
-        folds.1,
+        net,
         tape.grid,
         d_first,
         d_codeword,
