@@ -647,7 +647,7 @@ fn measure_encode_backward(
     use_cpu: bool,
     gpu: Option<&GpuBackend>,
 ) -> anyhow::Result<StageReport> {
-    use crate::gpu::backward::{DeviceEncodeTape, DeviceLayers, record_encode_backward};
+    use crate::gpu::backward::{DeviceEncodeTapeBuffers, DeviceLayerBuffers, record_encode_backward};
     use crate::train::backward::{Gradients, LayerWeights, encode_backward};
     let p = model.config.points_per_patch;
     let net = &model.ppf;
@@ -668,30 +668,10 @@ fn measure_encode_backward(
     }
     if let Some(backend) = gpu {
         let g = backend.gpu();
-        let up = |v: &[f32]| GpuBuffer::from_slice(&g.context, "encode backward bench", v);
-        let weight_buffers = layer_weights.weights.iter().map(|w| up(w)).collect::<crate::Result<Vec<_>>>()?;
-        let zeros = Gradients::zeros(&weights.config);
-        let weight_grads = zeros.layers.iter().map(|l| up(&l.weight)).collect::<crate::Result<Vec<_>>>()?;
-        let bias_grads = zeros.layers.iter().map(|l| up(&l.bias)).collect::<crate::Result<Vec<_>>>()?;
-        let (input_b, global_b, d_cw) = (up(input)?, up(&tape.global)?, up(&d_codeword)?);
-        let encoder_b = tape.encoder.iter().map(|a| up(a)).collect::<crate::Result<Vec<_>>>()?;
-        let head_b = tape.head.iter().map(|a| up(a)).collect::<crate::Result<Vec<_>>>()?;
-        let raw = |v: &[GpuBuffer<f32>]| -> Vec<wgpu::Buffer> { v.iter().map(|b| b.raw().clone()).collect() };
-        let (wb, wg, bg, eb, hb) =
-            (raw(&weight_buffers), raw(&weight_grads), raw(&bias_grads), raw(&encoder_b), raw(&head_b));
-        let layers = DeviceLayers {
-            weights: wb.iter().collect(),
-            weight_grads: wg.iter().collect(),
-            bias_grads: bg.iter().collect(),
-        };
-        let device_tape = DeviceEncodeTape {
-            patches,
-            points: p,
-            input: input_b.raw(),
-            encoder: eb.iter().collect(),
-            global: global_b.raw(),
-            head: hb.iter().collect(),
-        };
+        let layer_buffers = DeviceLayerBuffers::upload(&g.context, &layer_weights)?;
+        let tape_buffers = DeviceEncodeTapeBuffers::upload(&g.context, input, &tape)?;
+        let (layers, device_tape) = (layer_buffers.view(), tape_buffers.view());
+        let d_cw = GpuBuffer::from_slice(&g.context, "d codeword", &d_codeword)?;
         let m = measure(args.repeat, Some(g), || -> anyhow::Result<()> {
             let mut rec = Recorder::new(g, "encode backward bench");
             record_encode_backward(&mut rec, net, &layers, 0, &device_tape, d_cw.raw())?;

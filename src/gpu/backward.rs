@@ -7,7 +7,8 @@
 //! RelativeNet's follow `decode_backward` and `relative_backward` the same way. Everything stays on the device:
 //! gradients are added to the buffers the caller holds.
 
-use super::buffer::storage_buffer;
+use super::buffer::{GpuBuffer, storage_buffer};
+use super::context::GpuContext;
 use super::dense_input_grad::DenseInputGradParams;
 use super::dense_weight_grad::DenseWeightGradParams;
 use super::group_row_sums::GroupRowSumsParams;
@@ -16,7 +17,9 @@ use super::recorder::Recorder;
 use super::relu_backward::ReluBackwardParams;
 use crate::cpu::dense_weight_grad::SliceShape;
 use crate::error::{Error, Result};
+use crate::model::foldnet::EncodeTape;
 use crate::model::{FoldNet, RelativeNet, linear::Linear};
+use crate::train::backward::LayerWeights;
 
 /// One input slice of a dense layer on the device.
 #[derive(Clone, Copy, Debug)]
@@ -357,4 +360,76 @@ pub fn record_relative_backward(
     let layer = layers.layer(base, &net.layers[0], n > 1)?;
     record_dense_backward(rec, &layer, rows, rows, outs[0], &d0, None, &segments)?;
     Ok((d_source, d_target))
+}
+
+/// Every layer of a model uploaded, with zeroed gradient buffers: owns what [`DeviceLayers`] borrows.
+pub struct DeviceLayerBuffers {
+    /// Weights (`out x in`), in `all_layers` order.
+    pub weights: Vec<GpuBuffer<f32>>,
+    /// Weight gradients.
+    pub weight_grads: Vec<GpuBuffer<f32>>,
+    /// Bias gradients.
+    pub bias_grads: Vec<GpuBuffer<f32>>,
+}
+
+impl DeviceLayerBuffers {
+    /// Uploads every weight of `w`, with zero gradients.
+    pub fn upload(ctx: &GpuContext, w: &LayerWeights<'_>) -> Result<DeviceLayerBuffers> {
+        let up = |v: &[f32]| GpuBuffer::from_slice(ctx, "layer", v);
+        let zeros = |n: usize| up(&vec![0.0; n]);
+        Ok(DeviceLayerBuffers {
+            weights: w.weights.iter().map(|x| up(x)).collect::<Result<_>>()?,
+            weight_grads: w.specs.iter().map(|s| zeros(s.in_dim * s.out_dim)).collect::<Result<_>>()?,
+            bias_grads: w.specs.iter().map(|s| zeros(s.out_dim)).collect::<Result<_>>()?,
+        })
+    }
+
+    /// The borrowed view the backward passes take.
+    pub fn view(&self) -> DeviceLayers<'_> {
+        fn raw(v: &[GpuBuffer<f32>]) -> Vec<&wgpu::Buffer> {
+            v.iter().map(GpuBuffer::raw).collect()
+        }
+        DeviceLayers {
+            weights: raw(&self.weights),
+            weight_grads: raw(&self.weight_grads),
+            bias_grads: raw(&self.bias_grads),
+        }
+    }
+}
+
+/// An encoder's forward activations uploaded from the host: owns what [`DeviceEncodeTape`] borrows.
+pub struct DeviceEncodeTapeBuffers {
+    patches: usize,
+    points: usize,
+    input: GpuBuffer<f32>,
+    encoder: Vec<GpuBuffer<f32>>,
+    global: GpuBuffer<f32>,
+    head: Vec<GpuBuffer<f32>>,
+}
+
+impl DeviceEncodeTapeBuffers {
+    /// Uploads `tape` and the `input` it was computed from.
+    pub fn upload(ctx: &GpuContext, input: &[f32], tape: &EncodeTape) -> Result<DeviceEncodeTapeBuffers> {
+        let up = |v: &[f32]| GpuBuffer::from_slice(ctx, "encode tape", v);
+        Ok(DeviceEncodeTapeBuffers {
+            patches: tape.patches,
+            points: tape.points,
+            input: up(input)?,
+            encoder: tape.encoder.iter().map(|a| up(a)).collect::<Result<_>>()?,
+            global: up(&tape.global)?,
+            head: tape.head.iter().map(|a| up(a)).collect::<Result<_>>()?,
+        })
+    }
+
+    /// The borrowed view [`record_encode_backward`] takes.
+    pub fn view(&self) -> DeviceEncodeTape<'_> {
+        DeviceEncodeTape {
+            patches: self.patches,
+            points: self.points,
+            input: self.input.raw(),
+            encoder: self.encoder.iter().map(GpuBuffer::raw).collect(),
+            global: self.global.raw(),
+            head: self.head.iter().map(GpuBuffer::raw).collect(),
+        }
+    }
 }

@@ -7,8 +7,8 @@ use dpr_gpu::cpu::dense_weight_grad::SliceShape;
 use dpr_gpu::gpu;
 use dpr_gpu::gpu::adam_step::AdamStep;
 use dpr_gpu::gpu::backward::{
-    DeviceDecodeTape, DeviceDenseLayer, DeviceEncodeTape, DeviceLayers, DeviceSlice, record_decode_backward,
-    record_dense_backward, record_encode_backward, record_relative_backward,
+    DeviceDecodeTape, DeviceDenseLayer, DeviceEncodeTapeBuffers, DeviceLayerBuffers, DeviceSlice,
+    record_decode_backward, record_dense_backward, record_encode_backward, record_relative_backward,
 };
 use dpr_gpu::gpu::buffer::GpuBuffer;
 use dpr_gpu::gpu::dense_input_grad::DenseInputGrad;
@@ -360,40 +360,10 @@ fn dense_backward_on_the_device_matches_the_cpu_trainer() {
     }
 }
 
-/// Every layer of a model on the device, with zeroed gradient buffers: what the device backward passes take.
-struct UploadedLayers {
-    weights: Vec<GpuBuffer<f32>>,
-    weight_grads: Vec<GpuBuffer<f32>>,
-    bias_grads: Vec<GpuBuffer<f32>>,
-}
-
-impl UploadedLayers {
-    fn new(g: &gpu::Gpu, w: &LayerWeights<'_>, config: &ModelConfig) -> UploadedLayers {
-        let up = |v: &[f32]| GpuBuffer::from_slice(&g.context, "layers", v).unwrap();
-        let zeros = Gradients::zeros(config);
-        UploadedLayers {
-            weights: w.weights.iter().map(|x| up(x)).collect(),
-            weight_grads: zeros.layers.iter().map(|l| up(&l.weight)).collect(),
-            bias_grads: zeros.layers.iter().map(|l| up(&l.bias)).collect(),
-        }
-    }
-
-    fn view(&self) -> DeviceLayers<'_> {
-        fn raw(v: &[GpuBuffer<f32>]) -> Vec<&wgpu::Buffer> {
-            v.iter().map(|b| b.raw()).collect()
-        }
-        DeviceLayers {
-            weights: raw(&self.weights),
-            weight_grads: raw(&self.weight_grads),
-            bias_grads: raw(&self.bias_grads),
-        }
-    }
-
-    /// Queues the read-back of every gradient: `(weight, bias)` read indices per layer.
-    fn read(&self, rec: &mut Recorder<'_>) -> Vec<(usize, usize)> {
-        let mut read = |b: &GpuBuffer<f32>| rec.read(b.raw(), 0, (b.len() * 4) as u64);
-        self.weight_grads.iter().zip(&self.bias_grads).map(|(w, b)| (read(w), read(b))).collect()
-    }
+/// Queues the read-back of every gradient of `layers`: `(weight, bias)` read indices per layer.
+fn read_gradients(rec: &mut Recorder<'_>, layers: &DeviceLayerBuffers) -> Vec<(usize, usize)> {
+    let mut read = |b: &GpuBuffer<f32>| rec.read(b.raw(), 0, (b.len() * 4) as u64);
+    layers.weight_grads.iter().zip(&layers.bias_grads).map(|(w, b)| (read(w), read(b))).collect()
 }
 
 /// The layers `touched` (indices into `all_layers`) must match the CPU trainer's gradients within 1e-3 of each
@@ -445,22 +415,12 @@ fn encode_backward_on_the_device_matches_the_cpu_trainer() {
     let mut want = Gradients::zeros(&weights.config);
     encode_backward(net, &w, 0, &input, &tape, &d_codeword, &mut want);
 
-    let up = |v: &[f32]| GpuBuffer::from_slice(&g.context, "encode backward", v).unwrap();
-    let layers = UploadedLayers::new(&g, &w, &weights.config);
-    let (input_b, global_b, d_cw) = (up(&input), up(&tape.global), up(&d_codeword));
-    let encoder_b: Vec<_> = tape.encoder.iter().map(|a| up(a)).collect();
-    let head_b: Vec<_> = tape.head.iter().map(|a| up(a)).collect();
-    let device_tape = DeviceEncodeTape {
-        patches,
-        points,
-        input: input_b.raw(),
-        encoder: encoder_b.iter().map(|b| b.raw()).collect(),
-        global: global_b.raw(),
-        head: head_b.iter().map(|b| b.raw()).collect(),
-    };
+    let layers = DeviceLayerBuffers::upload(&g.context, &w).unwrap();
+    let tape_buffers = DeviceEncodeTapeBuffers::upload(&g.context, &input, &tape).unwrap();
+    let d_cw = GpuBuffer::from_slice(&g.context, "d codeword", &d_codeword).unwrap();
     let mut rec = Recorder::new(&g, "encode backward test");
-    record_encode_backward(&mut rec, net, &layers.view(), 0, &device_tape, d_cw.raw()).unwrap();
-    let reads = layers.read(&mut rec);
+    record_encode_backward(&mut rec, net, &layers.view(), 0, &tape_buffers.view(), d_cw.raw()).unwrap();
+    let reads = read_gradients(&mut rec, &layers);
     let bytes = rec.finish().unwrap();
     assert_gradients("encode backward", s, &bytes, &reads, &want, 0..net.encoder.len() + net.head.len());
 }
@@ -486,7 +446,7 @@ fn decode_backward_on_the_device_matches_the_cpu_trainer() {
     decode_backward(net, &w, base, &codewords, &tape, d_recon.clone(), &mut want_d_codeword, &mut want);
 
     let up = |v: &[f32]| GpuBuffer::from_slice(&g.context, "decode backward", v).unwrap();
-    let layers = UploadedLayers::new(&g, &w, &weights.config);
+    let layers = DeviceLayerBuffers::upload(&g.context, &w).unwrap();
     let (codewords_b, grid_b) = (up(&codewords), up(&net.tiled_grid(patches)));
     let fold1_b: Vec<_> = tape.fold1.iter().map(|a| up(a)).collect();
     let fold2_b: Vec<_> = tape.fold2.iter().map(|a| up(a)).collect();
@@ -501,7 +461,7 @@ fn decode_backward_on_the_device_matches_the_cpu_trainer() {
     let mut rec = Recorder::new(&g, "decode backward test");
     let d_recon_raw = d_recon_b.raw().clone();
     record_decode_backward(&mut rec, net, &layers.view(), base, &device_tape, d_recon_raw, d_codeword_b.raw()).unwrap();
-    let reads = layers.read(&mut rec);
+    let reads = read_gradients(&mut rec, &layers);
     let r_cw = rec.read(d_codeword_b.raw(), 0, (codewords.len() * 4) as u64);
     let bytes = rec.finish().unwrap();
     let fold_layers = base + net.encoder.len() + net.head.len();
@@ -536,7 +496,7 @@ fn relative_backward_on_the_device_matches_the_cpu_trainer() {
     let (want_ds, want_dt) = relative_backward(net, &w, base, &source, &target, rows, &outs, d_raw.clone(), &mut want);
 
     let up = |v: &[f32]| GpuBuffer::from_slice(&g.context, "relative backward", v).unwrap();
-    let layers = UploadedLayers::new(&g, &w, &weights.config);
+    let layers = DeviceLayerBuffers::upload(&g.context, &w).unwrap();
     let (source_b, target_b, d_raw_b) = (up(&source), up(&target), up(&d_raw));
     let outs_b: Vec<_> = outs.iter().map(|a| up(a)).collect();
     let outs_raw: Vec<&wgpu::Buffer> = outs_b.iter().map(|b| b.raw()).collect();
@@ -553,7 +513,7 @@ fn relative_backward_on_the_device_matches_the_cpu_trainer() {
         d_raw_b.raw().clone(),
     )
     .unwrap();
-    let reads = layers.read(&mut rec);
+    let reads = read_gradients(&mut rec, &layers);
     let (r_ds, r_dt) = (rec.read(&ds, 0, (rows * f * 4) as u64), rec.read(&dt, 0, (rows * f * 4) as u64));
     let bytes = rec.finish().unwrap();
     assert_gradients("relative backward", s, &bytes, &reads, &want, base..base + net.layers.len());
