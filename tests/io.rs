@@ -1,24 +1,19 @@
 //! Integration tests for point-cloud input/output: round trips, every supported encoding, filtering, a malformed
 //! corpus (each case must give a parse error naming the file and a location, never a panic) and atomic writes.
 
+mod common;
 use dpr_gpu::io::{LoadOptions, LoadReport, read_cloud, write_atomic, write_ply};
 use dpr_gpu::{Error, PointCloud, Result};
 use proptest::prelude::*;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
-/// A unique directory under the system temp dir, removed on drop.
-struct TempDir(PathBuf);
+/// A scratch directory for one test (removed on drop), with helpers for the files in it.
+struct TempDir(common::TestDir);
 
 impl TempDir {
-    /// Creates a fresh directory whose name includes `tag`, the process id and a counter.
+    /// Creates a fresh directory whose name starts with `tag`.
     fn new(tag: &str) -> TempDir {
-        static NEXT: AtomicU64 = AtomicU64::new(0);
-        let n = NEXT.fetch_add(1, Ordering::Relaxed);
-        let dir = std::env::temp_dir().join(format!("dpr-gpu-io-test-{tag}-{}-{n}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        TempDir(dir)
+        TempDir(common::temp_dir(tag))
     }
 
     /// Writes `bytes` to the file `name` in this directory and returns its path.
@@ -36,12 +31,6 @@ impl TempDir {
             .collect();
         names.sort();
         names
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
     }
 }
 

@@ -7,6 +7,7 @@
 //! loss over a step of 4e-4) and can straddle a kink (ReLU, max-pool argmax, nearest neighbour, the max of
 //! the two Chamfer directions), so it requires 90% of the sampled parameters to agree within 5e-4 + 3%.
 
+mod common;
 use dpr_gpu::PointCloud;
 use dpr_gpu::model::config::{PoseFrame, RotationOutput};
 use dpr_gpu::model::params::tensor_specs;
@@ -23,28 +24,7 @@ use dpr_gpu::train::{
     contrast::hardest_negative_loss,
 };
 use nalgebra::{Matrix3, Matrix4, Vector3};
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
-
-/// A unique directory under the system temp dir, removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> TempDir {
-        static NEXT: AtomicU64 = AtomicU64::new(0);
-        let n = NEXT.fetch_add(1, Ordering::Relaxed);
-        let dir = std::env::temp_dir().join(format!("dpr-gpu-train-test-{tag}-{}-{n}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        TempDir(dir)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+use std::path::Path;
 
 fn randn(rng: &mut Rng, n: usize, scale: f64) -> Vec<f32> {
     (0..n).map(|_| (rng.normal() * scale) as f32).collect()
@@ -715,17 +695,17 @@ fn sampled_labels_rotate_source_patches_onto_target_patches() {
     // An exact copy under a known motion, listed in a pairs file (p_target = T p_source), no downsampling:
     // the two patches of a sample cover the same surface, so the label must map the source patch's centroid
     // (centred, scaled coordinates) onto the target patch's.
-    let dir = TempDir::new("labels");
+    let dir = common::temp_dir("labels");
     let scene = corner_scene(3);
     let mut rng = Rng::new(4);
     let t = random_motion(&mut rng);
     let id = Matrix4::identity();
     let src: Vec<[f32; 3]> = scene.iter().map(|&p| apply(&id, p)).collect();
     let tgt: Vec<[f32; 3]> = scene.iter().map(|&p| apply(&t, p)).collect();
-    dpr_gpu::io::write_ply(&dir.0.join("a.ply"), &PointCloud::from_points(src)).unwrap();
-    dpr_gpu::io::write_ply(&dir.0.join("b.ply"), &PointCloud::from_points(tgt)).unwrap();
+    dpr_gpu::io::write_ply(&dir.join("a.ply"), &PointCloud::from_points(src)).unwrap();
+    dpr_gpu::io::write_ply(&dir.join("b.ply"), &PointCloud::from_points(tgt)).unwrap();
     let flat = (0..16).map(|k| format!("{:.12}", t[(k / 4, k % 4)])).collect::<Vec<_>>().join(" ");
-    std::fs::write(dir.0.join("pairs.txt"), format!("# source target T\na.ply b.ply {flat}\n")).unwrap();
+    std::fs::write(dir.join("pairs.txt"), format!("# source target T\na.ply b.ply {flat}\n")).unwrap();
     // Many samples per patch (with replacement) so the sampled centroids are close to the true ones.
     let n = 2048;
     for (rotate_target, pose_frame) in
@@ -733,7 +713,7 @@ fn sampled_labels_rotate_source_patches_onto_target_patches() {
     {
         let config = ModelConfig { points_per_patch: n, pose_frame, ..small_config() };
         let settings = DataSettings { voxel: 0.0, rotate_target, ..DataSettings::default() };
-        let pairs = dpr_gpu::train::data::discover_pairs(&[dir.0.join("pairs.txt")]).unwrap();
+        let pairs = dpr_gpu::train::data::discover_pairs(&[dir.join("pairs.txt")]).unwrap();
         let mut sampler = Sampler::new(pairs, settings, &config).unwrap();
         let batch = sampler.batch(7, 0, 8).unwrap();
         assert_eq!(batch, sampler.batch(7, 0, 8).unwrap(), "sampling is not deterministic");
@@ -758,16 +738,16 @@ fn sampled_labels_rotate_source_patches_onto_target_patches() {
 
 #[test]
 fn resume_equals_uninterrupted_training_bit_for_bit() {
-    let dir = TempDir::new("resume");
-    write_scene(&dir.0, 1);
+    let dir = common::temp_dir("resume");
+    write_scene(&dir, 1);
     let config = small_config();
-    let settings = small_settings(&dir.0, 3);
+    let settings = small_settings(&dir, 3);
     let mut straight = Trainer::new(config.clone(), settings.clone()).unwrap();
     let a: Vec<_> = (0..6).map(|_| straight.step().unwrap()).collect();
 
     let mut first = Trainer::new(config, settings).unwrap();
     let mut b: Vec<_> = (0..3).map(|_| first.step().unwrap()).collect();
-    let ckpt = dir.0.join("run.ckpt.safetensors");
+    let ckpt = dir.join("run.ckpt.safetensors");
     first.save_checkpoint(&ckpt).unwrap();
     drop(first);
     let mut resumed = Trainer::load_checkpoint(&ckpt).unwrap();
@@ -783,10 +763,10 @@ fn resume_equals_uninterrupted_training_bit_for_bit() {
 
 #[test]
 fn loss_decreases_on_a_tiny_dataset() {
-    let dir = TempDir::new("decrease");
-    write_scene(&dir.0, 2);
+    let dir = common::temp_dir("decrease");
+    write_scene(&dir, 2);
     let config = small_config();
-    let settings = small_settings(&dir.0, 8);
+    let settings = small_settings(&dir, 8);
     let mut trainer = Trainer::new(config.clone(), settings.clone()).unwrap();
     // A fixed held-out batch (a step index training never reaches).
     let pairs = dpr_gpu::train::data::discover_pairs(&settings.data).unwrap();
@@ -805,20 +785,20 @@ fn loss_decreases_on_a_tiny_dataset() {
 
 #[test]
 fn bad_training_data_gives_clear_errors() {
-    let dir = TempDir::new("bad");
-    let missing = Trainer::new(small_config(), small_settings(&dir.0.join("nope"), 2));
+    let dir = common::temp_dir("bad");
+    let missing = Trainer::new(small_config(), small_settings(&dir.join("nope"), 2));
     assert!(missing.is_err());
-    std::fs::write(dir.0.join("pairs.txt"), "a.ply b.ply 1 2 3\n").unwrap();
-    let e = Trainer::new(small_config(), small_settings(&dir.0.join("pairs.txt"), 2)).err().unwrap().to_string();
+    std::fs::write(dir.join("pairs.txt"), "a.ply b.ply 1 2 3\n").unwrap();
+    let e = Trainer::new(small_config(), small_settings(&dir.join("pairs.txt"), 2)).err().unwrap().to_string();
     assert!(e.contains("pairs.txt") && e.contains("line 1"), "{e}");
-    let mut s = small_settings(&dir.0, 0);
-    s.data = vec![dir.0.clone()];
+    let mut s = small_settings(&dir, 0);
+    s.data = vec![dir.to_path_buf()];
     assert!(Trainer::new(small_config(), s).is_err());
     // Pairs that do not overlap: every draw fails, and the error says why.
-    write_scene(&dir.0, 3);
+    write_scene(&dir, 3);
     let far = "1 0 0 100 0 1 0 0 0 0 1 0 0 0 0 1";
-    std::fs::write(dir.0.join("pairs.txt"), format!("cloud_bin_0.ply cloud_bin_1.ply {far}\n")).unwrap();
-    let mut t = Trainer::new(small_config(), small_settings(&dir.0.join("pairs.txt"), 2)).unwrap();
+    std::fs::write(dir.join("pairs.txt"), format!("cloud_bin_0.ply cloud_bin_1.ply {far}\n")).unwrap();
+    let mut t = Trainer::new(small_config(), small_settings(&dir.join("pairs.txt"), 2)).unwrap();
     let e = t.step().unwrap_err().to_string();
     assert!(e.contains("no corresponding patches"), "{e}");
 }
