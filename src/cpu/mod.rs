@@ -7,6 +7,8 @@ pub mod adam_step;
 pub mod bitonic_sort;
 pub mod cell_bounds;
 pub mod cell_keys;
+pub mod chamfer_grad;
+pub mod chamfer_nearest;
 pub mod codeword_distance;
 pub mod dense;
 pub mod dense_coop_f16;

@@ -433,3 +433,33 @@ impl DeviceEncodeTapeBuffers {
         }
     }
 }
+
+impl<'b> DeviceEncodeTape<'b> {
+    /// The tape of an encoder pass that kept its head ([`super::nets::Outputs::Kept`]) over `input`.
+    pub fn from_outputs(
+        outputs: &'b super::nets::EncodeOutputs,
+        input: &'b wgpu::Buffer,
+        (patches, points): (usize, usize),
+    ) -> DeviceEncodeTape<'b> {
+        DeviceEncodeTape {
+            patches,
+            points,
+            input,
+            encoder: outputs.encoder.iter().collect(),
+            global: &outputs.global,
+            head: outputs.head.iter().collect(),
+        }
+    }
+}
+
+impl<'b> DeviceDecodeTape<'b> {
+    /// The tape of a decoder pass that kept both folds' outputs ([`super::nets::record_decode_outputs`]) over
+    /// `codewords` and the tiled `grid`.
+    pub fn from_outputs(
+        [fold1, fold2]: &'b [Vec<wgpu::Buffer>; 2],
+        [codewords, grid]: [&'b wgpu::Buffer; 2],
+        patches: usize,
+    ) -> DeviceDecodeTape<'b> {
+        DeviceDecodeTape { patches, codewords, grid, fold1: fold1.iter().collect(), fold2: fold2.iter().collect() }
+    }
+}

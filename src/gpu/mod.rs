@@ -17,6 +17,8 @@ pub mod bitonic_sort;
 pub mod buffer;
 pub mod cell_bounds;
 pub mod cell_keys;
+pub mod chamfer_grad;
+pub mod chamfer_nearest;
 pub mod codeword_distance;
 pub mod context;
 pub mod dense;

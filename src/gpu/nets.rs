@@ -157,34 +157,59 @@ fn apply<'a>(
     dense_call(rec, gpu, layer, (x, layer.in_dim, 0), (rows, rows.max(1)), Some(&layer.bias), (false, relu), out)
 }
 
-/// Layers `1..` of an MLP whose first layer's output is in `names[0]`: layer i writes `names[i % 2]`, ReLU
-/// on all but the last unless `relu_last`. Returns the buffer holding the output.
+/// Where an MLP's layer outputs go on the device.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Outputs {
+    /// Two workspace buffers taken in turn (inference): only the last output survives the pass.
+    PingPong([&'static str; 2]),
+    /// One workspace buffer per layer (training's forward tape): every output is kept for the backward pass.
+    Kept(&'static [&'static str]),
+}
+
+/// The output buffer of each layer of `layers` over `rows` rows, as `outputs` places them (ping-pong buffers
+/// alias: layer `i` writes `names[i % 2]`).
+fn layer_buffers(
+    ws: &mut Workspace,
+    ctx: &GpuContext,
+    outputs: Outputs,
+    layers: &[GpuLinear],
+    rows: usize,
+) -> Result<Vec<wgpu::Buffer>> {
+    match outputs {
+        Outputs::PingPong(names) => {
+            let w = layers.iter().map(|l| l.out_dim).max().unwrap_or(1);
+            let bytes = (rows * w * 4) as u64;
+            let pair = [ws.buffer(ctx, names[0], bytes)?, ws.buffer(ctx, names[1], bytes)?];
+            Ok((0..layers.len()).map(|i| pair[i % 2].clone()).collect())
+        }
+        Outputs::Kept(names) => {
+            if layers.len() > names.len() {
+                return Err(Error::invalid(format!(
+                    "a kept forward pass holds at most {} layers per MLP, this one has {}",
+                    names.len(),
+                    layers.len()
+                )));
+            }
+            layers.iter().zip(names).map(|(l, &name)| ws.buffer(ctx, name, (rows * l.out_dim * 4) as u64)).collect()
+        }
+    }
+}
+
+/// Layers `1..` of an MLP whose first layer's output is in `outs[0]`: layer i reads `outs[i - 1]` and writes
+/// `outs[i]`, ReLU on all but the last unless `relu_last`.
 fn tail<'a>(
     rec: &mut Recorder<'a>,
     gpu: &'a Gpu,
     layers: &[GpuLinear],
-    bufs: &[wgpu::Buffer; 2],
+    outs: &[wgpu::Buffer],
     rows: usize,
     relu_last: bool,
-) -> Result<wgpu::Buffer> {
+) -> Result<()> {
     for (i, layer) in layers.iter().enumerate().skip(1) {
         let relu = relu_last || i + 1 < layers.len();
-        apply(rec, gpu, layer, &bufs[(i - 1) % 2], rows, relu, &bufs[i % 2])?;
+        apply(rec, gpu, layer, &outs[i - 1], rows, relu, &outs[i])?;
     }
-    Ok(bufs[(layers.len() - 1) % 2].clone())
-}
-
-/// Two ping-pong buffers named `names` for `rows` rows of the widest layer of `layers`.
-fn ping_pong(
-    ws: &mut Workspace,
-    ctx: &GpuContext,
-    names: [&'static str; 2],
-    layers: &[GpuLinear],
-    rows: usize,
-) -> Result<[wgpu::Buffer; 2]> {
-    let w = layers.iter().map(|l| l.out_dim).max().unwrap_or(1);
-    let bytes = (rows * w * 4) as u64;
-    Ok([ws.buffer(ctx, names[0], bytes)?, ws.buffer(ctx, names[1], bytes)?])
+    Ok(())
 }
 
 /// Waits for every chunk and concatenates read `index` of each.
@@ -203,31 +228,51 @@ pub fn encoder_chunk(ctx: &GpuContext, f: &GpuFoldNet, points: usize) -> Result<
     items_per_chunk(ctx, (points * widest * 4) as u64, "patch of the encoder")
 }
 
+/// Every buffer an encoder pass wrote (workspace buffers, valid until the workspace hands them out again).
+#[derive(Clone, Debug)]
+pub struct EncodeOutputs {
+    /// Output of each encoder layer (after ReLU), `patches * points x width`; always kept (the skip
+    /// concatenation reads them all).
+    pub encoder: Vec<wgpu::Buffer>,
+    /// Max-pool of the last encoder output, `patches x width`.
+    pub global: wgpu::Buffer,
+    /// Output buffer of each head layer; with [`Outputs::PingPong`] they alias and only the last is valid.
+    pub head: Vec<wgpu::Buffer>,
+    /// Codewords, `patches x codeword` (workspace `enc_codewords`).
+    pub codewords: wgpu::Buffer,
+}
+
+/// Workspace names of the head outputs when a pass keeps them.
+pub const HEAD_NAMES: [&str; 8] = ["head0", "head1", "head2", "head3", "head4", "head5", "head6", "head7"];
+
 /// Records the encoder on `patches` patches of `points` rows already on the device (`x_in`, `io_width` values
-/// per row); returns the buffer holding their codewords (`patches x codeword`, workspace `enc_codewords`).
-pub fn record_encode<'a>(
+/// per row), the head's outputs placed as `head` says (training keeps them: [`Outputs::Kept`] with
+/// [`HEAD_NAMES`]); returns every buffer it wrote. The one device definition of the encoder: inference reads
+/// only the codewords, the trainer's backward pass reads the rest.
+pub fn record_encode_outputs<'a>(
     rec: &mut Recorder<'a>,
     gpu: &'a Gpu,
     ws: &mut Workspace,
     f: &GpuFoldNet,
     x_in: &wgpu::Buffer,
     (cp, points): (usize, usize),
-) -> Result<wgpu::Buffer> {
+    head: Outputs,
+) -> Result<EncodeOutputs> {
     let ctx = &gpu.context;
     let rows = cp * points;
     let cw = f.codeword_len();
     let last = f.encoder.last().expect("checked on upload");
     let head0 = &f.head[0];
     let concat_offset: usize = f.encoder.iter().map(|l| l.out_dim).sum();
-    let mut acts: Vec<(wgpu::Buffer, usize)> = Vec::with_capacity(f.encoder.len());
+    let mut encoder: Vec<wgpu::Buffer> = Vec::with_capacity(f.encoder.len());
     for (i, layer) in f.encoder.iter().enumerate() {
         let out = ws.buffer(ctx, ENCODER_NAMES[i], (rows * layer.out_dim * 4) as u64)?;
-        let x = acts.last().map_or(x_in, |(b, _)| b);
+        let x = encoder.last().unwrap_or(x_in);
         apply(rec, gpu, layer, x, rows, true, &out)?;
-        acts.push((out, layer.out_dim));
+        encoder.push(out);
     }
     let global = ws.buffer(ctx, "enc_global", (cp * last.out_dim * 4) as u64)?;
-    max_pool::record(rec, &MaxPoolParams::new(cp, points, last.out_dim)?, &acts[acts.len() - 1].0, &global)?;
+    max_pool::record(rec, &MaxPoolParams::new(cp, points, last.out_dim)?, &encoder[encoder.len() - 1], &global)?;
     // The global slice sits after the encoder slices in head.0's input; it is the per-patch term.
     let group = ws.buffer(ctx, "enc_group", (cp * head0.out_dim * 4) as u64)?;
     dense_call(
@@ -240,19 +285,32 @@ pub fn record_encode<'a>(
         (false, false),
         &group,
     )?;
-    let bufs = ping_pong(ws, ctx, ["head_a", "head_b"], &f.head, rows)?;
+    let outs = layer_buffers(ws, ctx, head, &f.head, rows)?;
     let mut offset = 0;
-    for (s, (a, w)) in acts.iter().enumerate() {
+    for (s, (a, layer)) in encoder.iter().zip(&f.encoder).enumerate() {
         let first = s == 0;
-        let last_seg = s + 1 == acts.len();
+        let last_seg = s + 1 == encoder.len();
         let g = first.then_some(&group);
-        dense_call(rec, gpu, head0, (a, *w, offset), (rows, points), g, (!first, last_seg), &bufs[0])?;
-        offset += w;
+        dense_call(rec, gpu, head0, (a, layer.out_dim, offset), (rows, points), g, (!first, last_seg), &outs[0])?;
+        offset += layer.out_dim;
     }
-    let h = tail(rec, gpu, &f.head, &bufs, rows, true)?;
+    tail(rec, gpu, &f.head, &outs, rows, true)?;
     let codewords = ws.buffer(ctx, "enc_codewords", (cp * cw * 4) as u64)?;
-    max_pool::record(rec, &MaxPoolParams::new(cp, points, cw)?, &h, &codewords)?;
-    Ok(codewords)
+    max_pool::record(rec, &MaxPoolParams::new(cp, points, cw)?, &outs[outs.len() - 1], &codewords)?;
+    Ok(EncodeOutputs { encoder, global, head: outs, codewords })
+}
+
+/// [`record_encode_outputs`] for inference: the head in ping-pong buffers; returns the codewords' buffer.
+pub fn record_encode<'a>(
+    rec: &mut Recorder<'a>,
+    gpu: &'a Gpu,
+    ws: &mut Workspace,
+    f: &GpuFoldNet,
+    x_in: &wgpu::Buffer,
+    patches_points: (usize, usize),
+) -> Result<wgpu::Buffer> {
+    let head = Outputs::PingPong(["head_a", "head_b"]);
+    Ok(record_encode_outputs(rec, gpu, ws, f, x_in, patches_points, head)?.codewords)
 }
 
 /// Codewords (`patches x codeword`) of `input` (`patches x points x io_width`), as `FoldNet::encode`.
@@ -289,7 +347,8 @@ pub fn encode(
     Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0)?))
 }
 
-/// One folding MLP over `rows = patches x m` rows: `[codeword | x]` in, as `FoldNet::decode`'s `fold`.
+/// One folding MLP over `rows = patches x m` rows: `[codeword | x]` in, as `FoldNet::decode`'s `fold`;
+/// returns each layer's output buffer (placed as `outputs` says).
 #[expect(clippy::too_many_arguments, reason = "a folding stage is described by these values")]
 fn fold<'a>(
     rec: &mut Recorder<'a>,
@@ -299,16 +358,43 @@ fn fold<'a>(
     (codewords, cw): (&wgpu::Buffer, usize),
     (x, x_width): (&wgpu::Buffer, usize),
     (patches, m): (usize, usize),
-    names: [&'static str; 2],
-) -> Result<wgpu::Buffer> {
+    outputs: Outputs,
+) -> Result<Vec<wgpu::Buffer>> {
     let ctx = &gpu.context;
     let l0 = &layers[0];
     let rows = patches * m;
     let group = ws.buffer(ctx, "fold_group", (patches * l0.out_dim * 4) as u64)?;
     dense_call(rec, gpu, l0, (codewords, cw, 0), (patches, patches), Some(&l0.bias), (false, false), &group)?;
-    let bufs = ping_pong(ws, ctx, names, layers, rows)?;
-    dense_call(rec, gpu, l0, (x, x_width, cw), (rows, m), Some(&group), (false, layers.len() > 1), &bufs[0])?;
-    tail(rec, gpu, layers, &bufs, rows, false)
+    let outs = layer_buffers(ws, ctx, outputs, layers, rows)?;
+    dense_call(rec, gpu, l0, (x, x_width, cw), (rows, m), Some(&group), (false, layers.len() > 1), &outs[0])?;
+    tail(rec, gpu, layers, &outs, rows, false)?;
+    Ok(outs)
+}
+
+/// Workspace names of the folds' outputs when a pass keeps them.
+pub const FOLD_NAMES: [[&str; 8]; 2] = [
+    ["fold1_0", "fold1_1", "fold1_2", "fold1_3", "fold1_4", "fold1_5", "fold1_6", "fold1_7"],
+    ["fold2_0", "fold2_1", "fold2_2", "fold2_3", "fold2_4", "fold2_5", "fold2_6", "fold2_7"],
+];
+
+/// Records the decoder on `patches` codewords on the device, with the folding grid tiled per patch (`grid`,
+/// `patches * grid_points x 2`); each fold's outputs placed as `outputs[fold]` says. Returns every layer's
+/// output buffer of the first and the second fold (the last of the second is the reconstruction). The one
+/// device definition of the decoder.
+pub fn record_decode_outputs<'a>(
+    rec: &mut Recorder<'a>,
+    gpu: &'a Gpu,
+    ws: &mut Workspace,
+    f: &GpuFoldNet,
+    [codewords, grid]: [&wgpu::Buffer; 2],
+    patches: usize,
+    outputs: [Outputs; 2],
+) -> Result<[Vec<wgpu::Buffer>; 2]> {
+    let (cw, m, d) = (f.codeword_len(), f.grid.len() / 2, f.io_width);
+    let first = fold(rec, gpu, ws, &f.fold1, (codewords, cw), (grid, 2), (patches, m), outputs[0])?;
+    let x = &first[first.len() - 1];
+    let second = fold(rec, gpu, ws, &f.fold2, (codewords, cw), (x, d), (patches, m), outputs[1])?;
+    Ok([first, second])
 }
 
 /// Reconstructions (`patches x grid_points x io_width`) of codewords (`patches x codeword`), as
@@ -333,9 +419,10 @@ pub fn decode(gpu: &Gpu, ws: &mut Workspace, f: &GpuFoldNet, codewords: &[f32], 
         let tiled: Vec<f32> = (0..cp).flat_map(|_| f.grid.iter().copied()).collect();
         let grid = ws.upload(ctx, "dec_grid", &tiled)?;
         let mut rec = Recorder::new(gpu, "decode");
-        let first = fold(&mut rec, gpu, ws, &f.fold1, (&code, cw), (&grid, 2), (cp, m), ["fold1_a", "fold1_b"])?;
-        let out = fold(&mut rec, gpu, ws, &f.fold2, (&code, cw), (&first, d), (cp, m), ["fold2_a", "fold2_b"])?;
-        rec.read(&out, 0, (cp * m * d * 4) as u64);
+        let outputs = [Outputs::PingPong(["fold1_a", "fold1_b"]), Outputs::PingPong(["fold2_a", "fold2_b"])];
+        let [_, second] = record_decode_outputs(&mut rec, gpu, ws, f, [&code, &grid], cp, outputs)?;
+        let out = &second[second.len() - 1];
+        rec.read(out, 0, (cp * m * d * 4) as u64);
         pending.push(rec.submit()?);
     }
     Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0)?))
@@ -372,19 +459,38 @@ pub fn record_relative<'a>(
     [s, t, ns, nt]: [&wgpu::Buffer; 4],
     n: usize,
 ) -> Result<wgpu::Buffer> {
-    let ctx = &gpu.context;
+    let m = config.rotation_output.candidates();
+    let outs = record_relative_outputs(rec, gpu, ws, layers, [s, t], n, Outputs::PingPong(["rel_a", "rel_b"]))?;
+    let raw = &outs[outs.len() - 1];
+    let rotations = ws.buffer(&gpu.context, "rel_rotations", (n * m * 36) as u64)?;
+    let params = rotation_head::RotationHeadParams::new(n, config.rotation_output, config.pose_frame)?;
+    rotation_head::record(rec, &params, [raw, ns, nt], &rotations)?;
+    Ok(rotations)
+}
+
+/// Workspace names of RelativeNet's outputs when a pass keeps them.
+pub const RELATIVE_NAMES: [&str; 8] = ["rel0", "rel1", "rel2", "rel3", "rel4", "rel5", "rel6", "rel7"];
+
+/// Records RelativeNet's layers on `n` rows of `[source | target]` pose features on the device, placed as
+/// `outputs` says; returns each layer's output buffer (the last holds the raw rotation outputs). The one device
+/// definition of RelativeNet's MLP, before the rotation head.
+pub fn record_relative_outputs<'a>(
+    rec: &mut Recorder<'a>,
+    gpu: &'a Gpu,
+    ws: &mut Workspace,
+    layers: &[GpuLinear],
+    [s, t]: [&wgpu::Buffer; 2],
+    n: usize,
+    outputs: Outputs,
+) -> Result<Vec<wgpu::Buffer>> {
     let l0 = &layers[0];
     let f = l0.in_dim / 2;
-    let m = config.rotation_output.candidates();
-    let bufs = ping_pong(ws, ctx, ["rel_a", "rel_b"], layers, n)?;
+    let outs = layer_buffers(ws, &gpu.context, outputs, layers, n)?;
     let relu0 = layers.len() > 1;
-    dense_call(rec, gpu, l0, (s, f, 0), (n, n), Some(&l0.bias), (false, false), &bufs[0])?;
-    dense_call(rec, gpu, l0, (t, f, f), (n, n), None, (true, relu0), &bufs[0])?;
-    let raw = tail(rec, gpu, layers, &bufs, n, false)?;
-    let rotations = ws.buffer(ctx, "rel_rotations", (n * m * 36) as u64)?;
-    let params = rotation_head::RotationHeadParams::new(n, config.rotation_output, config.pose_frame)?;
-    rotation_head::record(rec, &params, [&raw, ns, nt], &rotations)?;
-    Ok(rotations)
+    dense_call(rec, gpu, l0, (s, f, 0), (n, n), Some(&l0.bias), (false, false), &outs[0])?;
+    dense_call(rec, gpu, l0, (t, f, f), (n, n), None, (true, relu0), &outs[0])?;
+    tail(rec, gpu, layers, &outs, n, false)?;
+    Ok(outs)
 }
 
 /// RelativeNet's rotations (row-major, fragment frames; `candidates` per row) for the rows of `pose`, as

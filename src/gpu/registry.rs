@@ -10,6 +10,8 @@ use super::adam_step::AdamStep;
 use super::bitonic_sort::BitonicSort;
 use super::cell_bounds::CellBounds;
 use super::cell_keys::CellKeys;
+use super::chamfer_grad::ChamferGrad;
+use super::chamfer_nearest::ChamferNearest;
 use super::codeword_distance::CodewordDistance;
 use super::context::GpuContext;
 use super::dense::Dense;
@@ -73,6 +75,8 @@ pub const KERNELS: &[KernelSpec] = &[
     DenseWeightGrad::SPEC,
     DenseInputGrad::SPEC,
     AdamStep::SPEC,
+    ChamferNearest::SPEC,
+    ChamferGrad::SPEC,
 ];
 
 /// Every pipeline of [`KERNELS`] the device can run, compiled once per device.

@@ -8,8 +8,10 @@
 //! give a zero gradient instead of NaN. Values are never changed by the guard.
 
 /// Below this norm, the gradient of a Euclidean norm is scaled down towards zero (see the module docs).
-pub const NORM_EPS: f64 = 1e-12;
+pub const NORM_EPS: f64 = crate::cpu::chamfer_grad::NORM_EPS;
 
+use crate::cpu::chamfer_grad::chamfer_grad;
+use crate::cpu::chamfer_nearest::chamfer_nearest;
 use crate::model::config::RotationOutput;
 use nalgebra::Matrix3;
 
@@ -20,55 +22,18 @@ fn norm(v: &[f64]) -> f64 {
 
 /// Chamfer distance of the paper, `d(X, Y) = max(mean_x min_y |x - y|, mean_y min_x |x - y|)` (Euclidean, not
 /// squared), between `x` (`n x dim`, the input patch) and `y` (`m x dim`, the reconstruction), and its
-/// gradient w.r.t. `y`.
+/// gradient w.r.t. `y`: the two kernels' twins, [`chamfer_nearest`] then [`chamfer_grad`], on one patch.
 ///
 /// Nearest neighbours are found by brute force; ties go to the lowest index, and when both directions are
 /// equal the gradient is that of the first (X to Y). Empty sets give 0 and a zero gradient.
 pub fn chamfer(x: &[f32], y: &[f32], dim: usize) -> (f64, Vec<f32>) {
-    let mut grad = vec![0.0f32; y.len()];
-    if dim == 0 || x.is_empty() || y.is_empty() {
-        return (0.0, grad);
+    let (n, m) = (x.len() / dim.max(1), y.len() / dim.max(1));
+    if dim == 0 || n == 0 || m == 0 {
+        return (0.0, vec![0.0f32; y.len()]);
     }
-    let (n, m) = (x.len() / dim, y.len() / dim);
-    let d2 = |i: usize, j: usize| {
-        let (a, b) = (&x[i * dim..][..dim], &y[j * dim..][..dim]);
-        a.iter().zip(b).map(|(&p, &q)| (p as f64 - q as f64).powi(2)).sum::<f64>()
-    };
-    // For each x its nearest y, for each y its nearest x (squared distances, in one pass over all pairs).
-    let mut near_y = vec![(f64::INFINITY, 0usize); n];
-    let mut near_x = vec![(f64::INFINITY, 0usize); m];
-    for (i, ny) in near_y.iter_mut().enumerate() {
-        for (j, nx) in near_x.iter_mut().enumerate() {
-            let d = d2(i, j);
-            if d < ny.0 {
-                *ny = (d, j);
-            }
-            if d < nx.0 {
-                *nx = (d, i);
-            }
-        }
-    }
-    let a = near_y.iter().map(|&(d, _)| d.sqrt()).sum::<f64>() / n as f64;
-    let b = near_x.iter().map(|&(d, _)| d.sqrt()).sum::<f64>() / m as f64;
-    // d|y - x| / dy = (y - x) / |y - x|, guarded at 0.
-    let mut push = |xi: usize, yj: usize, scale: f64| {
-        let diff: Vec<f64> = (0..dim).map(|c| y[yj * dim + c] as f64 - x[xi * dim + c] as f64).collect();
-        let len = norm(&diff).max(NORM_EPS);
-        for (c, dv) in diff.iter().enumerate() {
-            grad[yj * dim + c] += (scale * dv / len) as f32;
-        }
-    };
-    if a >= b {
-        for (i, &(_, j)) in near_y.iter().enumerate() {
-            push(i, j, 1.0 / n as f64);
-        }
-        (a, grad)
-    } else {
-        for (j, &(_, i)) in near_x.iter().enumerate() {
-            push(i, j, 1.0 / m as f64);
-        }
-        (b, grad)
-    }
+    let (nearest, distance) = chamfer_nearest(x, y, dim, (n, m));
+    let (losses, grad) = chamfer_grad(x, y, dim, (n, m), (&nearest, &distance), 1.0);
+    (losses[0], grad)
 }
 
 /// Below this norm a raw rotation output is degenerate: it maps to the identity with a zero gradient (the same

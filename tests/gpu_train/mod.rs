@@ -25,6 +25,9 @@ use dpr_gpu::rng::Rng;
 use dpr_gpu::train::backward::{Gradients, LayerWeights, decode_backward, encode_backward, relative_backward};
 use dpr_gpu::train::grad::{DenseGrads, DenseLayer, Segment, dense_backward};
 
+mod chamfer;
+mod tapes;
+
 /// The training kernels' parity tests, run by `gpu_parity`'s `main`.
 pub const TESTS: &[(&str, fn())] = &[
     ("relu_backward_matches_cpu_at_zero_and_signed_zeros", relu_backward_matches_cpu_at_zero_and_signed_zeros),
@@ -43,6 +46,19 @@ pub const TESTS: &[(&str, fn())] = &[
         relative_backward_on_the_device_matches_the_cpu_trainer,
     ),
     ("adam_step_matches_cpu_within_f32_rounding", adam_step_matches_cpu_within_f32_rounding),
+    (
+        "encode_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass",
+        tapes::encode_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass,
+    ),
+    (
+        "decode_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass",
+        tapes::decode_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass,
+    ),
+    (
+        "relative_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass",
+        tapes::relative_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass,
+    ),
+    ("chamfer_kernels_match_cpu_on_both_branches", chamfer::chamfer_kernels_match_cpu_on_both_branches),
 ];
 
 /// Slices of a layer: a full layer, the skip concatenation's second part, ragged sizes past a workgroup, one
