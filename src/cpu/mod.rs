@@ -35,5 +35,6 @@ pub mod relu_backward;
 pub mod rotation_head;
 pub mod score_hypotheses;
 pub mod segments;
+pub mod transpose;
 pub mod unit_rows;
 pub mod voxel_average;

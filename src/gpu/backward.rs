@@ -331,35 +331,30 @@ pub fn record_decode_backward(
 }
 
 /// Records RelativeNet's backward pass, as [`crate::train::backward::relative_backward`]: `outs` are its layers'
-/// outputs over `rows` rows of `[source | target]` features and `d_raw` the loss gradient w.r.t. the raw
-/// rotation outputs; parameter gradients are added to `layers` (RelativeNet's first layer at `base`). Returns
-/// the gradients w.r.t. the source and target features.
+/// outputs over `rows` rows whose input is made of `inputs` (the slices [`super::nets::record_relative_outputs`]
+/// read, `[source | target]`) and `d_raw` the loss gradient w.r.t. the raw rotation outputs; parameter
+/// gradients are added to `layers` (RelativeNet's first layer at `base`), each input's gradient to its `dx`.
 #[expect(clippy::too_many_arguments, reason = "layer-shaped signature, as the CPU trainer's relative_backward")]
 pub fn record_relative_backward(
     rec: &mut Recorder<'_>,
     net: &RelativeNet,
     layers: &DeviceLayers<'_>,
     base: usize,
-    source: &wgpu::Buffer,
-    target: &wgpu::Buffer,
+    inputs: &[DeviceSlice<'_>],
     rows: usize,
     outs: &[&wgpu::Buffer],
     d_raw: wgpu::Buffer,
-) -> Result<(wgpu::Buffer, wgpu::Buffer)> {
+) -> Result<()> {
     let n = net.layers.len();
     if n == 0 || outs.len() != n {
         return Err(Error::invalid("device relative backward: the outputs do not match the network"));
     }
+    if inputs.iter().map(|s| s.width).sum::<usize>() != net.layers[0].in_dim {
+        return Err(Error::invalid("device relative backward: the input slices do not make the first layer's input"));
+    }
     let d0 = record_chain_backward(rec, layers, base, &net.layers, outs, rows, |i| i + 1 < n, d_raw)?;
-    let f = net.layers[0].in_dim / 2;
-    let (d_source, d_target) = (zeros(rec, "d source", rows * f)?, zeros(rec, "d target", rows * f)?);
-    let segments = [
-        DeviceSlice { x: source, width: f, offset: 0, dx: Some(&d_source) },
-        DeviceSlice { x: target, width: f, offset: f, dx: Some(&d_target) },
-    ];
     let layer = layers.layer(base, &net.layers[0], n > 1)?;
-    record_dense_backward(rec, &layer, rows, rows, outs[0], &d0, None, &segments)?;
-    Ok((d_source, d_target))
+    record_dense_backward(rec, &layer, rows, rows, outs[0], &d0, None, inputs)
 }
 
 /// Every layer of a model uploaded, with zeroed gradient buffers: owns what [`DeviceLayers`] borrows.

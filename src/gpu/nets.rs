@@ -460,7 +460,9 @@ pub fn record_relative<'a>(
     n: usize,
 ) -> Result<wgpu::Buffer> {
     let m = config.rotation_output.candidates();
-    let outs = record_relative_outputs(rec, gpu, ws, layers, [s, t], n, Outputs::PingPong(["rel_a", "rel_b"]))?;
+    let f = layers[0].in_dim / 2;
+    let inputs = [(s, f, 0), (t, f, f)];
+    let outs = record_relative_outputs(rec, gpu, ws, layers, &inputs, n, Outputs::PingPong(["rel_a", "rel_b"]))?;
     let raw = &outs[outs.len() - 1];
     let rotations = ws.buffer(&gpu.context, "rel_rotations", (n * m * 36) as u64)?;
     let params = rotation_head::RotationHeadParams::new(n, config.rotation_output, config.pose_frame)?;
@@ -471,24 +473,31 @@ pub fn record_relative<'a>(
 /// Workspace names of RelativeNet's outputs when a pass keeps them.
 pub const RELATIVE_NAMES: [&str; 8] = ["rel0", "rel1", "rel2", "rel3", "rel4", "rel5", "rel6", "rel7"];
 
-/// Records RelativeNet's layers on `n` rows of `[source | target]` pose features on the device, placed as
-/// `outputs` says; returns each layer's output buffer (the last holds the raw rotation outputs). The one device
-/// definition of RelativeNet's MLP, before the rotation head.
+/// Records RelativeNet's layers on `n` rows of pose features on the device, its input given as slices `(buffer,
+/// width, first weight column)` that together make `[source | target]` (inference: the two sides' buffers;
+/// training: one buffer of interleaved source and target rows read as `n x 2f`), placed as `outputs` says;
+/// returns each layer's output buffer (the last holds the raw rotation outputs). The one device definition of
+/// RelativeNet's MLP, before the rotation head.
 pub fn record_relative_outputs<'a>(
     rec: &mut Recorder<'a>,
     gpu: &'a Gpu,
     ws: &mut Workspace,
     layers: &[GpuLinear],
-    [s, t]: [&wgpu::Buffer; 2],
+    inputs: &[(&wgpu::Buffer, usize, usize)],
     n: usize,
     outputs: Outputs,
 ) -> Result<Vec<wgpu::Buffer>> {
     let l0 = &layers[0];
-    let f = l0.in_dim / 2;
+    if inputs.is_empty() || inputs.iter().map(|i| i.1).sum::<usize>() != l0.in_dim {
+        return Err(Error::invalid(format!("RelativeNet's input slices do not make its {} inputs", l0.in_dim)));
+    }
     let outs = layer_buffers(ws, &gpu.context, outputs, layers, n)?;
     let relu0 = layers.len() > 1;
-    dense_call(rec, gpu, l0, (s, f, 0), (n, n), Some(&l0.bias), (false, false), &outs[0])?;
-    dense_call(rec, gpu, l0, (t, f, f), (n, n), None, (true, relu0), &outs[0])?;
+    for (k, &slice) in inputs.iter().enumerate() {
+        let (first, last) = (k == 0, k + 1 == inputs.len());
+        let bias = first.then_some(&l0.bias);
+        dense_call(rec, gpu, l0, slice, (n, n), bias, (!first, last && relu0), &outs[0])?;
+    }
     tail(rec, gpu, layers, &outs, n, false)?;
     Ok(outs)
 }

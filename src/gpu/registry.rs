@@ -38,6 +38,7 @@ use super::relu_backward::ReluBackward;
 use super::rotation_head::RotationHead;
 use super::score_hypotheses::ScoreHypotheses;
 use super::segments::SegmentsKernel;
+use super::transpose::Transpose;
 use super::unit_rows::UnitRows;
 use super::voxel_average::VoxelAverage;
 use crate::error::{Error, Result};
@@ -77,6 +78,7 @@ pub const KERNELS: &[KernelSpec] = &[
     AdamStep::SPEC,
     ChamferNearest::SPEC,
     ChamferGrad::SPEC,
+    Transpose::SPEC,
 ];
 
 /// Every pipeline of [`KERNELS`] the device can run, compiled once per device.

@@ -28,12 +28,7 @@ impl Linear {
         let w = weights.get(&format!("{}.weight", spec.name))?;
         let b = weights.get(&format!("{}.bias", spec.name))?;
         let (i_n, o_n) = (spec.in_dim, spec.out_dim);
-        let mut weight_t = vec![0.0; i_n * o_n];
-        for o in 0..o_n {
-            for k in 0..i_n {
-                weight_t[k * o_n + o] = w[o * i_n + k];
-            }
-        }
+        let weight_t = crate::cpu::transpose::transpose(w, o_n, i_n);
         Ok(Linear { in_dim: i_n, out_dim: o_n, weight_t, bias: b.to_vec(), packed_bf16: OnceLock::new() })
     }
 

@@ -59,7 +59,23 @@ pub const TESTS: &[(&str, fn())] = &[
         tapes::relative_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass,
     ),
     ("chamfer_kernels_match_cpu_on_both_branches", chamfer::chamfer_kernels_match_cpu_on_both_branches),
+    ("transpose_matches_cpu_exactly", transpose_matches_cpu_exactly),
 ];
+
+/// The transpose (a refreshed forward weight) against its twin, bit for bit, over ragged shapes past a
+/// workgroup; every output element written (the sentinel never survives).
+fn transpose_matches_cpu_exactly() {
+    let Some(g) = gpu() else { return };
+    let s = seed(154);
+    let mut rng = Rng::new(s);
+    for (rows, cols) in [(1, 1), (1, 70), (37, 67), (130, 9), (256, 4)] {
+        let x = normals(&mut rng, rows * cols);
+        let want = dpr_gpu::cpu::transpose::transpose(&x, rows, cols);
+        let mut got = vec![SENTINEL; x.len()];
+        gpu::transpose::run(&g, &x, rows, cols, &mut got).unwrap();
+        assert_close(&format!("transpose {rows} x {cols}"), s, &got, &want, |_| 0.0);
+    }
+}
 
 /// Slices of a layer: a full layer, the skip concatenation's second part, ragged sizes past a workgroup, one
 /// row (the group sums of a single patch's shared input).
@@ -516,21 +532,17 @@ fn relative_backward_on_the_device_matches_the_cpu_trainer() {
     let (source_b, target_b, d_raw_b) = (up(&source), up(&target), up(&d_raw));
     let outs_b: Vec<_> = outs.iter().map(|a| up(a)).collect();
     let outs_raw: Vec<&wgpu::Buffer> = outs_b.iter().map(|b| b.raw()).collect();
+    let (ds_b, dt_b) = (up(&vec![0.0; rows * f]), up(&vec![0.0; rows * f]));
+    let (ds, dt) = (ds_b.raw(), dt_b.raw());
+    let inputs = [
+        DeviceSlice { x: source_b.raw(), width: f, offset: 0, dx: Some(ds) },
+        DeviceSlice { x: target_b.raw(), width: f, offset: f, dx: Some(dt) },
+    ];
     let mut rec = Recorder::new(&g, "relative backward test");
-    let (ds, dt) = record_relative_backward(
-        &mut rec,
-        net,
-        &layers.view(),
-        base,
-        source_b.raw(),
-        target_b.raw(),
-        rows,
-        &outs_raw,
-        d_raw_b.raw().clone(),
-    )
-    .unwrap();
+    record_relative_backward(&mut rec, net, &layers.view(), base, &inputs, rows, &outs_raw, d_raw_b.raw().clone())
+        .unwrap();
     let reads = read_gradients(&mut rec, &layers);
-    let (r_ds, r_dt) = (rec.read(&ds, 0, (rows * f * 4) as u64), rec.read(&dt, 0, (rows * f * 4) as u64));
+    let (r_ds, r_dt) = (rec.read(ds, 0, (rows * f * 4) as u64), rec.read(dt, 0, (rows * f * 4) as u64));
     let bytes = rec.finish().unwrap();
     assert_gradients("relative backward", s, &bytes, &reads, &want, base..base + net.layers.len());
     for (part, r, expected) in [("source", r_ds, &want_ds), ("target", r_dt, &want_dt)] {

@@ -7,8 +7,8 @@
 use super::{assert_gradients, read_gradients, small_model};
 use crate::{NETWORK_RTOL, assert_close, f32_gemm_gpu, normals, seed};
 use dpr_gpu::gpu::backward::{
-    DeviceDecodeTape, DeviceEncodeTape, DeviceLayerBuffers, record_decode_backward, record_encode_backward,
-    record_relative_backward,
+    DeviceDecodeTape, DeviceEncodeTape, DeviceLayerBuffers, DeviceSlice, record_decode_backward,
+    record_encode_backward, record_relative_backward,
 };
 use dpr_gpu::gpu::buffer::{GpuBuffer, Workspace};
 use dpr_gpu::gpu::nets::{
@@ -143,8 +143,9 @@ pub fn decode_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass() {
     assert_close("decode backward, codeword gradient", s, &floats(&bytes, r_d_code), &want_d_code, |_| 1e-3 * largest);
 }
 
-/// RelativeNet on the device with every layer kept: each output matches the CPU tape, and the backward pass
-/// from the device tape matches the CPU trainer's (layer gradients, source and target feature gradients).
+/// RelativeNet on the device with every layer kept, in the trainer's layout (one input slice of each row's
+/// source and target features side by side): each output matches the CPU tape (two slices), and the backward
+/// pass from the device tape matches the CPU trainer's (layer gradients, source and target feature gradients).
 pub fn relative_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass() {
     let Some(g) = f32_gemm_gpu() else { return };
     let s = seed(152);
@@ -162,27 +163,21 @@ pub fn relative_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass()
     let gpu_model = GpuModel::upload(ctx, &model).unwrap();
     let w = LayerWeights::new(&weights).unwrap();
     let layers = DeviceLayerBuffers::upload(ctx, &w).unwrap();
-    let (source_b, target_b, d_raw_b) = (up(&source), up(&target), up(&d_raw));
+    // The trainer's layout: each row's source and target features side by side, one slice of `2f`.
+    let pairs: Vec<f32> =
+        (0..rows).flat_map(|r| source[r * f..][..f].iter().chain(&target[r * f..][..f])).copied().collect();
+    let (pairs_b, d_raw_b, d_pairs_b) = (up(&pairs), up(&d_raw), up(&vec![0.0; pairs.len()]));
     let mut ws = Workspace::default();
     let mut rec = Recorder::new(&g, "relative tape test");
     let kept = Outputs::Kept(&RELATIVE_NAMES);
-    let outs = record_relative_outputs(
-        &mut rec,
-        &g,
-        &mut ws,
-        &gpu_model.relative,
-        [source_b.raw(), target_b.raw()],
-        rows,
-        kept,
-    )
-    .unwrap();
+    let input = [(pairs_b.raw(), 2 * f, 0)];
+    let outs = record_relative_outputs(&mut rec, &g, &mut ws, &gpu_model.relative, &input, rows, kept).unwrap();
     let outs_ref: Vec<&wgpu::Buffer> = outs.iter().collect();
-    let (sb, tb) = (source_b.raw(), target_b.raw());
+    let slice = [DeviceSlice { x: pairs_b.raw(), width: 2 * f, offset: 0, dx: Some(d_pairs_b.raw()) }];
     let d_raw_raw = d_raw_b.raw().clone();
-    let (ds, dt) =
-        record_relative_backward(&mut rec, net, &layers.view(), base, sb, tb, rows, &outs_ref, d_raw_raw).unwrap();
+    record_relative_backward(&mut rec, net, &layers.view(), base, &slice, rows, &outs_ref, d_raw_raw).unwrap();
     let r_outs = read_all(&mut rec, &outs, want.iter().map(Vec::len));
-    let (r_ds, r_dt) = (rec.read(&ds, 0, (rows * f * 4) as u64), rec.read(&dt, 0, (rows * f * 4) as u64));
+    let r_d_pairs = rec.read(d_pairs_b.raw(), 0, (pairs.len() * 4) as u64);
     let reads = read_gradients(&mut rec, &layers);
     let bytes = rec.finish().unwrap();
 
@@ -192,11 +187,11 @@ pub fn relative_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass()
     let (want_ds, want_dt) = relative_backward(net, &w, base, &source, &target, rows, &got, d_raw, &mut want_grads);
     let touched = base..base + net.layers.len();
     assert_gradients("relative backward from the device tape", s, &bytes, &reads, &want_grads, touched);
-    for (part, r, expected) in [("source", r_ds, &want_ds), ("target", r_dt, &want_dt)] {
+    let d_pairs = floats(&bytes, r_d_pairs);
+    for (part, side, expected) in [("source", 0, &want_ds), ("target", 1, &want_dt)] {
+        let got: Vec<f32> = (0..rows).flat_map(|r| d_pairs[(2 * r + side) * f..][..f].iter().copied()).collect();
         let largest = expected.iter().fold(0.0f32, |m, v| m.max(v.abs()));
         assert!(largest > 0.0, "relative backward, {part}: a zero gradient tests nothing");
-        assert_close(&format!("relative backward, {part} features"), s, &floats(&bytes, r), expected, |_| {
-            1e-3 * largest
-        });
+        assert_close(&format!("relative backward, {part} features"), s, &got, expected, |_| 1e-3 * largest);
     }
 }
