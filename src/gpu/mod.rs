@@ -54,6 +54,7 @@ pub mod scan;
 pub mod score_hypotheses;
 pub mod segments;
 pub mod testing;
+pub mod train;
 pub mod transpose;
 pub mod unit_rows;
 pub mod voxel_average;

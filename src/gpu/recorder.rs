@@ -15,6 +15,7 @@ use wgpu::util::DeviceExt;
 enum Op<'a> {
     Dispatch { kernel: &'a Kernel, params: (u64, u64), buffers: Vec<wgpu::Buffer>, grid: [u32; 2] },
     Copy { src: wgpu::Buffer, src_offset: u64, dst: wgpu::Buffer, dst_offset: u64, size: u64 },
+    Clear { buffer: wgpu::Buffer },
 }
 
 /// A batch of GPU work; see the module docs.
@@ -93,6 +94,11 @@ impl<'a> Recorder<'a> {
         }
     }
 
+    /// Fills `buffer` with zeros (after the dispatches recorded so far).
+    pub fn clear(&mut self, buffer: &wgpu::Buffer) {
+        self.ops.push(Op::Clear { buffer: buffer.clone() });
+    }
+
     /// Reads `size` bytes at `offset` of `buffer` once everything recorded has run; returns the index of the
     /// read in the [`Readback`].
     pub fn read(&mut self, buffer: &wgpu::Buffer, offset: u64, size: u64) -> usize {
@@ -156,6 +162,10 @@ impl<'a> Recorder<'a> {
             match &self.ops[i] {
                 Op::Copy { src, src_offset, dst, dst_offset, size } => {
                     encoder.copy_buffer_to_buffer(src, *src_offset, dst, *dst_offset, Some(*size));
+                    i += 1;
+                }
+                Op::Clear { buffer } => {
+                    encoder.clear_buffer(buffer, 0, None);
                     i += 1;
                 }
                 Op::Dispatch { .. } => {

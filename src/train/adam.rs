@@ -104,6 +104,24 @@ impl Adam {
         }
     }
 
+    /// Counts one more step and returns its per-element constants (learning rate at the steps completed
+    /// before it, bias corrections at its 1-based index): what [`Adam::step`] and the device trainer apply.
+    pub fn next_step(&mut self) -> AdamStep {
+        let s = self.settings;
+        let lr = s.lr_at(self.steps);
+        self.steps += 1;
+        let t = self.steps as i32;
+        AdamStep {
+            lr,
+            beta1: s.beta1,
+            beta2: s.beta2,
+            eps: s.eps,
+            weight_decay: s.weight_decay,
+            c1: 1.0 - s.beta1.powi(t),
+            c2: 1.0 - s.beta2.powi(t),
+        }
+    }
+
     /// One update of every tensor (in the order the moments were created). Errors when the tensors do not
     /// match the moments; nothing is changed then.
     pub fn step(&mut self, params: &mut [Param<'_>]) -> Result<()> {
@@ -112,19 +130,7 @@ impl Adam {
         if !sizes_match {
             return Err(Error::invalid("Adam: parameter tensors do not match the optimiser state"));
         }
-        let s = self.settings;
-        let lr = s.lr_at(self.steps);
-        self.steps += 1;
-        let t = self.steps as i32;
-        let step = AdamStep {
-            lr,
-            beta1: s.beta1,
-            beta2: s.beta2,
-            eps: s.eps,
-            weight_decay: s.weight_decay,
-            c1: 1.0 - s.beta1.powi(t),
-            c2: 1.0 - s.beta2.powi(t),
-        };
+        let step = self.next_step();
         for ((p, m), v) in params.iter_mut().zip(&mut self.m).zip(&mut self.v) {
             adam_step(&step, p.decay, p.value, p.grad, m, v);
         }

@@ -27,6 +27,7 @@ use dpr_gpu::train::grad::{DenseGrads, DenseLayer, Segment, dense_backward};
 
 mod chamfer;
 mod tapes;
+mod trainer;
 
 /// The training kernels' parity tests, run by `gpu_parity`'s `main`.
 pub const TESTS: &[(&str, fn())] = &[
@@ -60,6 +61,11 @@ pub const TESTS: &[(&str, fn())] = &[
     ),
     ("chamfer_kernels_match_cpu_on_both_branches", chamfer::chamfer_kernels_match_cpu_on_both_branches),
     ("transpose_matches_cpu_exactly", transpose_matches_cpu_exactly),
+    ("device_objective_matches_the_cpu_trainer", trainer::device_objective_matches_the_cpu_trainer),
+    (
+        "device_step_applies_adamw_and_refreshes_the_forward_weights",
+        trainer::device_step_applies_adamw_and_refreshes_the_forward_weights,
+    ),
 ];
 
 /// The transpose (a refreshed forward weight) against its twin, bit for bit, over ragged shapes past a

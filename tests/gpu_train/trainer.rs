@@ -1,0 +1,127 @@
+//! The device trainer ([`dpr_gpu::gpu::train::DeviceTrainer`]) against the CPU trainer: the whole objective's
+//! value and gradient on a batch (every term on, the contrastive one included), and one AdamW step.
+
+use crate::{EPS, assert_close, f32_gemm_gpu, normals, seed};
+use dpr_gpu::gpu::train::DeviceTrainer;
+use dpr_gpu::model::params::tensor_specs;
+use dpr_gpu::model::{ModelConfig, Weights};
+use dpr_gpu::rng::Rng;
+use dpr_gpu::train::{Adam, AdamSettings, Gradients, LossSettings, Losses, PairSample, batch_loss, batch_objective};
+
+/// A small model (16 points per patch, the default widths and head) and a batch of `pairs` random pairs whose
+/// labels turn about z (so the angle-bin loss is defined for every pair).
+fn setup(s: u64, pairs: usize) -> (Weights, Vec<PairSample>, LossSettings) {
+    let mut rng = Rng::new(s);
+    let config = ModelConfig { points_per_patch: 16, ..ModelConfig::default() };
+    let weights = Weights::init(&config, s).unwrap();
+    let n = config.points_per_patch;
+    let batch = (0..pairs)
+        .map(|_| {
+            let a = rng.uniform(-3.0, 3.0);
+            let (c, sn) = (a.cos(), a.sin());
+            PairSample {
+                ppf: normals(&mut rng, 2 * n * 4),
+                pc: normals(&mut rng, 2 * n * 3),
+                label: [c, -sn, 0.0, sn, c, 0.0, 0.0, 0.0, 1.0],
+            }
+        })
+        .collect();
+    let loss = LossSettings { contrast: true, ..LossSettings::default() };
+    (weights, batch, loss)
+}
+
+/// Fresh optimiser state for `weights`.
+fn fresh_adam(weights: &Weights) -> Adam {
+    let sizes: Vec<usize> = tensor_specs(&weights.config).iter().map(|(_, s)| s.iter().product()).collect();
+    Adam::new(AdamSettings { lr: 1e-3, ..AdamSettings::default() }, &sizes)
+}
+
+/// Each loss term within `rtol` of the CPU's (relative, with an absolute floor of `rtol` for terms near 0).
+fn assert_losses(what: &str, s: u64, got: &Losses, want: &Losses, rtol: f64) {
+    for (term, g, w) in [
+        ("rec", got.rec, want.rec),
+        ("pose", got.pose, want.pose),
+        ("feat", got.feat, want.feat),
+        ("contrast", got.contrast, want.contrast),
+        ("total", got.total, want.total),
+    ] {
+        assert!((g - w).abs() <= rtol * w.abs().max(1.0), "{what}, {term}: device {g} vs cpu {w} (seed {s})");
+    }
+}
+
+/// The device objective on a batch of 4 pairs (reconstruction, angle-bin pose, feature consistency, contrastive)
+/// against the CPU trainer's `batch_objective`: every loss term within f32 rounding, and every layer's weight and
+/// bias gradient within 1e-3 of the tensor's largest element (both sides sum in f32, in different orders; the
+/// max-pools' and the Chamfer search's choices may differ only on near-ties, which random data does not have).
+pub fn device_objective_matches_the_cpu_trainer() {
+    let Some(g) = f32_gemm_gpu() else { return };
+    let s = seed(155);
+    let (weights, batch, loss) = setup(s, 4);
+    let (want_losses, want) = batch_objective(&weights, &batch, &loss).unwrap();
+    let mut trainer = DeviceTrainer::new(&g, &weights, loss, &fresh_adam(&weights)).unwrap();
+    let (losses, grads) = trainer.gradients(&g, &batch).unwrap();
+    assert_losses("device objective", s, &losses, &want_losses, 1e-4);
+    assert!(want_losses.contrast > 0.0 && want_losses.pose > 0.0, "a zero loss term tests nothing");
+    assert_grads("device objective", s, &grads, &want);
+}
+
+/// Every layer's gradients within 1e-3 of each tensor's largest element, and none all zero.
+fn assert_grads(what: &str, s: u64, got: &Gradients, want: &Gradients) {
+    for (i, (g, w)) in got.layers.iter().zip(&want.layers).enumerate() {
+        for (part, gv, wv) in [("weight", &g.weight, &w.weight), ("bias", &g.bias, &w.bias)] {
+            let largest = wv.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            assert!(largest > 0.0, "{what}, layer {i} {part}: a zero gradient tests nothing");
+            assert_close(&format!("{what}, layer {i} {part}"), s, gv, wv, |_| 1e-3 * largest);
+        }
+    }
+}
+
+/// One device step against AdamW applied on the host to the device's own gradient (so the oracle is exact in
+/// what it updates): every weight and moment within f32 rounding of the f64 update. Then the next forward pass
+/// runs on the updated weights: the device's loss after the step matches the CPU loss at the read-back weights.
+pub fn device_step_applies_adamw_and_refreshes_the_forward_weights() {
+    let Some(g) = f32_gemm_gpu() else { return };
+    let s = seed(156);
+    let (weights, batch, loss) = setup(s, 3);
+    let adam = fresh_adam(&weights);
+    let (_, grads) = DeviceTrainer::new(&g, &weights, loss, &adam).unwrap().gradients(&g, &batch).unwrap();
+    let mut trainer = DeviceTrainer::new(&g, &weights, loss, &adam).unwrap();
+    trainer.step(&g, &batch).unwrap();
+    assert_eq!(trainer.steps(), 1);
+
+    let mut want = weights.clone();
+    let mut want_adam = adam.clone();
+    let mut params: Vec<dpr_gpu::train::adam::Param<'_>> = Vec::new();
+    let specs = tensor_specs(&weights.config);
+    let mut tensors: Vec<(&String, &mut Vec<f32>)> = want.tensors.iter_mut().collect();
+    tensors.sort_by_key(|(name, _)| specs.iter().position(|(n, _)| n == *name).unwrap());
+    for (k, (name, value)) in tensors.into_iter().enumerate() {
+        let layer = &grads.layers[k / 2];
+        let grad = if k % 2 == 0 { &layer.weight } else { &layer.bias };
+        params.push(dpr_gpu::train::adam::Param { value, grad, decay: name.ends_with(".weight") });
+    }
+    want_adam.step(&mut params).unwrap();
+    drop(params);
+    let got = trainer.weights(&g).unwrap();
+    let lr = adam.settings.lr as f32;
+    for (name, w) in &want.tensors {
+        let before = &weights.tensors[name];
+        // A step moves an element by at most about lr; f32 rounding of x and of the step, and the f32 moments.
+        assert_close(&format!("weights after a step, {name}"), s, &got.tensors[name], w, |i| {
+            4.0 * EPS * before[i].abs() + 1e-4 * lr
+        });
+    }
+    let got_adam = trainer.adam(&g).unwrap();
+    assert_eq!(got_adam.steps, 1);
+    for (k, (m, v)) in got_adam.m.iter().zip(&got_adam.v).enumerate() {
+        assert_close(&format!("first moment {k}"), s, m, &want_adam.m[k], |i| 4.0 * EPS * want_adam.m[k][i].abs());
+        assert_close(&format!("second moment {k}"), s, v, &want_adam.v[k], |i| 4.0 * EPS * want_adam.v[k][i].abs());
+    }
+    let moved = want.tensors.iter().any(|(name, w)| w != &weights.tensors[name]);
+    assert!(moved, "the step changed nothing");
+    let (after, _) = trainer.gradients(&g, &batch).unwrap();
+    let want_after = batch_loss(&got, &batch, &loss).unwrap();
+    let (before, _) = batch_objective(&weights, &batch, &loss).unwrap();
+    assert!((want_after.total - before.total).abs() > 1e-6, "the step did not change the loss");
+    assert_losses("loss after a step", s, &after, &want_after, 1e-4);
+}
