@@ -132,6 +132,11 @@ pub struct Args {
     /// Continue the run saved in this checkpoint, exactly where it stopped.
     #[arg(long)]
     pub resume: Option<PathBuf>,
+    /// Where the steps run: cpu (the reference trainer) or gpu (`gpu::train::DeviceTrainer`: the batch's
+    /// activations, gradients, optimiser moments and weights stay on the device; f32 GEMM; any adapter). The
+    /// sampling, checkpoints and logs are the same; `--pose-trains-ppf` is CPU-only.
+    #[arg(long, default_value = "cpu", value_parser = ["cpu", "gpu"])]
+    pub backend: String,
     /// Append per-step losses to this CSV file (the header is written only when the file is new or empty; a
     /// resumed run first drops the rows after the checkpoint's step, which will be redone).
     #[arg(long)]
@@ -377,11 +382,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .context("progress style")?
             .progress_chars("=> "),
     );
+    let mut device = match args.backend.as_str() {
+        "gpu" => Some(DeviceRun::new(&trainer)?),
+        _ => None,
+    };
     let clock = std::time::Instant::now();
     let mut recent: Vec<Losses> = Vec::new();
     while trainer.step_count() < args.steps {
         let lr = trainer.learning_rate();
-        let losses = trainer.step()?;
+        let losses = match device.as_mut() {
+            Some(d) => trainer.step_with(|batch| d.trainer.step(&d.gpu, batch))?,
+            None => trainer.step()?,
+        };
         let step = trainer.step_count();
         if let Some(f) = log.as_mut() {
             let secs = clock.elapsed().as_secs_f64();
@@ -400,10 +412,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ));
         bar.set_position(step);
         if args.checkpoint_every > 0 && step % args.checkpoint_every == 0 {
+            if let Some(d) = &device {
+                d.sync(&mut trainer)?;
+            }
             trainer.save_checkpoint(&ckpt)?;
         }
     }
     bar.finish();
+    if let Some(d) = &device {
+        d.sync(&mut trainer)?;
+    }
     trainer.save_checkpoint(&ckpt)?;
     let mut weights = trainer.weights().clone();
     let m = mean(&recent);
@@ -512,5 +530,32 @@ mod tests {
         let clash =
             run(parse(&format!("--out {d}/a.safetensors --steps 7 --resume {d}/a.ckpt.safetensors --radius 1")));
         assert!(clash.unwrap_err().to_string().contains("--radius"));
+    }
+}
+
+/// The device a `--backend gpu` run trains on, and the model's state there.
+struct DeviceRun {
+    gpu: crate::gpu::Gpu,
+    trainer: crate::gpu::train::DeviceTrainer,
+}
+
+impl DeviceRun {
+    /// Any adapter (the user asked for the GPU backend), on an f32 GEMM, starting from `trainer`'s state.
+    fn new(trainer: &Trainer) -> anyhow::Result<DeviceRun> {
+        use crate::gpu::{Gpu, context::AdapterPolicy, gemm::GemmVariant};
+        let mut gpu = Gpu::with_policy(AdapterPolicy::Any).context("--backend gpu: creating the device")?;
+        if !gpu.gemm_variant().is_f32() {
+            gpu.set_gemm_variant(GemmVariant::Fast)?;
+        }
+        eprintln!("training on {}", gpu.adapter_info());
+        let settings = trainer.settings();
+        let device = crate::gpu::train::DeviceTrainer::new(&gpu, trainer.weights(), settings.loss, trainer.adam())?;
+        Ok(DeviceRun { gpu, trainer: device })
+    }
+
+    /// Brings the host copy of the weights and optimiser state up to date (before a checkpoint or the output).
+    fn sync(&self, trainer: &mut Trainer) -> anyhow::Result<()> {
+        trainer.set_state(self.trainer.weights(&self.gpu)?, self.trainer.adam(&self.gpu)?)?;
+        Ok(())
     }
 }

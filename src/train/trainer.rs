@@ -181,6 +181,33 @@ impl Trainer {
         Ok(losses)
     }
 
+    /// One step whose objective and update run elsewhere (the device trainer, `gpu::train::DeviceTrainer`):
+    /// samples the batch exactly as [`Trainer::step`] does, hands it to `run`, and counts the step (in the
+    /// optimiser too, so the learning rate follows). The weights and moments held here are the run's starting
+    /// point until [`Trainer::set_state`] brings them up to date.
+    pub fn step_with(&mut self, run: impl FnOnce(&[PairSample]) -> Result<Losses>) -> Result<Losses> {
+        let batch = self.next_batch()?;
+        let losses = run(&batch)?;
+        self.step += 1;
+        self.adam.steps += 1;
+        Ok(losses)
+    }
+
+    /// Replaces the weights and the optimiser state (read back from where the steps ran); the weights' notes
+    /// are kept. An error, with nothing changed, when they do not fit the model or the step count.
+    pub fn set_state(&mut self, mut weights: Weights, adam: Adam) -> Result<()> {
+        let shapes_ok = adam.m.len() == self.adam.m.len()
+            && adam.v.len() == self.adam.v.len()
+            && adam.m.iter().zip(&self.adam.m).all(|(a, b)| a.len() == b.len());
+        if weights.config != self.weights.config || !shapes_ok || adam.steps != self.adam.steps {
+            return Err(Error::invalid("trainer state: the weights or optimiser state do not match this run"));
+        }
+        weights.notes = std::mem::take(&mut self.weights.notes);
+        self.weights = weights;
+        self.adam = adam;
+        Ok(())
+    }
+
     /// Replaces the fragment pairs (e.g. when resuming with the data at another path). The pairs must be the
     /// same for the run to continue identically.
     pub fn set_pairs(&mut self, pairs: Vec<FragmentPair>) -> Result<()> {

@@ -66,6 +66,7 @@ pub const TESTS: &[(&str, fn())] = &[
         "device_step_applies_adamw_and_refreshes_the_forward_weights",
         trainer::device_step_applies_adamw_and_refreshes_the_forward_weights,
     ),
+    ("device_training_resumes_bit_for_bit", trainer::device_training_resumes_bit_for_bit),
 ];
 
 /// The transpose (a refreshed forward weight) against its twin, bit for bit, over ragged shapes past a
