@@ -448,6 +448,33 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The device a `--backend gpu` run trains on, and the model's state there.
+struct DeviceRun {
+    gpu: crate::gpu::Gpu,
+    trainer: crate::gpu::train::DeviceTrainer,
+}
+
+impl DeviceRun {
+    /// Any adapter (the user asked for the GPU backend), on an f32 GEMM, starting from `trainer`'s state.
+    fn new(trainer: &Trainer) -> anyhow::Result<DeviceRun> {
+        use crate::gpu::{Gpu, context::AdapterPolicy, gemm::GemmVariant};
+        let mut gpu = Gpu::with_policy(AdapterPolicy::Any).context("--backend gpu: creating the device")?;
+        if !gpu.gemm_variant().is_f32() {
+            gpu.set_gemm_variant(GemmVariant::Fast)?;
+        }
+        eprintln!("training on {}", gpu.adapter_info());
+        let settings = trainer.settings();
+        let device = crate::gpu::train::DeviceTrainer::new(&gpu, trainer.weights(), settings.loss, trainer.adam())?;
+        Ok(DeviceRun { gpu, trainer: device })
+    }
+
+    /// Brings the host copy of the weights and optimiser state up to date (before a checkpoint or the output).
+    fn sync(&self, trainer: &mut Trainer) -> anyhow::Result<()> {
+        trainer.set_state(self.trainer.weights(&self.gpu)?, self.trainer.adam(&self.gpu)?)?;
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -530,32 +557,5 @@ mod tests {
         let clash =
             run(parse(&format!("--out {d}/a.safetensors --steps 7 --resume {d}/a.ckpt.safetensors --radius 1")));
         assert!(clash.unwrap_err().to_string().contains("--radius"));
-    }
-}
-
-/// The device a `--backend gpu` run trains on, and the model's state there.
-struct DeviceRun {
-    gpu: crate::gpu::Gpu,
-    trainer: crate::gpu::train::DeviceTrainer,
-}
-
-impl DeviceRun {
-    /// Any adapter (the user asked for the GPU backend), on an f32 GEMM, starting from `trainer`'s state.
-    fn new(trainer: &Trainer) -> anyhow::Result<DeviceRun> {
-        use crate::gpu::{Gpu, context::AdapterPolicy, gemm::GemmVariant};
-        let mut gpu = Gpu::with_policy(AdapterPolicy::Any).context("--backend gpu: creating the device")?;
-        if !gpu.gemm_variant().is_f32() {
-            gpu.set_gemm_variant(GemmVariant::Fast)?;
-        }
-        eprintln!("training on {}", gpu.adapter_info());
-        let settings = trainer.settings();
-        let device = crate::gpu::train::DeviceTrainer::new(&gpu, trainer.weights(), settings.loss, trainer.adam())?;
-        Ok(DeviceRun { gpu, trainer: device })
-    }
-
-    /// Brings the host copy of the weights and optimiser state up to date (before a checkpoint or the output).
-    fn sync(&self, trainer: &mut Trainer) -> anyhow::Result<()> {
-        trainer.set_state(self.trainer.weights(&self.gpu)?, self.trainer.adam(&self.gpu)?)?;
-        Ok(())
     }
 }

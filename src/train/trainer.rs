@@ -5,6 +5,7 @@
 //! continues bit-identically.
 
 use super::adam::{Adam, AdamSettings, Param};
+use super::backward::Gradients;
 use super::data::{DataSettings, FragmentPair, Sampler, discover_pairs};
 use super::objective::{LossSettings, Losses, PairSample, batch_objective};
 use crate::error::{Error, Result};
@@ -80,6 +81,27 @@ pub(crate) fn tensor_order(config: &ModelConfig) -> Vec<(String, usize, bool)> {
             (name, shape.iter().product(), decay)
         })
         .collect()
+}
+
+/// One AdamW step of `adam` on every tensor of `weights` from `grads` (layer `i`'s weight and bias gradients
+/// are tensors `2i` and `2i + 1` of [`tensor_order`]); weight matrices decay, biases do not.
+pub fn apply_gradients(weights: &mut Weights, adam: &mut Adam, grads: &Gradients) -> Result<()> {
+    let order = tensor_order(&weights.config);
+    let index: HashMap<&str, usize> = order.iter().enumerate().map(|(i, t)| (t.0.as_str(), i)).collect();
+    let mut slots: Vec<Option<Param<'_>>> = (0..order.len()).map(|_| None).collect();
+    for (name, value) in weights.tensors.iter_mut() {
+        let Some(&i) = index.get(name.as_str()) else {
+            return Err(Error::invalid(format!("weights have an unexpected tensor '{name}'")));
+        };
+        let layer = grads.layers.get(i / 2).ok_or_else(|| Error::invalid("gradients are missing a layer"))?;
+        let grad = if i % 2 == 0 { &layer.weight } else { &layer.bias };
+        slots[i] = Some(Param { value, grad, decay: order[i].2 });
+    }
+    let mut params: Vec<Param<'_>> = slots
+        .into_iter()
+        .collect::<Option<_>>()
+        .ok_or_else(|| Error::invalid("weights are missing a tensor of the model configuration"))?;
+    adam.step(&mut params)
 }
 
 impl Trainer {
@@ -160,23 +182,7 @@ impl Trainer {
         if !losses.total.is_finite() {
             return Err(Error::invalid(format!("the loss is not finite at step {} ({losses:?})", self.step)));
         }
-        let order = tensor_order(&self.weights.config);
-        let index: HashMap<&str, usize> = order.iter().enumerate().map(|(i, t)| (t.0.as_str(), i)).collect();
-        // Tensors in spec order; gradient k of `grads.layers[i]` is weight (k = 0) or bias (k = 1).
-        let mut slots: Vec<Option<Param<'_>>> = (0..order.len()).map(|_| None).collect();
-        for (name, value) in self.weights.tensors.iter_mut() {
-            let Some(&i) = index.get(name.as_str()) else {
-                return Err(Error::invalid(format!("weights have an unexpected tensor '{name}'")));
-            };
-            let layer = &grads.layers[i / 2];
-            let grad = if i % 2 == 0 { &layer.weight } else { &layer.bias };
-            slots[i] = Some(Param { value, grad, decay: order[i].2 });
-        }
-        let mut params: Vec<Param<'_>> = slots
-            .into_iter()
-            .collect::<Option<_>>()
-            .ok_or_else(|| Error::invalid("weights are missing a tensor of the model configuration"))?;
-        self.adam.step(&mut params)?;
+        apply_gradients(&mut self.weights, &mut self.adam, &grads)?;
         self.step += 1;
         Ok(losses)
     }

@@ -6,6 +6,7 @@ use dpr_gpu::gpu::train::DeviceTrainer;
 use dpr_gpu::model::params::tensor_specs;
 use dpr_gpu::model::{ModelConfig, Weights};
 use dpr_gpu::rng::Rng;
+use dpr_gpu::train::trainer::apply_gradients;
 use dpr_gpu::train::{Adam, AdamSettings, Gradients, LossSettings, Losses, PairSample, batch_loss, batch_objective};
 
 /// A small model (16 points per patch, the default widths and head) and a batch of `pairs` random pairs whose
@@ -89,19 +90,8 @@ pub fn device_step_applies_adamw_and_refreshes_the_forward_weights() {
     trainer.step(&g, &batch).unwrap();
     assert_eq!(trainer.steps(), 1);
 
-    let mut want = weights.clone();
-    let mut want_adam = adam.clone();
-    let mut params: Vec<dpr_gpu::train::adam::Param<'_>> = Vec::new();
-    let specs = tensor_specs(&weights.config);
-    let mut tensors: Vec<(&String, &mut Vec<f32>)> = want.tensors.iter_mut().collect();
-    tensors.sort_by_key(|(name, _)| specs.iter().position(|(n, _)| n == *name).unwrap());
-    for (k, (name, value)) in tensors.into_iter().enumerate() {
-        let layer = &grads.layers[k / 2];
-        let grad = if k % 2 == 0 { &layer.weight } else { &layer.bias };
-        params.push(dpr_gpu::train::adam::Param { value, grad, decay: name.ends_with(".weight") });
-    }
-    want_adam.step(&mut params).unwrap();
-    drop(params);
+    let (mut want, mut want_adam) = (weights.clone(), adam.clone());
+    apply_gradients(&mut want, &mut want_adam, &grads).unwrap();
     let got = trainer.weights(&g).unwrap();
     let lr = adam.settings.lr as f32;
     for (name, w) in &want.tensors {
