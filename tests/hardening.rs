@@ -6,6 +6,7 @@ mod common;
 
 use common::{room_corner, room_pair, temp_dir};
 use dpr_gpu::io::{LoadOptions, read_cloud, write_ply};
+use dpr_gpu::model::Weights;
 use dpr_gpu::pose::rotation_error_deg;
 use dpr_gpu::{PointCloud, RegistrationSettings};
 use nalgebra::{Matrix4, Vector3};
@@ -308,6 +309,29 @@ fn train_outputs_never_replace_dataset_files_and_the_log_appends() {
     let lines: Vec<String> = std::fs::read_to_string(&log).unwrap().lines().map(String::from).collect();
     assert_eq!(lines[..2], ["step,total,rec,pose,feat,lr,seconds", "0,earlier run"]);
     assert!(lines.len() == 3 && lines[2].starts_with("1,"), "{lines:?}");
+}
+
+#[test]
+fn train_max_seconds_stops_early_saves_everything_and_the_run_resumes() {
+    let dir = temp_dir("hard-train-time");
+    let data = tiny_dataset(&dir);
+    let (out, log) = (dir.join("w.safetensors"), dir.join("losses.csv"));
+    let small = ["--points", "8", "--grid", "3", "--batch", "2", "--voxel", "0.03", "--checkpoint-every", "0"];
+    let args = [&["train", "--data", s(&data), "--out", s(&out), "--log", s(&log)], &small[..]].concat();
+    // Far more steps than a second allows: the limit ends the run, which still writes its outputs.
+    let o = dpr(&[&args[..], &["--steps", "100000000", "--max-seconds", "1"]].concat());
+    assert!(o.status.success(), "{:?}", text(&o));
+    let steps: u64 = Weights::load(&out).unwrap().notes["dpr_gpu.train.steps"].parse().unwrap();
+    assert!((1..100_000_000).contains(&steps), "{steps} steps");
+    let rows = std::fs::read_to_string(&log).unwrap().lines().count();
+    assert_eq!(rows as u64, steps + 1, "one log row per step, and the header");
+    // The checkpoint holds the last step: resuming runs exactly the steps left.
+    let ckpt = dir.join("w.ckpt.safetensors");
+    let more = (steps + 2).to_string();
+    let o = dpr(&["train", "--resume", s(&ckpt), "--out", s(&out), "--log", s(&log), "--steps", &more]);
+    assert!(o.status.success(), "{:?}", text(&o));
+    assert_eq!(Weights::load(&out).unwrap().notes["dpr_gpu.train.steps"], more);
+    assert_eq!(std::fs::read_to_string(&log).unwrap().lines().count() as u64, steps + 3);
 }
 
 // ------------------------------------------------------------------------------ 4. awkward input

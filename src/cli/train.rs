@@ -132,6 +132,10 @@ pub struct Args {
     /// Continue the run saved in this checkpoint, exactly where it stopped.
     #[arg(long)]
     pub resume: Option<PathBuf>,
+    /// Stop after this many seconds of training (at the end of the step that passes it), then save the
+    /// checkpoint and the weights as at the last step: a run that must fit a time slot (0: no limit).
+    #[arg(long, default_value_t = 0)]
+    pub max_seconds: u64,
     /// Where the steps run: cpu (the reference trainer) or gpu (`gpu::train::DeviceTrainer`: the batch's
     /// activations, gradients, optimiser moments and weights stay on the device; f32 GEMM; any adapter). The
     /// sampling, checkpoints and logs are the same; `--pose-trains-ppf` is CPU-only.
@@ -411,6 +415,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             m.total, m.rec, m.pose, m.feat, m.contrast
         ));
         bar.set_position(step);
+        let out_of_time = args.max_seconds > 0 && clock.elapsed().as_secs() >= args.max_seconds;
+        if out_of_time {
+            eprintln!("--max-seconds {}: stopping at step {step}", args.max_seconds);
+            break;
+        }
         if args.checkpoint_every > 0 && step % args.checkpoint_every == 0 {
             if let Some(d) = &device {
                 d.sync(&mut trainer)?;
