@@ -1,7 +1,8 @@
 #!/bin/bash
-# Packs what benches/device/check.sh needs on a GPU machine that has no Rust toolchain: the release binary and
-# the GPU parity test binary (stripped, xz), and the Vulkan loader's Debian packages. Run here, in the repository
-# root, then run check.sh there with `.devbin` and `.gl` carried (both are kept out of git by .git/info/exclude).
+# Packs what benches/device/check.sh and train.sh need on a GPU machine that has no Rust toolchain: the release
+# binary and the GPU parity test binary (stripped, xz), and the Vulkan loader's Debian packages. Run here, in the
+# repository root, then run check.sh or train.sh there with `.devbin` and `.gl` carried (both are kept out of git
+# by .git/info/exclude).
 set -euo pipefail
 cd "$(git rev-parse --show-toplevel)"
 grep -qx '/.devbin/' .git/info/exclude 2>/dev/null || echo '/.devbin/' >> .git/info/exclude
@@ -14,7 +15,7 @@ stage=$(mktemp -d)
 cp target/release/dpr-gpu "$test_bin" "$stage/"
 mv "$stage/$(basename "$test_bin")" "$stage/gpu_parity"
 strip "$stage"/*
-mkdir -p .devbin .gl
+rm -rf .devbin; mkdir -p .devbin .gl
 # One xz stream with a 64 MiB dictionary: the weights compiled into both binaries are stored once.
 (cd "$stage" && tar cf - dpr-gpu gpu_parity | xz -9 > "$OLDPWD/.devbin/bins.tar.xz")
 rm -r "$stage"

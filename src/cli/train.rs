@@ -132,8 +132,9 @@ pub struct Args {
     /// Continue the run saved in this checkpoint, exactly where it stopped.
     #[arg(long)]
     pub resume: Option<PathBuf>,
-    /// Stop after this many seconds of training (at the end of the step that passes it), then save the
-    /// checkpoint and the weights as at the last step: a run that must fit a time slot (0: no limit).
+    /// Stop this many seconds after the command started, data preparation included (at the end of the step
+    /// that passes it), then save the checkpoint and the weights as at the last step: a run that must fit a
+    /// time slot (0: no limit).
     #[arg(long, default_value_t = 0)]
     pub max_seconds: u64,
     /// Where the steps run: cpu (the reference trainer) or gpu (`gpu::train::DeviceTrainer`: the batch's
@@ -310,6 +311,7 @@ fn check_train_outputs(args: &Args, ckpt: &Path) -> anyhow::Result<()> {
 
 /// Runs `dpr-gpu train`.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let started = std::time::Instant::now();
     let ckpt = checkpoint_path(&args);
     if args.resume.is_none() && args.init.is_none() {
         model_config(&args)?;
@@ -415,7 +417,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             m.total, m.rec, m.pose, m.feat, m.contrast
         ));
         bar.set_position(step);
-        let out_of_time = args.max_seconds > 0 && clock.elapsed().as_secs() >= args.max_seconds;
+        let out_of_time = args.max_seconds > 0 && started.elapsed().as_secs() >= args.max_seconds;
         if out_of_time {
             eprintln!("--max-seconds {}: stopping at step {step}", args.max_seconds);
             break;

@@ -33,13 +33,12 @@ use super::recorder::Recorder;
 use super::transpose::TransposeParams;
 use super::{Gpu, adam_step, pose_feature};
 use crate::error::{Error, Result};
-use crate::model::params::foldnet_layers;
-use crate::model::{FoldNet, Model, Net, Weights};
+use crate::model::{FoldNet, Model, Weights};
 use crate::train::adam::Adam;
 use crate::train::backward::{Gradients, LayerWeights};
 use crate::train::contrast::hardest_negative_loss;
 use crate::train::loss::{feat_loss, rotation_loss};
-use crate::train::objective::{LossSettings, Losses, PairSample};
+use crate::train::objective::{LossSettings, Losses, PairSample, bases, check_sample};
 use crate::train::trainer::tensor_order;
 
 /// One FoldNet's forward pass over a batch, kept for its backward pass.
@@ -227,14 +226,8 @@ impl DeviceTrainer {
         if batch.is_empty() {
             return Err(Error::invalid("empty training batch"));
         }
-        if let Some(bad) = batch.iter().find(|s| s.ppf.len() != 2 * n * 4 || s.pc.len() != 2 * n * 3) {
-            return Err(Error::invalid(format!(
-                "training pair has {} PPF and {} PC values, expected {} and {} (2 patches of {n} points)",
-                bad.ppf.len(),
-                bad.pc.len(),
-                2 * n * 4,
-                2 * n * 3
-            )));
+        for sample in batch {
+            check_sample(&self.model, sample)?;
         }
         let (pairs, patches) = (batch.len(), 2 * batch.len());
         let scale = 1.0 / pairs as f64;
@@ -323,8 +316,7 @@ impl DeviceTrainer {
             rec.clear(g.raw());
         }
         let layers = self.layers.view();
-        let per_net = foldnet_layers(&self.model.config, Net::Ppf).len();
-        let (pc_base, rel_base) = (per_net, 2 * per_net);
+        let (pc_base, rel_base) = bases(&self.model);
         let (patches, n) = (fwd.patches, self.model.config.points_per_patch);
         let s = self.loss;
         let [ws_ppf, ws_pc, ws_rel] = &mut self.ws;

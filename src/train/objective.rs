@@ -107,13 +107,13 @@ pub struct Losses {
 }
 
 /// Index of the first PC-FoldNet layer and of the first RelativeNet layer in `all_layers` order.
-fn bases(model: &Model) -> (usize, usize) {
+pub(crate) fn bases(model: &Model) -> (usize, usize) {
     let per_net = foldnet_layers(&model.config, Net::Ppf).len();
     (per_net, 2 * per_net)
 }
 
 /// Refuses a pair whose patches do not have the model's number of points.
-fn check_sample(model: &Model, sample: &PairSample) -> Result<()> {
+pub(crate) fn check_sample(model: &Model, sample: &PairSample) -> Result<()> {
     let n = model.config.points_per_patch;
     if sample.ppf.len() != 2 * n * 4 || sample.pc.len() != 2 * n * 3 {
         return Err(Error::invalid(format!(
