@@ -20,7 +20,7 @@ use dpr_gpu::gpu::gemm::GemmVariant;
 use dpr_gpu::gpu::hypotheses::HYPOTHESIS_FLOATS;
 use dpr_gpu::gpu::mutual_knn::K_MAX;
 use dpr_gpu::gpu::testing::gpu_or_skip;
-use dpr_gpu::model::{Model, Net};
+use dpr_gpu::model::{Model, ModelConfig, Net};
 use dpr_gpu::preprocess::GatheredPatches;
 use dpr_gpu::settings::MatchMode;
 use serde_json::Value;
@@ -107,6 +107,15 @@ fn expected_stage_bytes(stage: &str, config: &Value) -> (u64, u64) {
         "score_hypotheses" => (2 * 12 * k * cand + 4 * hf * k * cand, 8 * k * cand),
         // Activations, weights and gradients are uploaded before timing and the gradients stay on the device.
         "encode_backward ppf" => (0, 0),
+        // Per step: both networks' inputs and folding grids, the pose rows, the loss heads' gradients (PPF
+        // codewords, raw rotation outputs) up; the per-patch reconstruction losses, the PPF codewords and the raw
+        // outputs down. The default model's grid and rotation head (the bench's random weights).
+        "train_step" => {
+            let (b, m) = (c("train_pairs"), ModelConfig::default().grid_points() as u64);
+            let width = ModelConfig::default().rotation_output.width() as u64;
+            let up = 2 * b * p * 4 * (4 + 3) + 2 * (2 * b * m * 2 * 4) + 2 * b * 4 + 2 * b * cw * 4 + b * width * 4;
+            (up, 2 * (2 * b * 4) + 2 * b * cw * 4 + b * width * 4)
+        }
         other => panic!("unexpected stage {other}"),
     }
 }
@@ -369,10 +378,12 @@ fn bench_json_on_the_test_adapter_is_consistent() {
             "predict_rotations",
             "hypotheses",
             "score_hypotheses",
-            "encode_backward ppf"
+            "encode_backward ppf",
+            "train_step"
         ]
     );
     assert_eq!(uint(&config["backward_patches"], "backward patches"), 48, "min(keypoints, 128)");
+    assert_eq!(uint(&config["train_pairs"], "train pairs"), 24, "clamp(keypoints / 2, 1, 32)");
     for s in stages {
         let name = s["stage"].as_str().unwrap();
         let flops = s["flops"].as_f64();

@@ -4,13 +4,20 @@
 # sets, default "12 20 16"), continues the default weights on the device (`train --backend gpu`, the recipe's
 # settings, --max-seconds up to EVAL_RESERVE seconds before the end, default 170) and evaluates the result on
 # the GPU: fresh synthetic validation scenes (seed 500, never trained on) and the held-out style (seed 900;
-# EVAL_SCENES scenes each, default 4; BATCH pairs a step, default 32). Back in $OUT: the weights
-# (gpu-run.safetensors), the loss log, the training log, the evals' reports and log.txt. Prepare with
-# benches/device/pack.sh; run from the repository root with `.devbin` and `.gl` carried.
+# EVAL_SCENES scenes each, default 4; BATCH pairs a step, default 32), after the training kernels' parity tests.
+# Back in $OUT: the weights (gpu-run.safetensors), the loss log, the training log, the parity tests' output,
+# the evals' reports and log.txt. Prepare with benches/device/pack.sh; run from the repository root with
+# `.devbin` and `.gl` carried.
 set -u
 DEFAULT_BUDGET=540
 # shellcheck source=benches/device/setup.sh
 source "$(dirname "$0")/setup.sh"
+if [ -z "${BIN:-}" ]; then # the training kernels' parity on this device first (seconds); the run goes on anyway
+    CI=true timeout "$(cap 90)" .devbin/gpu_parity relu_backward group_row_sums max_pool_backward dense_weight_grad \
+        dense_input_grad backward adam_step tape chamfer transpose device_objective device_step device_training \
+        > "$OUT/parity.txt" 2>&1
+    log "training parity rc=$?"; grep -E "FAILED|panicked|test result" "$OUT/parity.txt" >> "$OUT/log.txt"
+fi
 read -r kinect random random2 <<< "${TRAIN_SCENES:-12 20 16}"
 data=/tmp/data/train
 mkdir -p "$data" /tmp/run

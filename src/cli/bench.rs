@@ -20,6 +20,7 @@ use crate::model::{Model, ModelConfig, Net, Weights};
 use crate::preprocess::GatheredPatches;
 use crate::rng::Rng;
 use crate::settings::MatchMode;
+use crate::train::PairSample;
 use crate::{PointCloud, Registrar, RegistrationSettings};
 use anyhow::{Context, bail};
 use rayon::prelude::*;
@@ -119,6 +120,8 @@ pub struct Config {
     pub pair_points: usize,
     /// Patches of the `encode_backward ppf` stage: `min(keypoints, 128)`, a training batch's size.
     pub backward_patches: usize,
+    /// Pairs of the `train_step` batch: `clamp(keypoints / 2, 1, 32)` (32: the trainer's default batch).
+    pub train_pairs: usize,
 }
 
 /// The CPU the reference ran on.
@@ -604,6 +607,11 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
     }
     let backward_patches = k.min(BACKWARD_PATCHES);
     stages.push(measure_encode_backward(args, &weights, &model, &ppf, backward_patches, cpu.is_some(), gpu.as_ref())?);
+    let train_pairs = (k / 2).clamp(1, TRAIN_PAIRS);
+    let batch = train_batch(args.seed, &model, [&ppf, &pc], k, train_pairs);
+    // The weights as the model runs them (`--points` changes no tensor).
+    let train_weights = Weights { config: model.config.clone(), ..weights.clone() };
+    stages.push(measure_train_step(args, &train_weights, &batch, cpu.is_some(), gpu.as_ref())?);
     let (gemm, gemm_unavailable) =
         gemm_variants(args, gpu.as_ref().map(GpuBackend::gpu), use_cpu.then_some(precision), k * p)?;
     let pair = if args.pair_points == 0 {
@@ -626,6 +634,7 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
         peak_tflops: peak,
         pair_points: args.pair_points,
         backward_patches,
+        train_pairs,
     };
     Ok(Report { schema: SCHEMA, config, cpu: cpu_info, gpu: info, stages, gemm, gemm_unavailable, pair })
 }
@@ -679,6 +688,72 @@ fn measure_encode_backward(
             Ok(())
         })?;
         row.gpu = Some(gpu_timing(m, flops, args.peak_tflops));
+    }
+    Ok(row)
+}
+
+/// Pairs of the `train_step` stage at most: the trainer's default batch.
+const TRAIN_PAIRS: usize = 32;
+
+/// A training batch of `pairs` pairs from the synthetic patches (pair i: patches 2i and 2i + 1, mod K), each
+/// labelled with a seeded rotation about z (the angle-bin loss is defined for every pair).
+fn train_batch(seed: u64, model: &Model, [ppf, pc]: [&[f32]; 2], k: usize, pairs: usize) -> Vec<PairSample> {
+    let p = model.config.points_per_patch;
+    let mut rng = Rng::new(seed ^ 0x7472_6169_6e);
+    let patch = |x: &[f32], width: usize, i: usize| x[(i % k) * p * width..][..p * width].to_vec();
+    (0..pairs)
+        .map(|i| {
+            let a = rng.uniform(-std::f64::consts::PI, std::f64::consts::PI);
+            let (c, s) = (a.cos(), a.sin());
+            PairSample {
+                ppf: [patch(ppf, 4, 2 * i), patch(ppf, 4, 2 * i + 1)].concat(),
+                pc: [patch(pc, 3, 2 * i), patch(pc, 3, 2 * i + 1)].concat(),
+                label: [c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0],
+            }
+        })
+        .collect()
+}
+
+/// The training stage `train_step`: one whole step (every loss term of the recipe, contrastive included; the
+/// gradient; AdamW) on `batch`, on the CPU trainer (`batch_objective` + `apply_gradients`) and on the device
+/// (`gpu::train::DeviceTrainer::step`, on an f32 GEMM: a device of its own where the backend's GEMM is not).
+/// Each repetition continues from the last one's weights. The device moves the batch's inputs and the loss
+/// heads' values and gradients per step.
+fn measure_train_step(
+    args: &Args,
+    weights: &Weights,
+    batch: &[PairSample],
+    use_cpu: bool,
+    gpu: Option<&GpuBackend>,
+) -> anyhow::Result<StageReport> {
+    use crate::train::trainer::{apply_gradients, tensor_order};
+    use crate::train::{Adam, AdamSettings, LossSettings, batch_objective};
+    let loss = LossSettings { contrast: true, ..LossSettings::default() };
+    let sizes: Vec<usize> = tensor_order(&weights.config).iter().map(|t| t.1).collect();
+    let adam = Adam::new(AdamSettings::default(), &sizes);
+    let mut row = StageReport { stage: "train_step".into(), flops: None, cpu: None, gpu: None };
+    if use_cpu {
+        let (mut w, mut a) = (weights.clone(), adam.clone());
+        let m = measure(args.repeat, None, || -> anyhow::Result<()> {
+            let (_, grads) = batch_objective(&w, batch, &loss)?;
+            apply_gradients(&mut w, &mut a, &grads)?;
+            Ok(())
+        })?;
+        row.cpu = Some(cpu_timing(m, None));
+    }
+    if let Some(backend) = gpu {
+        let own;
+        let g = if backend.gpu().gemm_variant().is_f32() {
+            backend.gpu()
+        } else {
+            let mut f32_gpu = Gpu::new().context("train_step: a device on an f32 GEMM")?;
+            f32_gpu.set_gemm_variant(GemmVariant::Fast)?;
+            own = f32_gpu;
+            &own
+        };
+        let mut trainer = crate::gpu::train::DeviceTrainer::new(g, weights, loss, &adam)?;
+        let m = measure(args.repeat, Some(g), || trainer.step(g, batch).map(drop).map_err(Into::into))?;
+        row.gpu = Some(gpu_timing(m, None, args.peak_tflops));
     }
     Ok(row)
 }
