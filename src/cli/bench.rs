@@ -699,7 +699,7 @@ const TRAIN_PAIRS: usize = 32;
 /// labelled with a seeded rotation about z (the angle-bin loss is defined for every pair).
 fn train_batch(seed: u64, model: &Model, [ppf, pc]: [&[f32]; 2], k: usize, pairs: usize) -> Vec<PairSample> {
     let p = model.config.points_per_patch;
-    let mut rng = Rng::new(seed ^ 0x7472_6169_6e);
+    let mut rng = Rng::new(seed ^ 0x0074_7261_696e);
     let patch = |x: &[f32], width: usize, i: usize| x[(i % k) * p * width..][..p * width].to_vec();
     (0..pairs)
         .map(|i| {
