@@ -9,7 +9,8 @@
 //! host evaluates those heads with the CPU trainer's own functions (pose, feature-consistency and contrastive
 //! losses: a few thousand values) and uploads their gradients; the second submission runs every backward pass
 //! ([`super::backward`]), the optimiser ([`super::adam_step`]) and refreshes each forward weight
-//! ([`super::transpose`]). A step whose loss is not finite changes nothing.
+//! ([`super::transpose`]) without waiting: the host samples the next batch meanwhile. A step whose loss is not
+//! finite changes nothing.
 //!
 //! A batch holds each pair's source and target patch side by side (patch `2i` and `2i + 1`), as the CPU trainer
 //! encodes them, so the pose features of pair `i` are rows `2i, 2i + 1` of one buffer, which RelativeNet reads
@@ -29,7 +30,7 @@ use super::nets::{
     EncodeOutputs, FOLD_NAMES, GpuFoldNet, GpuLinear, GpuModel, HEAD_NAMES, Outputs, RELATIVE_NAMES,
     record_decode_outputs, record_encode_outputs, record_relative_outputs,
 };
-use super::recorder::Recorder;
+use super::recorder::{Pending, Recorder};
 use super::transpose::TransposeParams;
 use super::{Gpu, adam_step, pose_feature};
 use crate::error::{Error, Result};
@@ -78,6 +79,9 @@ pub struct DeviceTrainer {
     moments: Vec<[GpuBuffer<f32>; 2]>,
     /// Scratch per network: the two FoldNets' tapes use the same buffer names.
     ws: [Workspace; 3],
+    /// The last step's backward pass and update, submitted without waiting (the host samples the next batch
+    /// meanwhile); waited for when the next step starts, which collects its errors and device time.
+    in_flight: Option<Pending>,
 }
 
 /// The forward layers in `all_layers` order.
@@ -114,7 +118,7 @@ impl DeviceTrainer {
         let up = |v: &[f32]| GpuBuffer::from_slice(ctx, "adam moment", v);
         let moments = adam.m.iter().zip(&adam.v).map(|(m, v)| Ok([up(m)?, up(v)?])).collect::<Result<_>>()?;
         let adam = Adam { settings: adam.settings, steps: adam.steps, m: Vec::new(), v: Vec::new() };
-        Ok(DeviceTrainer { model, loss, forward, layers, adam, moments, ws: Default::default() })
+        Ok(DeviceTrainer { model, loss, forward, layers, adam, moments, ws: Default::default(), in_flight: None })
     }
 
     /// Optimiser steps taken.
@@ -152,7 +156,7 @@ impl DeviceTrainer {
         let mut rec = Recorder::new(gpu, "train step");
         self.record_backward(&mut rec, &fwd)?;
         self.record_update(&mut rec)?;
-        rec.finish()?;
+        self.in_flight = Some(rec.submit()?);
         Ok(fwd.losses)
     }
 
@@ -221,6 +225,9 @@ impl DeviceTrainer {
 
     /// The first submission (see the module docs) and the host's loss heads.
     fn record_forward(&mut self, gpu: &Gpu, batch: &[PairSample]) -> Result<Forward> {
+        if let Some(last) = self.in_flight.take() {
+            last.wait(gpu)?;
+        }
         let config = &self.model.config;
         let n = config.points_per_patch;
         if batch.is_empty() {
