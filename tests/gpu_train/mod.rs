@@ -59,7 +59,8 @@ pub const TESTS: &[(&str, fn())] = &[
         "relative_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass",
         tapes::relative_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass,
     ),
-    ("chamfer_kernels_match_cpu_on_both_branches", chamfer::chamfer_kernels_match_cpu_on_both_branches),
+    ("chamfer_nearest_matches_cpu_up_to_near_ties", chamfer::chamfer_nearest_matches_cpu_up_to_near_ties),
+    ("chamfer_grad_matches_cpu_on_both_branches", chamfer::chamfer_grad_matches_cpu_on_both_branches),
     ("transpose_matches_cpu_exactly", transpose_matches_cpu_exactly),
     ("device_objective_matches_the_cpu_trainer", trainer::device_objective_matches_the_cpu_trainer),
     (
