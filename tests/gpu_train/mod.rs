@@ -68,6 +68,10 @@ pub const TESTS: &[(&str, fn())] = &[
         trainer::device_step_applies_adamw_and_refreshes_the_forward_weights,
     ),
     ("device_training_resumes_bit_for_bit", trainer::device_training_resumes_bit_for_bit),
+    (
+        "train_cli_on_the_device_matches_the_cpu_and_resumes",
+        trainer::train_cli_on_the_device_matches_the_cpu_and_resumes,
+    ),
 ];
 
 /// The transpose (a refreshed forward weight) against its twin, bit for bit, over ragged shapes past a

@@ -137,3 +137,59 @@ pub fn device_training_resumes_bit_for_bit() {
     assert_eq!(resumed.weights(&g).unwrap().tensors, straight.weights(&g).unwrap().tensors, "weights differ");
     assert_eq!(resumed.adam(&g).unwrap(), straight.adam(&g).unwrap(), "optimiser state differs");
 }
+
+/// `dpr-gpu` with `args` (the test process's environment: the test adapter); asserts it succeeded.
+fn dpr(what: &str, args: &[&str]) {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_dpr-gpu")).args(args).output().expect("binary runs");
+    assert!(o.status.success(), "{what}: {}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// The CLI's `train --backend gpu` on a generated dataset (the glue: sampling through the CPU trainer, the device
+/// steps, the state read back for checkpoints and the output): its per-step losses match `--backend cpu`'s
+/// within f32 rounding, and a device run checkpointed at step 2 and resumed to 4 writes the same weight bytes as
+/// a straight 4-step device run.
+pub fn train_cli_on_the_device_matches_the_cpu_and_resumes() {
+    let Some(_g) = f32_gemm_gpu() else { return };
+    let dir = crate::common::temp_dir("gpu-train-cli");
+    let path = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let data = path("data");
+    dpr("synth", &["synth", &data, "--fragments", "3", "--frames", "4", "--width", "64", "--seed", "4"]);
+    let train = |what: &str, extra: &[&str]| {
+        let small = ["--points", "16", "--grid", "3", "--batch", "2", "--voxel", "0.03", "--seed", "3"];
+        let weights = ["--lambda-contrast", "1", "--lr-decay-every", "2"];
+        dpr(what, &[&["train", "--data", &data][..], &small, &weights, extra].concat());
+    };
+    let (cpu_out, cpu_log) = (path("cpu.safetensors"), path("cpu.csv"));
+    train("cpu run", &["--out", &cpu_out, "--log", &cpu_log, "--steps", "4"]);
+    let (gpu_out, gpu_log) = (path("gpu.safetensors"), path("gpu.csv"));
+    train("gpu run", &["--backend", "gpu", "--out", &gpu_out, "--log", &gpu_log, "--steps", "4"]);
+    let rows = |f: &str| -> Vec<Vec<f64>> {
+        let text = std::fs::read_to_string(f).unwrap();
+        text.lines().skip(1).map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect()
+    };
+    let (cpu, gpu) = (rows(&cpu_log), rows(&gpu_log));
+    assert!(cpu.len() == 4 && gpu.len() == 4, "one row per step: {} and {}", cpu.len(), gpu.len());
+    for (c, g) in cpu.iter().zip(&gpu) {
+        // step, total, rec, pose, feat, lr, seconds, contrast: all but the time.
+        for k in [0, 1, 2, 3, 4, 5, 7] {
+            let close = (c[k] - g[k]).abs() <= 1e-4 * c[k].abs().max(1.0);
+            assert!(close, "step {}, column {k}: cpu {} vs gpu {}", c[0], c[k], g[k]);
+        }
+    }
+    let (half_out, half_ckpt, resumed) = (path("half.safetensors"), path("half.ckpt"), path("resumed.safetensors"));
+    train("gpu run to step 2", &["--backend", "gpu", "--out", &half_out, "--checkpoint", &half_ckpt, "--steps", "2"]);
+    let resume = ["train", "--resume", &half_ckpt, "--out", &resumed, "--steps", "4", "--backend", "gpu"];
+    dpr("resumed gpu run", &resume);
+    let tensors = |f: &str| Weights::load(std::path::Path::new(f)).unwrap().tensors;
+    assert_eq!(tensors(&resumed), tensors(&gpu_out), "resuming on the device changed the run");
+    // The device run's output is its trained weights: as far from the CPU run's as f32 rounding takes them, a
+    // small fraction of how far both moved from the start.
+    let init = path("init.safetensors");
+    train("initial weights", &["--out", &init, "--steps", "0"]);
+    let distance = |a: &str, b: &str| -> f64 {
+        let (a, b) = (tensors(a), tensors(b));
+        a.iter().map(|(name, x)| x.iter().zip(&b[name]).map(|(u, v)| f64::from((u - v).abs())).sum::<f64>()).sum()
+    };
+    let (moved, apart) = (distance(&cpu_out, &init), distance(&gpu_out, &cpu_out));
+    assert!(moved > 0.0 && apart < 0.05 * moved, "device and CPU runs {apart} apart, moved {moved}");
+}
