@@ -138,9 +138,20 @@ pub fn device_training_resumes_bit_for_bit() {
     assert_eq!(resumed.adam(&g).unwrap(), straight.adam(&g).unwrap(), "optimiser state differs");
 }
 
+/// The `dpr-gpu` binary: Cargo's build of it, or (where the test binary was carried to another machine, as
+/// `benches/device/pack.sh` does) the one beside the test binary.
+fn binary() -> std::path::PathBuf {
+    let built = std::path::PathBuf::from(env!("CARGO_BIN_EXE_dpr-gpu"));
+    if built.exists() {
+        return built;
+    }
+    let exe = std::env::current_exe().expect("the test binary's path");
+    exe.parent().expect("the test binary's folder").join("dpr-gpu")
+}
+
 /// `dpr-gpu` with `args` (the test process's environment: the test adapter); asserts it succeeded.
 fn dpr(what: &str, args: &[&str]) {
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_dpr-gpu")).args(args).output().expect("binary runs");
+    let o = std::process::Command::new(binary()).args(args).output().expect("binary runs");
     assert!(o.status.success(), "{what}: {}", String::from_utf8_lossy(&o.stderr));
 }
 
