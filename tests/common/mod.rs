@@ -25,10 +25,12 @@ impl AsRef<Path> for TestDir {
     }
 }
 
-/// A new [`TestDir`] whose name starts with `name`.
+/// A new [`TestDir`] whose name starts with `name` (in the system's temp folder where Cargo's is missing: a test
+/// binary carried to another machine, as `benches/device/pack.sh` does).
 pub fn temp_dir(name: &str) -> TestDir {
-    let dir = tempfile::Builder::new().prefix(&format!("{name}-")).tempdir_in(env!("CARGO_TARGET_TMPDIR"));
-    TestDir(dir.unwrap())
+    let cargo = Path::new(env!("CARGO_TARGET_TMPDIR"));
+    let parent = if cargo.is_dir() { cargo.to_path_buf() } else { std::env::temp_dir() };
+    TestDir(tempfile::Builder::new().prefix(&format!("{name}-")).tempdir_in(parent).unwrap())
 }
 
 /// `n` points sampled uniformly (by count per part) from a small room corner: floor, two walls, a box, a sphere
