@@ -92,7 +92,9 @@ pub fn encode_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass() {
 }
 
 /// PC-FoldNet's decoder on the device with both folds kept: every layer's output matches the CPU tape, and the
-/// decoder's backward pass from the device tape (layer gradients, codeword gradient) matches the CPU trainer's.
+/// decoder's backward pass from the device tape (both folds: the codeword shared by the grid, the first fold's
+/// output feeding the second) matches the CPU trainer's: every fold layer's gradient, and the codeword gradient
+/// added to a nonzero start.
 pub fn decode_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass() {
     let Some(g) = f32_gemm_gpu() else { return };
     let s = seed(151);
@@ -111,7 +113,9 @@ pub fn decode_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass() {
     let w = LayerWeights::new(&weights).unwrap();
     let layers = DeviceLayerBuffers::upload(ctx, &w).unwrap();
     let (code, grid, d_recon_b) = (up(&codewords), up(&net.tiled_grid(patches)), up(&d_recon));
-    let d_code = up(&vec![0.0; codewords.len()]);
+    // The codeword gradient is added to what the buffer holds: a nonzero start.
+    let d_code_start = normals(&mut rng, codewords.len());
+    let d_code = up(&d_code_start);
     let mut ws = Workspace::default();
     let mut rec = Recorder::new(&g, "decode tape test");
     let kept = [Outputs::Kept(&FOLD_NAMES[0]), Outputs::Kept(&FOLD_NAMES[1])];
@@ -133,7 +137,7 @@ pub fn decode_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass() {
     assert_activations("decode tape, first fold", s, &got.fold1, &want.fold1);
     assert_activations("decode tape, second fold", s, &got.fold2, &want.fold2);
     let mut want_grads = Gradients::zeros(&weights.config);
-    let mut want_d_code = vec![0.0; codewords.len()];
+    let mut want_d_code = d_code_start.clone();
     decode_backward(net, &w, base, &codewords, &got, d_recon, &mut want_d_code, &mut want_grads);
     let folds = base + net.encoder.len() + net.head.len();
     let touched = folds..folds + net.fold1.len() + net.fold2.len();
