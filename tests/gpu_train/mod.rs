@@ -468,19 +468,40 @@ fn encode_backward_on_the_device_matches_the_cpu_trainer() {
     assert_gradients("encode backward", s, &bytes, &reads, &want, 0..net.encoder.len() + net.head.len());
 }
 
-/// RelativeNet's backward pass on the device against the CPU trainer's `relative_backward`: every layer's
-/// gradient and the gradients w.r.t. the source and target features.
-fn relative_backward_on_the_device_matches_the_cpu_trainer() {
-    let Some(g) = gpu() else { return };
-    let s = seed(149);
+/// A small model and 7 rows of random source and target features with a random gradient of RelativeNet's raw
+/// outputs, for the RelativeNet tests.
+struct RelativeCase {
+    weights: Weights,
+    model: Model,
+    /// RelativeNet's first layer in `all_layers` order.
+    base: usize,
+    rows: usize,
+    /// Features per side.
+    f: usize,
+    source: Vec<f32>,
+    target: Vec<f32>,
+    d_raw: Vec<f32>,
+}
+
+fn relative_case(s: u64) -> RelativeCase {
     let mut rng = Rng::new(s);
     let (weights, model) = small_model(s);
     let net = &model.relative;
     let base = all_layers(&weights.config).iter().position(|l| l.name.starts_with("relative")).unwrap();
     let (rows, f) = (7, net.layers[0].in_dim / 2);
     let (source, target) = (normals(&mut rng, rows * f), normals(&mut rng, rows * f));
+    let d_raw = normals(&mut rng, rows * net.layers.last().unwrap().out_dim);
+    RelativeCase { weights, model, base, rows, f, source, target, d_raw }
+}
+
+/// RelativeNet's backward pass on the device against the CPU trainer's `relative_backward`: every layer's
+/// gradient and the gradients w.r.t. the source and target features.
+fn relative_backward_on_the_device_matches_the_cpu_trainer() {
+    let Some(g) = gpu() else { return };
+    let s = seed(149);
+    let RelativeCase { weights, model, base, rows, f, source, target, d_raw } = relative_case(s);
+    let net = &model.relative;
     let outs = net.forward_tape(&source, &target, rows);
-    let d_raw = normals(&mut rng, outs.last().unwrap().len());
     let w = LayerWeights::new(&weights).unwrap();
     let mut want = Gradients::zeros(&weights.config);
     let (want_ds, want_dt) = relative_backward(net, &w, base, &source, &target, rows, &outs, d_raw.clone(), &mut want);

@@ -4,7 +4,7 @@
 //! it routes (a max-pool's argmax is decided by the device's own activations on both sides), so the test checks
 //! that the kept buffers are the tape the backward pass expects, not how two summation orders break ties.
 
-use super::{assert_gradients, read_gradients, small_model};
+use super::{RelativeCase, assert_gradients, read_gradients, relative_case, small_model};
 use crate::{NETWORK_RTOL, assert_close, f32_gemm_gpu, normals, seed};
 use dpr_gpu::gpu::backward::{
     DeviceDecodeTape, DeviceEncodeTape, DeviceLayerBuffers, DeviceSlice, record_decode_backward,
@@ -153,14 +153,9 @@ pub fn decode_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass() {
 pub fn relative_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass() {
     let Some(g) = f32_gemm_gpu() else { return };
     let s = seed(152);
-    let mut rng = Rng::new(s);
-    let (weights, model) = small_model(s);
+    let RelativeCase { weights, model, base, rows, f, source, target, d_raw } = relative_case(s);
     let net = &model.relative;
-    let base = all_layers(&weights.config).iter().position(|l| l.name.starts_with("relative")).unwrap();
-    let (rows, f) = (7, net.layers[0].in_dim / 2);
-    let (source, target) = (normals(&mut rng, rows * f), normals(&mut rng, rows * f));
     let want = net.forward_tape(&source, &target, rows);
-    let d_raw = normals(&mut rng, want.last().unwrap().len());
 
     let ctx = &g.context;
     let up = |v: &[f32]| GpuBuffer::from_slice(ctx, "relative tape test", v).unwrap();
