@@ -6,8 +6,8 @@
 # gpu`, --max-seconds up to EVAL_RESERVE seconds before the end, default 200; BATCH pairs a step, default 32),
 # and GPU evals of the result: the repetition tuning set (seed 710, never trained on) and the held-out halls
 # (seed 900; reported, never chosen on), EVAL_SCENES scenes each (default 4). Back in $OUT: the weights
-# (gpu-run.safetensors), the loss log, the training log, the parity tests' output, the evals' reports and
-# log.txt. Prepare with benches/device/pack.sh; run from the repository root with `.devbin` and `.gl` carried.
+# (gpu-run.safetensors), the loss log, the training log, the parity tests' output, the bench (its train_step
+# stage: a step's cost at the recipe's size), the evals' reports and log.txt. Prepare with benches/device/pack.sh; run from the repository root with `.devbin` and `.gl` carried.
 set -u
 DEFAULT_BUDGET=560
 # shellcheck source=benches/device/setup.sh
@@ -18,6 +18,9 @@ if [ -z "${BIN:-}" ]; then # the training kernels' parity on this device first (
         > "$OUT/parity.txt" 2>&1
     log "training parity rc=$?"; grep -E "FAILED|panicked|test result" "$OUT/parity.txt" >> "$OUT/log.txt"
 fi
+# The step's cost in steady state at the recipe's size (`train_step`: 32 pairs x 256 points), CPU beside it.
+timeout "$(cap 90)" $bin bench --json --keypoints 64 --points 256 --pair-points 0 > "$OUT/bench_train.json"
+log "bench (train_step) rc=$?"
 read -r kinect random repeated <<< "${TRAIN_SCENES:-12 20 16}"
 data=/tmp/data/train
 mkdir -p "$data" /tmp/run
