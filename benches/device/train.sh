@@ -7,7 +7,8 @@
 # and GPU evals of the result: the repetition tuning set (seed 710, never trained on) and the held-out halls
 # (seed 900; reported, never chosen on), EVAL_SCENES scenes each (default 4). Back in $OUT: the weights
 # (gpu-run.safetensors), the loss log, the training log, the parity tests' output, the bench (its train_step
-# stage: a step's cost at the recipe's size), the evals' reports and log.txt. Prepare with benches/device/pack.sh; run from the repository root with `.devbin` and `.gl` carried.
+# stage: a step's cost at the recipe's size), the evals' reports and log.txt. Prepare with
+# benches/device/pack.sh; run from the repository root with `.devbin` and `.gl` carried.
 set -u
 DEFAULT_BUDGET=560
 # shellcheck source=benches/device/setup.sh
