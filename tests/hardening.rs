@@ -334,6 +334,24 @@ fn train_max_seconds_stops_early_saves_everything_and_the_run_resumes() {
     assert_eq!(std::fs::read_to_string(&log).unwrap().lines().count() as u64, steps + 3);
 }
 
+#[test]
+fn train_on_the_gpu_backend_fails_cleanly_without_a_device_or_with_a_cpu_only_option() {
+    let dir = temp_dir("hard-train-gpu");
+    let data = tiny_dataset(&dir);
+    let out = dir.join("w.safetensors");
+    let args = ["train", "--data", s(&data), "--out", s(&out), "--points", "8", "--grid", "3", "--steps", "1"];
+    let gpu = |extra: &[&str]| {
+        // No Metal adapter exists on Linux or Windows.
+        let all = [&args[..], &["--backend", "gpu"], extra].concat();
+        Command::new(env!("CARGO_BIN_EXE_dpr-gpu")).args(all).env("DPR_GPU_BACKEND", "metal").output().unwrap()
+    };
+    if !cfg!(target_os = "macos") {
+        assert_clean_failure(&gpu(&[]), &["--backend gpu", "adapter"]);
+    }
+    assert_clean_failure(&gpu(&["--pose-trains-ppf"]), &["--pose-trains-ppf", "CPU trainer only"]);
+    assert!(!out.exists(), "a failed run wrote its output");
+}
+
 // ------------------------------------------------------------------------------ 4. awkward input
 
 #[test]

@@ -370,6 +370,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         eprintln!("wrote {} from the checkpoint at step {start}", args.out.display());
         return Ok(());
     }
+    // The device first: a run that cannot have it fails before preparing the data.
+    let mut device = match args.backend.as_str() {
+        "gpu" => Some(DeviceRun::new(&trainer)?),
+        _ => None,
+    };
     let sampler = trainer.sampler_mut();
     eprintln!("preparing {} fragments of {} pairs...", sampler.fragment_count(), sampler.pair_count());
     let usable = sampler.preload()?;
@@ -388,10 +393,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .context("progress style")?
             .progress_chars("=> "),
     );
-    let mut device = match args.backend.as_str() {
-        "gpu" => Some(DeviceRun::new(&trainer)?),
-        _ => None,
-    };
     let clock = std::time::Instant::now();
     let mut recent: Vec<Losses> = Vec::new();
     while trainer.step_count() < args.steps {
@@ -469,6 +470,9 @@ impl DeviceRun {
     /// Any adapter (the user asked for the GPU backend), on an f32 GEMM, starting from `trainer`'s state.
     fn new(trainer: &Trainer) -> anyhow::Result<DeviceRun> {
         use crate::gpu::{Gpu, context::AdapterPolicy, gemm::GemmVariant};
+        if trainer.settings().loss.pose_trains_ppf {
+            bail!("--pose-trains-ppf runs on the CPU trainer only (drop --backend gpu)");
+        }
         let mut gpu = Gpu::with_policy(AdapterPolicy::Any).context("--backend gpu: creating the device")?;
         if !gpu.gemm_variant().is_f32() {
             gpu.set_gemm_variant(GemmVariant::Fast)?;
