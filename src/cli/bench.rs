@@ -746,9 +746,7 @@ fn measure_train_step(
         let g = if backend.gpu().gemm_variant().is_f32() {
             backend.gpu()
         } else {
-            let mut f32_gpu = Gpu::new().context("train_step: a device on an f32 GEMM")?;
-            f32_gpu.set_gemm_variant(GemmVariant::Fast)?;
-            own = f32_gpu;
+            own = crate::gpu::train::training_gpu().context("train_step: a device on an f32 GEMM")?;
             &own
         };
         let mut trainer = crate::gpu::train::DeviceTrainer::new(g, weights, loss, &adam)?;

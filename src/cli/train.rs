@@ -469,14 +469,10 @@ struct DeviceRun {
 impl DeviceRun {
     /// Any adapter (the user asked for the GPU backend), on an f32 GEMM, starting from `trainer`'s state.
     fn new(trainer: &Trainer) -> anyhow::Result<DeviceRun> {
-        use crate::gpu::{Gpu, context::AdapterPolicy, gemm::GemmVariant};
         if trainer.settings().loss.pose_trains_ppf {
             bail!("--pose-trains-ppf runs on the CPU trainer only (drop --backend gpu)");
         }
-        let mut gpu = Gpu::with_policy(AdapterPolicy::Any).context("--backend gpu: creating the device")?;
-        if !gpu.gemm_variant().is_f32() {
-            gpu.set_gemm_variant(GemmVariant::Fast)?;
-        }
+        let gpu = crate::gpu::train::training_gpu().context("--backend gpu: creating the device")?;
         eprintln!("training on {}", gpu.adapter_info());
         let settings = trainer.settings();
         let device = crate::gpu::train::DeviceTrainer::new(&gpu, trainer.weights(), settings.loss, trainer.adam())?;

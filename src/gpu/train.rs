@@ -39,7 +39,7 @@ use crate::train::adam::Adam;
 use crate::train::backward::{Gradients, LayerWeights};
 use crate::train::contrast::hardest_negative_loss;
 use crate::train::loss::{feat_loss, rotation_loss};
-use crate::train::objective::{LossSettings, Losses, PairSample, bases, check_sample};
+use crate::train::objective::{LossSettings, Losses, PairSample, add_contrast, bases, check_sample};
 use crate::train::trainer::tensor_order;
 
 /// One FoldNet's forward pass over a batch, kept for its backward pass.
@@ -82,6 +82,16 @@ pub struct DeviceTrainer {
     /// The last step's backward pass and update, submitted without waiting (the host samples the next batch
     /// meanwhile); waited for when the next step starts, which collects its errors and device time.
     in_flight: Option<Pending>,
+}
+
+/// A device for training: any adapter the environment allows, its dense layers on an f32 GEMM (the `fast`
+/// one where the device's default is the f16 tensor-core GEMM).
+pub fn training_gpu() -> Result<Gpu> {
+    let mut gpu = Gpu::with_policy(super::context::AdapterPolicy::Any)?;
+    if !gpu.gemm_variant().is_f32() {
+        gpu.set_gemm_variant(super::gemm::GemmVariant::Fast)?;
+    }
+    Ok(gpu)
 }
 
 /// The forward layers in `all_layers` order.
@@ -169,12 +179,12 @@ impl DeviceTrainer {
             .collect();
         let bytes = rec.finish()?;
         let config = self.model.config.clone();
-        let mut weights = Weights::init(&config, 0)?;
+        let mut tensors = std::collections::BTreeMap::new();
         for (spec, [w, b]) in crate::model::params::all_layers(&config).iter().zip(reads) {
-            weights.tensors.insert(format!("{}.weight", spec.name), bytemuck::pod_collect_to_vec(&bytes[w]));
-            weights.tensors.insert(format!("{}.bias", spec.name), bytemuck::pod_collect_to_vec(&bytes[b]));
+            tensors.insert(format!("{}.weight", spec.name), bytemuck::pod_collect_to_vec(&bytes[w]));
+            tensors.insert(format!("{}.bias", spec.name), bytemuck::pod_collect_to_vec(&bytes[b]));
         }
-        Ok(weights)
+        Ok(Weights { config, tensors, notes: Default::default() })
     }
 
     /// The optimiser state as it is now (read back), for a checkpoint.
@@ -291,12 +301,13 @@ impl DeviceTrainer {
                 }
             }
         }
+        let mut contrast = 0.0;
         if s.contrast && pairs >= 2 {
             let side = |p: usize| -> Vec<f32> {
                 (0..pairs).flat_map(|i| ppf_cw[(2 * i + p) * cw..][..cw].iter().copied()).collect()
             };
             let (value, d_source, d_target) = hardest_negative_loss(&side(0), &side(1), cw, s.contrast_margin);
-            losses.contrast = value;
+            contrast = value;
             let kc = s.lambda_contrast as f32;
             for i in 0..pairs {
                 for (p, d) in [(0, &d_source), (1, &d_target)] {
@@ -305,13 +316,8 @@ impl DeviceTrainer {
                 }
             }
         }
-        losses.total =
-            [(s.rec, 1.0, losses.rec), (s.pose, s.lambda_pose, losses.pose), (s.feat, s.lambda_feat, losses.feat)]
-                .iter()
-                .filter(|t| t.0)
-                .map(|t| t.1 * t.2)
-                .sum::<f64>()
-                + if s.contrast { s.lambda_contrast * losses.contrast } else { 0.0 };
+        losses.total = s.weighted_total(losses.rec, losses.pose, losses.feat);
+        add_contrast(&mut losses, contrast, &s);
         Ok(Forward { patches, ppf, pc, pose, relative, losses, d_ppf_codewords, d_raw })
     }
 

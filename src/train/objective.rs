@@ -75,6 +75,18 @@ fn default_contrast_margin() -> f64 {
     0.5
 }
 
+impl LossSettings {
+    /// The trained per-pair terms, weighted: `L_rec + lambda1 L_pose + lambda2 L_feat` over the enabled ones
+    /// (the batch's contrastive term is added by the caller).
+    pub fn weighted_total(&self, rec: f64, pose: f64, feat: f64) -> f64 {
+        [(self.rec, 1.0, rec), (self.pose, self.lambda_pose, pose), (self.feat, self.lambda_feat, feat)]
+            .iter()
+            .filter(|t| t.0)
+            .map(|t| t.1 * t.2)
+            .sum()
+    }
+}
+
 impl Default for LossSettings {
     fn default() -> Self {
         LossSettings {
@@ -172,15 +184,7 @@ pub fn sample_objective(
     // Feature consistency on the PPF codewords.
     let (feat, d_fp) = feat_loss(&ppf_e.codeword[..cw], &ppf_e.codeword[cw..]);
 
-    let total = [
-        (settings.rec, 1.0, rec),
-        (settings.pose, settings.lambda_pose, pose),
-        (settings.feat, settings.lambda_feat, feat),
-    ]
-    .iter()
-    .filter(|t| t.0)
-    .map(|t| t.1 * t.2)
-    .sum();
+    let total = settings.weighted_total(rec, pose, feat);
     let losses = Losses { rec, pose, feat, contrast: 0.0, total };
     let Some(grads) = grads else { return Ok(losses) };
 
@@ -332,7 +336,7 @@ impl Losses {
 }
 
 /// Records the batch's contrastive loss, and adds it to the total when it is trained.
-fn add_contrast(losses: &mut Losses, contrast: f64, settings: &LossSettings) {
+pub(crate) fn add_contrast(losses: &mut Losses, contrast: f64, settings: &LossSettings) {
     losses.contrast = contrast;
     if settings.contrast {
         losses.total += settings.lambda_contrast * contrast;
