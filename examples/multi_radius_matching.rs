@@ -3,18 +3,28 @@
 //! dataset `dpr-gpu eval` reads. A measurement tool for weights/README.md ("Matching on codewords at several
 //! radii"), not part of the pipeline.
 //!
-//! cargo run --release --example multi_radius_matching -- DATASET RADII WEIGHTS [KEYPOINTS] [VOXEL] [SCALE]
+//! cargo run --release --example multi_radius_matching -- DATASET RADII WEIGHTS [KEYPOINTS] [VOXEL] [SCALE] [MODEL]
 //!   RADII: comma-separated patch radii (cloud units), e.g. 0.6,0.3,1.2; the first one's keypoints are used
 //!   WEIGHTS: weight sets separated by `;`, one weight per radius, e.g. "1,0,0;1,0,1;1,0.7,0.7"
 //!   KEYPOINTS: keypoints per scan (default 1000); VOXEL: one voxel size for every radius (default 0: keep every
 //!   point, right for files with normals); SCALE: the protocol's distances in the clouds' units, as `eval
-//!   --protocol-scale` (default 1: tau1 = 0.10 m)
+//!   --protocol-scale` (default 1: tau1 = 0.10 m); MODEL: a weights file or a training checkpoint (default: the
+//!   shipped weights)
+//!
+//! Beside each weight set's recall it gives the recall of the pairs grouped by their view angle: the median, over
+//! the source keypoints with a target keypoint within tau1 of their true position, of the angle at that point
+//! between the directions to the two fragments' sensors (each fragment's origin), the viewpoint change a
+//! descriptor must bear (weights/README.md, "Viewpoint change, not repetition").
 use dpr_gpu::eval::dataset::load_dataset;
 use dpr_gpu::eval::metrics::count_feature_inliers;
 use dpr_gpu::eval::score::Thresholds;
 use dpr_gpu::io::{LoadOptions, read_cloud};
+use dpr_gpu::nalgebra::{Matrix4, Vector3};
 use dpr_gpu::{MatchMode, Registrar, RegistrationSettings};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// Upper ends of the view-angle groups, degrees.
+const VIEW_GROUPS: [f64; 4] = [30.0, 60.0, 90.0, 180.0];
 
 /// One scan described at one radius: kept keypoints (ranks in the keypoint order), positions, codewords.
 struct Described {
@@ -56,6 +66,39 @@ fn matching_rows(scan: &[Described], ranks: &[u32], weights: &[f32]) -> (Vec<f32
     (rows, dim)
 }
 
+/// The median view angle (degrees) of a pair: over the source keypoints with a target keypoint within `tau1` of
+/// their true position, the angle there between the directions to the target's sensor (the origin) and the
+/// source's (the source origin mapped); `None` without any such keypoint.
+fn median_view_angle(
+    source: &[[f32; 3]],
+    target: &[[f32; 3]],
+    target_from_source: &Matrix4<f64>,
+    tau1: f64,
+) -> Option<f64> {
+    let v = |p: [f32; 3]| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+    let rotation = target_from_source.fixed_view::<3, 3>(0, 0);
+    let source_sensor = target_from_source.fixed_view::<3, 1>(0, 3).into_owned();
+    let mut angles: Vec<f64> = source
+        .iter()
+        .map(|&p| rotation * v(p) + source_sensor)
+        .filter(|q| target.iter().any(|&t| (v(t) - q).norm() < tau1))
+        .map(|q| (-q).angle(&(source_sensor - q)).to_degrees())
+        .collect();
+    angles.sort_by(f64::total_cmp);
+    angles.get(angles.len() / 2).copied()
+}
+
+/// The weights file to describe with: `model` itself, or a training checkpoint's weights written next to it.
+fn model_file(model: &str) -> Result<PathBuf, Box<dyn std::error::Error>> {
+    if !model.ends_with(".ckpt.safetensors") {
+        return Ok(model.into());
+    }
+    let (_, weights, _) = dpr_gpu::train::checkpoint::read_checkpoint(Path::new(model))?;
+    let path = PathBuf::from(format!("{}.weights.safetensors", model.trim_end_matches(".ckpt.safetensors")));
+    weights.save(&path)?;
+    Ok(path)
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     if args.len() < 3 {
@@ -70,6 +113,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let keypoints: usize = args.get(3).map(|s| s.parse()).transpose()?.unwrap_or(1000);
     let voxel: f32 = args.get(4).map(|s| s.parse()).transpose()?.unwrap_or(0.0);
     let protocol = Thresholds::scaled(args.get(5).map(|s| s.parse()).transpose()?.unwrap_or(1.0));
+    let model = args.get(6).map(|m| model_file(m)).transpose()?;
     let registrars = radii
         .iter()
         .map(|&r| {
@@ -78,6 +122,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 voxel: Some(voxel),
                 keypoints,
                 first_keypoints: None,
+                weights: model.clone(),
                 ..RegistrationSettings::default()
             };
             Registrar::new(&settings)
@@ -86,6 +131,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // Per weight set: matched pairs, pairs, sum of inlier ratios; per scene for the protocol's scene mean.
     let mut scene_recalls = vec![Vec::new(); weight_sets.len()];
     let (mut matched, mut ratio_sum, mut pairs) = (vec![0usize; weight_sets.len()], vec![0f64; weight_sets.len()], 0);
+    // Per view-angle group: pairs, and matched pairs per weight set.
+    let mut group_pairs = [0usize; VIEW_GROUPS.len()];
+    let mut group_matched = vec![[0usize; VIEW_GROUPS.len()]; weight_sets.len()];
     for scene in load_dataset(Path::new(&args[0]))? {
         let mut scans = Vec::new();
         for file in &scene.files {
@@ -107,6 +155,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let (source, target) = (&scans[gt.j], &scans[gt.i]);
             let (source_ranks, target_ranks) = (common_ranks(source), common_ranks(target));
             let position = |scan: &[Described], rank: u32| scan[0].points[scan[0].ranks.binary_search(&rank).unwrap()];
+            let angle = median_view_angle(&source[0].points, &target[0].points, &gt.transform, protocol.tau1);
+            let group = angle.map(|a| VIEW_GROUPS.iter().position(|&end| a < end).unwrap_or(VIEW_GROUPS.len() - 1));
+            if let Some(g) = group {
+                group_pairs[g] += 1;
+            }
             for (k, weights) in weight_sets.iter().enumerate() {
                 let (s, dim) = matching_rows(source, &source_ranks, weights);
                 let (t, _) = matching_rows(target, &target_ranks, weights);
@@ -126,6 +179,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 if ratio > protocol.tau2 {
                     matched[k] += 1;
                     scene_matched[k] += 1;
+                    if let Some(g) = group {
+                        group_matched[k][g] += 1;
+                    }
                 }
             }
             pairs += 1;
@@ -142,6 +198,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             matched[k],
             ratio_sum[k] / pairs.max(1) as f64
         );
+        let mut start = 0.0;
+        for (g, end) in VIEW_GROUPS.iter().enumerate() {
+            println!("  view angle {start}-{end} deg: {} / {} pairs matched", group_matched[k][g], group_pairs[g]);
+            start = *end;
+        }
     }
     Ok(())
 }

@@ -120,6 +120,13 @@ pub struct Args {
     /// a batch are the contrastive loss's hard negatives [default: 1].
     #[arg(long)]
     pub patches_per_pair: Option<usize>,
+    /// Share of the drawn fragment pairs (0..1) that give only wide-view matches: points the two fragments'
+    /// sensors see from directions at least --wide-view-deg apart [default: 0, every match drawn uniformly].
+    #[arg(long)]
+    pub wide_view_share: Option<f64>,
+    /// Smallest angle between the two sensors' view directions of a wide-view match, in degrees [default: 60].
+    #[arg(long)]
+    pub wide_view_deg: Option<f64>,
     /// Start from these weights instead of a random initialisation (their config is used).
     #[arg(long)]
     pub init: Option<PathBuf>,
@@ -196,6 +203,8 @@ fn fresh_settings(args: &Args) -> TrainSettings {
     s.sampling.rotate_source = !args.no_rotate_source;
     s.sampling.max_rotation_deg = args.max_rotation.unwrap_or(s.sampling.max_rotation_deg);
     s.sampling.patches_per_pair = args.patches_per_pair.unwrap_or(s.sampling.patches_per_pair);
+    s.sampling.wide_view_share = args.wide_view_share.unwrap_or(s.sampling.wide_view_share);
+    s.sampling.wide_view_deg = args.wide_view_deg.unwrap_or(s.sampling.wide_view_deg);
     s
 }
 
@@ -233,6 +242,8 @@ fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> an
     check("--no-rotate-source", args.no_rotate_source && s.sampling.rotate_source);
     check("--max-rotation", args.max_rotation.is_some_and(|v| v != s.sampling.max_rotation_deg));
     check("--patches-per-pair", args.patches_per_pair.is_some_and(|v| v != s.sampling.patches_per_pair));
+    check("--wide-view-share", args.wide_view_share.is_some_and(|v| v != s.sampling.wide_view_share));
+    check("--wide-view-deg", args.wide_view_deg.is_some_and(|v| v != s.sampling.wide_view_deg));
     check("--init", args.init.is_some());
     if clashes.is_empty() {
         Ok(())

@@ -10,7 +10,9 @@
 //! usable target point within `match_distance` (the target keypoint is that nearest point).
 //!
 //! A sample draws a pair, a match, two patch seeds and two rotations from the step's random stream, then builds
-//! both patches with `crate::preprocess`. Augmentation rotates the source fragment about the origin by a
+//! both patches with `crate::preprocess`. With `wide_view_share` > 0 that share of the drawn pairs gives only
+//! wide-view matches: correspondences whose two sensors (each fragment's origin) see the point from directions
+//! at least `wide_view_deg` apart, the views that random draws from ordinary trajectories rarely give. Augmentation rotates the source fragment about the origin by a
 //! uniform random rotation R_s (and, when enabled, the target fragment by R_t); the label is the rotation of
 //! the augmented target_from_source, R_t R R_s^T, which is uniform over SO(3) when R_s is. Rotating about the
 //! origin rather than the keypoint only changes the translation, which the centred patch inputs cancel; the
@@ -62,6 +64,14 @@ pub struct DataSettings {
     /// scenes.
     #[serde(default = "one")]
     pub patches_per_pair: usize,
+    /// Share of the drawn fragment pairs (0..=1) whose samples are all wide-view matches (see
+    /// `wide_view_deg`), drawn among the pairs that have some; 0 draws every match uniformly.
+    #[serde(default)]
+    pub wide_view_share: f64,
+    /// A match is wide-view when the directions from its point to the two fragments' sensors (each fragment's
+    /// origin) are at least this many degrees apart.
+    #[serde(default = "sixty")]
+    pub wide_view_deg: f64,
 }
 
 fn full_turn() -> f64 {
@@ -72,9 +82,13 @@ fn one() -> usize {
     1
 }
 
+fn sixty() -> f64 {
+    60.0
+}
+
 impl Default for DataSettings {
     /// 2.5 cm voxels, 30 normal neighbours (as inference), 3 cm matches, at least 32 points per patch,
-    /// source rotation only, uniform over SO(3), one sample per drawn pair.
+    /// source rotation only, uniform over SO(3), one sample per drawn pair, matches drawn uniformly.
     fn default() -> Self {
         DataSettings {
             voxel: 0.025,
@@ -85,6 +99,8 @@ impl Default for DataSettings {
             rotate_target: false,
             max_rotation_deg: 180.0,
             patches_per_pair: 1,
+            wide_view_share: 0.0,
+            wide_view_deg: 60.0,
         }
     }
 }
@@ -167,7 +183,14 @@ impl Fragment {
 }
 
 /// A pair's correspondences: (source point, target point) indices into the prepared fragments.
-type Matches = Arc<Vec<(u32, u32)>>;
+/// A pair's matches (source point, target point) and, when wide-view draws are on, which of them are wide-view.
+struct PairMatches {
+    all: Vec<(u32, u32)>,
+    /// Indices into `all`.
+    wide: Vec<u32>,
+}
+
+type Matches = Arc<PairMatches>;
 
 /// Where one sample comes from: everything random about it, drawn in the sequential phase.
 #[derive(Clone, Copy, Debug)]
@@ -224,6 +247,11 @@ fn squared_distance(a: [f32; 3], b: [f32; 3]) -> f32 {
     (0..3).map(|k| (a[k] - b[k]) * (a[k] - b[k])).sum()
 }
 
+/// The angle (radians) at `point` between the directions to two sensors.
+fn view_angle(point: &Vector3<f64>, sensor_a: &Vector3<f64>, sensor_b: &Vector3<f64>) -> f64 {
+    (sensor_a - point).angle(&(sensor_b - point))
+}
+
 fn rotate(r: &Matrix3<f64>, v: [f32; 3]) -> [f32; 3] {
     let w = r * Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64);
     [w.x as f32, w.y as f32, w.z as f32]
@@ -239,7 +267,10 @@ impl Sampler {
         let match_ok = settings.match_distance.is_finite() && settings.match_distance > 0.0;
         let angle_ok = settings.max_rotation_deg.is_finite() && settings.max_rotation_deg > 0.0;
         let group_ok = (1..=MAX_PATCHES_PER_PAIR).contains(&settings.patches_per_pair);
-        if !(voxel_ok && match_ok && angle_ok && group_ok) {
+        let wide_ok = (0.0..=1.0).contains(&settings.wide_view_share)
+            && settings.wide_view_deg > 0.0
+            && settings.wide_view_deg <= 180.0;
+        if !(voxel_ok && match_ok && angle_ok && group_ok && wide_ok) {
             return Err(Error::invalid(format!("data settings out of range: {settings:?}")));
         }
         let mut ids: HashMap<PathBuf, usize> = HashMap::new();
@@ -285,11 +316,11 @@ impl Sampler {
             self.fragments[i] = Some(Arc::new(f?));
         }
         let todo: Vec<usize> = (0..self.pairs.len()).filter(|&i| self.matches[i].is_none()).collect();
-        let found: Vec<Vec<(u32, u32)>> = todo.par_iter().map(|&i| self.compute_matches(i)).collect();
+        let found: Vec<PairMatches> = todo.par_iter().map(|&i| self.compute_matches(i)).collect();
         for (i, m) in todo.into_iter().zip(found) {
             self.matches[i] = Some(Arc::new(m));
         }
-        Ok(self.matches.iter().filter(|m| m.as_ref().is_some_and(|m| !m.is_empty())).count())
+        Ok(self.matches.iter().filter(|m| m.as_ref().is_some_and(|m| !m.all.is_empty())).count())
     }
 
     fn fragment(&mut self, id: usize) -> Result<Arc<Fragment>> {
@@ -302,14 +333,17 @@ impl Sampler {
     }
 
     /// Matches of pair `i`; both fragments must be loaded.
-    fn compute_matches(&self, i: usize) -> Vec<(u32, u32)> {
+    fn compute_matches(&self, i: usize) -> PairMatches {
         let (s, t) = self.pair_fragments[i];
-        let (Some(src), Some(tgt)) = (&self.fragments[s], &self.fragments[t]) else { return Vec::new() };
+        let (Some(src), Some(tgt)) = (&self.fragments[s], &self.fragments[t]) else {
+            return PairMatches { all: Vec::new(), wide: Vec::new() };
+        };
         let t_mat = self.pairs[i].target_from_source;
         let r = t_mat.fixed_view::<3, 3>(0, 0).into_owned();
         let tr = t_mat.fixed_view::<3, 1>(0, 3).into_owned();
         let max_d2 = self.settings.match_distance * self.settings.match_distance;
-        src.points
+        let all: Vec<(u32, u32)> = src
+            .points
             .iter()
             .enumerate()
             .filter(|&(k, _)| src.usable[k])
@@ -318,7 +352,21 @@ impl Sampler {
                 let nn = tgt.index.nearest_one(&[q.x as f32, q.y as f32, q.z as f32]);
                 (nn.distance_squared <= max_d2 && tgt.usable[nn.index]).then_some((k as u32, nn.index as u32))
             })
-            .collect()
+            .collect();
+        let wide = if self.settings.wide_view_share > 0.0 {
+            // Sensors in the target frame: its own at the origin, the source's at the source origin mapped.
+            let min_angle = self.settings.wide_view_deg.to_radians();
+            (0..all.len() as u32)
+                .filter(|&m| {
+                    let p = tgt.points[all[m as usize].1 as usize];
+                    let p = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+                    view_angle(&p, &Vector3::zeros(), &tr) >= min_angle
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        PairMatches { all, wide }
     }
 
     fn pair_matches(&mut self, i: usize) -> Result<Matches> {
@@ -345,21 +393,36 @@ impl Sampler {
         plans.par_iter().map(|p| self.build(p)).collect()
     }
 
-    /// Draws a pair with matches and `group` of its matches, spread out in the target fragment.
+    /// Draws a pair with matches and `group` of its matches, spread out in the target fragment: with
+    /// probability `wide_view_share` a pair with wide-view matches and only those (uniform matches when no pair
+    /// in `MAX_DRAWS` draws has any).
     fn plan_group(&mut self, rng: &mut Rng, group: usize) -> Result<Vec<Plan>> {
-        for _ in 0..MAX_DRAWS {
+        // Drawn only when wide-view draws are on, so the default settings keep their random stream.
+        let mut wide = self.settings.wide_view_share > 0.0 && rng.unit_f64() < self.settings.wide_view_share;
+        for draw in 0..2 * MAX_DRAWS {
+            if draw == MAX_DRAWS {
+                if !wide {
+                    break;
+                }
+                wide = false;
+            }
             let pair = rng.below(self.pairs.len());
             let matches = self.pair_matches(pair)?;
-            if matches.is_empty() {
+            let pool = if wide { matches.wide.len() } else { matches.all.len() };
+            if pool == 0 {
                 continue;
             }
+            let pick = |rng: &mut Rng| {
+                let k = rng.below(pool);
+                matches.all[if wide { matches.wide[k] as usize } else { k }]
+            };
             let target = self.fragments[self.pair_fragments[pair].1].clone().expect("loaded with the matches");
             let mut chosen: Vec<(u32, u32)> = Vec::with_capacity(group);
             for _ in 0..group {
                 // The candidate farthest from those chosen (squared distance), stopping at the first a radius away.
-                let mut best = (f32::NEG_INFINITY, matches[0]);
+                let mut best = (f32::NEG_INFINITY, matches.all[0]);
                 for _ in 0..if chosen.is_empty() { 1 } else { SEPARATION_DRAWS } {
-                    let m = matches[rng.below(matches.len())];
+                    let m = pick(rng);
                     let p = target.points[m.1 as usize];
                     let gap = chosen
                         .iter()
@@ -494,5 +557,63 @@ mod tests {
         assert_eq!(seen, [true, true]);
         // A batch that is not a multiple of the group size ends with a smaller group.
         assert_eq!(sampler.batch(3, 0, 6).unwrap().len(), 6);
+    }
+
+    #[test]
+    fn wide_view_draws_give_only_points_seen_from_directions_far_apart() {
+        // A 2 m x 2 m plane at z = 1 in the source frame; the target fragment holds the same points moved 2 m
+        // along x, so the source's sensor sits at (2, 0, 0) in the target frame and the target's at the origin.
+        // The view angle at a target point q is the angle between -q and (2, 0, 0) - q: from about 63 degrees at
+        // the near edge down to about 20 at the far one.
+        let scratch = tempfile::tempdir().unwrap();
+        let dir = scratch.path();
+        let source: Vec<[f32; 3]> =
+            (0..100).flat_map(|i| (0..100).map(move |j| [i as f32 * 0.02, j as f32 * 0.02, 1.0])).collect();
+        let shift = [2.0f32, 0.0, 0.0];
+        let target: Vec<[f32; 3]> = source.iter().map(|p| [p[0] + shift[0], p[1], p[2]]).collect();
+        let (source_file, target_file) = (dir.join("s.ply"), dir.join("t.ply"));
+        crate::io::write_ply(&source_file, &PointCloud::from_points(source)).unwrap();
+        crate::io::write_ply(&target_file, &PointCloud::from_points(target)).unwrap();
+        let mut target_from_source = Matrix4::identity();
+        target_from_source[(0, 3)] = shift[0] as f64;
+        let pairs = vec![FragmentPair { source: source_file, target: target_file, target_from_source }];
+        let config = ModelConfig { points_per_patch: 32, ..ModelConfig::default() };
+        let angle_deg = |q: [f32; 3]| {
+            let to_target_sensor = [-q[0], -q[1], -q[2]];
+            let to_source_sensor = [shift[0] - q[0], -q[1], -q[2]];
+            let dot: f32 = (0..3).map(|k| to_target_sensor[k] * to_source_sensor[k]).sum();
+            let norm = |v: [f32; 3]| v.iter().map(|x| x * x).sum::<f32>().sqrt();
+            (dot / norm(to_target_sensor) / norm(to_source_sensor)).clamp(-1.0, 1.0).acos().to_degrees()
+        };
+        let angles = |share: f64| {
+            let settings =
+                DataSettings { voxel: 0.0, wide_view_share: share, wide_view_deg: 45.0, ..Default::default() };
+            let mut sampler = Sampler::new(pairs.clone(), settings, &config).unwrap();
+            let mut rng = Rng::new(5);
+            let mut out = Vec::new();
+            for _ in 0..200 {
+                for plan in sampler.plan_group(&mut rng, 1).unwrap() {
+                    let target = sampler.fragments[sampler.pair_fragments[plan.pair].1].clone().unwrap();
+                    out.push(angle_deg(target.points[plan.target_point as usize]));
+                }
+            }
+            out
+        };
+        let share = |a: &[f32]| a.iter().filter(|&&x| x >= 45.0).count() as f64 / a.len() as f64;
+        let (uniform, wide, half) = (angles(0.0), angles(1.0), angles(0.5));
+        assert!(share(&uniform) > 0.02 && share(&uniform) < 0.3, "uniform draws: {} wide", share(&uniform));
+        let narrowest = wide.iter().fold(f32::INFINITY, |m, &a| m.min(a));
+        assert!(narrowest >= 45.0 - 1e-3, "a match seen {narrowest} degrees apart among wide-only draws");
+        let h = share(&half);
+        assert!(h > 0.4 && h < 0.75, "half the draws wide-only: {h} wide");
+        // No pair with wide-view matches: uniform draws instead of an error.
+        let settings = DataSettings { voxel: 0.0, wide_view_share: 1.0, wide_view_deg: 89.0, ..Default::default() };
+        let mut sampler = Sampler::new(pairs.clone(), settings, &config).unwrap();
+        assert_eq!(sampler.plan_group(&mut Rng::new(1), 2).unwrap().len(), 2);
+        // Out-of-range settings are refused.
+        for (share, deg) in [(-0.1, 60.0), (1.5, 60.0), (0.5, 0.0), (0.5, 181.0)] {
+            let settings = DataSettings { wide_view_share: share, wide_view_deg: deg, ..Default::default() };
+            assert!(Sampler::new(pairs.clone(), settings, &config).is_err());
+        }
     }
 }
