@@ -518,14 +518,18 @@ mod tests {
         assert_eq!(random_rotation(&mut Rng::new(4), 180.0), Rng::new(4).unit_quaternion());
     }
 
+    /// A 2 m x 2 m square of points 2 cm apart at height `z`, corner at the origin.
+    fn plane_at(z: f32) -> Vec<[f32; 3]> {
+        (0..100).flat_map(|i| (0..100).map(move |j| [i as f32 * 0.02, j as f32 * 0.02, z])).collect()
+    }
+
     #[test]
     fn grouped_samples_share_a_pair_and_lie_a_radius_apart() {
         // Two pairs of 2 m x 2 m planes (each fragment paired with a copy of itself): room for many keypoints a
         // 0.3 m radius apart.
         let scratch = tempfile::tempdir().unwrap();
         let dir = scratch.path();
-        let plane: Vec<[f32; 3]> =
-            (0..100).flat_map(|i| (0..100).map(move |j| [i as f32 * 0.02, j as f32 * 0.02, 0.0])).collect();
+        let plane = plane_at(0.0);
         let mut pairs = Vec::new();
         for name in ["a", "b"] {
             let file = dir.join(format!("{name}.ply"));
@@ -567,8 +571,7 @@ mod tests {
         // the near edge down to about 20 at the far one.
         let scratch = tempfile::tempdir().unwrap();
         let dir = scratch.path();
-        let source: Vec<[f32; 3]> =
-            (0..100).flat_map(|i| (0..100).map(move |j| [i as f32 * 0.02, j as f32 * 0.02, 1.0])).collect();
+        let source = plane_at(1.0);
         let shift = [2.0f32, 0.0, 0.0];
         let target: Vec<[f32; 3]> = source.iter().map(|p| [p[0] + shift[0], p[1], p[2]]).collect();
         let (source_file, target_file) = (dir.join("s.ply"), dir.join("t.ply"));
