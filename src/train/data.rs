@@ -12,13 +12,15 @@
 //! A sample draws a pair, a match, two patch seeds and two rotations from the step's random stream, then builds
 //! both patches with `crate::preprocess`. With `wide_view_share` > 0 that share of the drawn pairs gives only
 //! wide-view matches: correspondences whose two sensors (each fragment's origin) see the point from directions
-//! at least `wide_view_deg` apart, the views that random draws from ordinary trajectories rarely give. Augmentation rotates the source fragment about the origin by a
-//! uniform random rotation R_s (and, when enabled, the target fragment by R_t); the label is the rotation of
-//! the augmented target_from_source, R_t R R_s^T, which is uniform over SO(3) when R_s is. Rotating about the
-//! origin rather than the keypoint only changes the translation, which the centred patch inputs cancel; the
-//! normals are rotated with the points (their viewpoint, the origin, is fixed by the rotation). With
-//! normal-frame patches (`PoseFrame::Normal`) each patch is further rotated by its keypoint's normal frame F, and
-//! the label becomes the rotation between the two aligned patches, `F_t (R_t R R_s^T) F_s^T`.
+//! at least `wide_view_deg` apart, the views that random draws from ordinary trajectories rarely give.
+//!
+//! Augmentation rotates the source fragment about the origin by a uniform random rotation R_s (and, when enabled,
+//! the target fragment by R_t); the label is the rotation of the augmented target_from_source, R_t R R_s^T, which
+//! is uniform over SO(3) when R_s is. Rotating about the origin rather than the keypoint only changes the
+//! translation, which the centred patch inputs cancel; the normals are rotated with the points (their viewpoint,
+//! the origin, is fixed by the rotation). With normal-frame patches (`PoseFrame::Normal`) each patch is further
+//! rotated by its keypoint's normal frame F, and the label becomes the rotation between the two aligned patches,
+//! `F_t (R_t R R_s^T) F_s^T`.
 
 use super::objective::PairSample;
 use crate::cloud::PointCloud;
@@ -182,9 +184,9 @@ impl Fragment {
     }
 }
 
-/// A pair's correspondences: (source point, target point) indices into the prepared fragments.
-/// A pair's matches (source point, target point) and, when wide-view draws are on, which of them are wide-view.
+/// A pair's correspondences and, when wide-view draws are on, which of them are wide-view.
 struct PairMatches {
+    /// (source point, target point) indices into the prepared fragments.
     all: Vec<(u32, u32)>,
     /// Indices into `all`.
     wide: Vec<u32>,
