@@ -27,6 +27,7 @@ fn styled(style: Style, fragments: usize, width: usize, frames: usize, objects: 
             voxel: None,
             object_scenes: objects,
             repeated: false,
+            orbit: false,
         },
         ground_truth: dpr_gpu::eval::groundtruth::GroundTruthRule {
             min_overlap: style.default_min_overlap(),
@@ -39,6 +40,12 @@ fn styled(style: Style, fragments: usize, width: usize, frames: usize, objects: 
 /// `settings` with rows of identical pieces in its rooms (`synth --scene-kind repeated`).
 fn repeated(mut settings: SynthSettings) -> SynthSettings {
     settings.overrides.repeated = true;
+    settings
+}
+
+/// `settings` with cameras that walk around their rooms (`synth --orbit`).
+fn orbiting(mut settings: SynthSettings) -> SynthSettings {
+    settings.overrides.orbit = true;
     settings
 }
 
@@ -202,6 +209,7 @@ fn every_style_is_deterministic_per_seed_and_thread_count() {
         ("randomized_room", styled(Style::Randomized, 2, 48, 3, Some(false))),
         ("randomized_object", styled(Style::Randomized, 2, 64, 1, Some(true))),
         ("randomized_repeated", repeated(styled(Style::Randomized, 2, 48, 3, Some(false)))),
+        ("randomized_orbit", orbiting(styled(Style::Randomized, 2, 48, 3, Some(false)))),
         ("heldout", styled(Style::Heldout, 2, 48, 3, None)),
         ("heldout_tof", styled(Style::HeldoutTof, 2, 48, 3, None)),
     ] {
@@ -243,6 +251,21 @@ fn kinect_output_is_unchanged() {
 
 /// [`fnv_hash`] of `kinect_output_is_unchanged`'s second dataset, computed with the generator at commit 9138789.
 const KINECT_HASH: u64 = 0xbf93_9370_6445_c6fb;
+
+#[test]
+fn randomized_rooms_without_orbit_are_unchanged() {
+    // The documented training sets are regenerated from their seeds: adding options must not move the random
+    // streams of scenes that do not use them.
+    let dir = temp_dir("randomized_hash");
+    write_dataset(&dir.join("mixed"), 5, 3, &styled(Style::Randomized, 2, 32, 2, None), false, |_| {}).unwrap();
+    write_dataset(&dir.join("rep"), 6, 1, &repeated(styled(Style::Randomized, 2, 32, 2, Some(false))), false, |_| {})
+        .unwrap();
+    assert_eq!(fnv_hash(&files(&dir)), RANDOMIZED_HASH, "{:#x}", fnv_hash(&files(&dir)));
+}
+
+/// [`fnv_hash`] of `randomized_rooms_without_orbit_are_unchanged`'s datasets, computed with the generator at
+/// commit 9feb0f9 (before orbits).
+const RANDOMIZED_HASH: u64 = 0xbd30_414c_48d7_ae82;
 
 #[test]
 fn randomized_scenes_draw_different_parameters() {
@@ -413,4 +436,12 @@ fn bad_overrides_are_rejected_with_a_message() {
     settings.overrides.voxel = None;
     settings.fragments = 0;
     assert!(write_dataset(&dir, 0, 1, &settings, false, |_| {}).is_err());
+    // Orbits are for randomized rooms: object scenes already circle their object, the held-out styles keep
+    // their own cameras.
+    for settings in
+        [orbiting(styled(Style::Randomized, 2, 24, 1, Some(true))), orbiting(styled(Style::Heldout, 2, 24, 1, None))]
+    {
+        let err = write_dataset(&dir, 0, 1, &settings, false, |_| {}).unwrap_err().to_string();
+        assert!(err.contains("orbit"), "{err}");
+    }
 }

@@ -51,6 +51,11 @@ pub struct Args {
     /// (rooms with rows of identical pieces).
     #[arg(long, value_enum, default_value_t = SceneKind::Mixed)]
     pub scene_kind: SceneKind,
+    /// --style randomized rooms: the camera walks around the room's centre looking across it, instead of
+    /// turning near the centre, so fragments see the same surfaces from directions far apart (60 degrees and
+    /// more). Object-scale scenes already circle their object.
+    #[arg(long)]
+    pub orbit: bool,
     /// Fusion voxel size in metres [default: 0.006 for kinect; drawn per scene by the other styles].
     #[arg(long)]
     pub voxel: Option<f64>,
@@ -119,6 +124,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.scene_kind != SceneKind::Mixed && args.style != Style::Randomized {
         bail!("--scene-kind applies to --style randomized only");
     }
+    if args.orbit && (args.style != Style::Randomized || args.scene_kind == SceneKind::Object) {
+        bail!("--orbit applies to the rooms of --style randomized only");
+    }
     let min_overlap = args.min_overlap.unwrap_or(args.style.default_min_overlap());
     if !(0.0..=1.0).contains(&min_overlap) {
         bail!("--min-overlap must be between 0 and 1, got {min_overlap}");
@@ -142,6 +150,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 SceneKind::Object => Some(true),
             },
             repeated: args.scene_kind == SceneKind::Repeated,
+            orbit: args.orbit,
         },
         ..defaults
     };

@@ -161,11 +161,7 @@ pub fn plan_trajectory(
     frames_per_fragment: usize,
     rng: &mut Rng,
 ) -> Vec<Matrix4<f64>> {
-    let knots = 2 * fragments + 3;
-    let mut fallback = Vec::new();
-    for attempt in 0..200 {
-        // Later attempts stay closer to the kernel centre.
-        let shrink = 1.0 - attempt as f64 / 200.0;
+    plan_from_knots(room, motion.wall_margin, fragments, frames_per_fragment, rng, |rng, shrink, knots| {
         let mut yaw = rng.uniform(-std::f64::consts::PI, std::f64::consts::PI);
         let sense = if rng.below(2) == 0 { 1.0 } else { -1.0 };
         let mut k = Vec::with_capacity(knots);
@@ -177,13 +173,85 @@ pub fn plan_trajectory(
             let lat = rng.uniform(-motion.lateral, motion.lateral) * shrink;
             let x = room.kernel_center[0] - f * back * u[0] + lat * perp[0];
             let y = room.kernel_center[1] - f * back * u[1] + lat * perp[1];
-            let z = rng.uniform(motion.height[0], motion.height[1]);
-            let pitch = rng.uniform(motion.pitch_deg[0], motion.pitch_deg[1]).to_radians();
-            let roll = rng.uniform(-motion.roll_deg, motion.roll_deg).to_radians();
+            let (z, pitch, roll) = draw_height_pitch_roll(motion, rng);
             k.push([x, y, z, yaw, pitch, roll]);
             let [lo, hi] = motion.yaw_per_fragment_deg;
             yaw += sense * rng.uniform(lo, hi).to_radians() / 2.0;
         }
+        k
+    })
+}
+
+/// A trajectory that walks around the room instead of turning near its centre: the camera circles the room's
+/// kernel centre and looks across the room, roughly towards that centre, so fragments a quarter turn apart see
+/// the same surfaces from directions far apart (the view changes that repeated turns in place never give).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct OrbitModel {
+    /// Range of the angle the camera advances around the centre per fragment (degrees).
+    pub arc_per_fragment_deg: [f64; 2],
+    /// Range of the camera's distance from the centre, as a fraction of the free distance (less the wall
+    /// margin) from the centre to the wall behind the camera.
+    pub radius_fraction: [f64; 2],
+    /// The view direction turns away from the centre by up to this angle either way (degrees).
+    pub aim_deg: f64,
+}
+
+/// Plans an orbit ([`OrbitModel`]) with the height, pitch, roll and wall margin of `motion` (its yaw, back and
+/// lateral ranges are not used); knots, interpolation and retries as [`plan_trajectory`].
+pub fn plan_orbit(
+    room: &Room,
+    motion: &MotionModel,
+    orbit: &OrbitModel,
+    fragments: usize,
+    frames_per_fragment: usize,
+    rng: &mut Rng,
+) -> Vec<Matrix4<f64>> {
+    plan_from_knots(room, motion.wall_margin, fragments, frames_per_fragment, rng, |rng, shrink, knots| {
+        let mut angle = rng.uniform(-std::f64::consts::PI, std::f64::consts::PI);
+        let sense = if rng.below(2) == 0 { 1.0 } else { -1.0 };
+        let c = room.kernel_center;
+        let mut k = Vec::with_capacity(knots);
+        for _ in 0..knots {
+            let u = [angle.cos(), angle.sin()];
+            let free = (room.distance_along(c, u) - motion.wall_margin - 0.2).max(0.0);
+            let r = rng.uniform(orbit.radius_fraction[0], orbit.radius_fraction[1]) * shrink * free;
+            let yaw = angle + std::f64::consts::PI + rng.uniform(-orbit.aim_deg, orbit.aim_deg).to_radians();
+            let (z, pitch, roll) = draw_height_pitch_roll(motion, rng);
+            k.push([c[0] + r * u[0], c[1] + r * u[1], z, yaw, pitch, roll]);
+            let [lo, hi] = orbit.arc_per_fragment_deg;
+            angle += sense * rng.uniform(lo, hi).to_radians() / 2.0;
+        }
+        k
+    })
+}
+
+/// A knot's camera height, pitch and roll (radians) drawn from `motion`'s ranges.
+fn draw_height_pitch_roll(motion: &MotionModel, rng: &mut Rng) -> (f64, f64, f64) {
+    let z = rng.uniform(motion.height[0], motion.height[1]);
+    let pitch = rng.uniform(motion.pitch_deg[0], motion.pitch_deg[1]).to_radians();
+    let roll = rng.uniform(-motion.roll_deg, motion.roll_deg).to_radians();
+    (z, pitch, roll)
+}
+
+/// Interpolates knots `[x, y, z, yaw, pitch, roll]` drawn by `draw(rng, shrink, count)` (two per fragment and
+/// three more) with Catmull-Rom splines into `frames_per_fragment` poses per fragment. A path whose camera
+/// leaves the allowed space (walls within `wall_margin`, tall furniture) is drawn again, up to 200 times with
+/// `shrink` falling from 1 towards 0 (draws should pull towards the centre with it); the first path is the
+/// fallback.
+fn plan_from_knots(
+    room: &Room,
+    wall_margin: f64,
+    fragments: usize,
+    frames_per_fragment: usize,
+    rng: &mut Rng,
+    mut draw: impl FnMut(&mut Rng, f64, usize) -> Vec<[f64; 6]>,
+) -> Vec<Matrix4<f64>> {
+    let knots = 2 * fragments + 3;
+    let mut fallback = Vec::new();
+    for attempt in 0..200 {
+        // Later attempts stay closer to the kernel centre.
+        let shrink = 1.0 - attempt as f64 / 200.0;
+        let k = draw(rng, shrink, knots);
         let total = fragments * frames_per_fragment;
         let mut poses = Vec::with_capacity(total);
         let mut ok = true;
@@ -192,7 +260,7 @@ pub fn plan_trajectory(
             let i = (s.floor() as usize).min(knots - 4);
             let t = s - i as f64;
             let c: [f64; 6] = std::array::from_fn(|d| catmull_rom(k[i][d], k[i + 1][d], k[i + 2][d], k[i + 3][d], t));
-            ok &= room.camera_allowed([c[0], c[1]], c[2], motion.wall_margin);
+            ok &= room.camera_allowed([c[0], c[1]], c[2], wall_margin);
             poses.push(look_pose(Vector3::new(c[0], c[1], c[2]), c[3], c[4], c[5]));
         }
         if ok {
@@ -220,6 +288,58 @@ mod tests {
         assert!((f.z - (-0.4f64).sin()).abs() < 1e-12);
         // Image "down" points roughly to world -z.
         assert!(r.column(1).z < -0.8);
+    }
+
+    #[test]
+    fn an_orbit_circles_the_centre_and_looks_across_the_room() {
+        // An empty 8 x 6 m room: every first draw is allowed, so the fragments' first poses are the drawn knots.
+        let room = Room {
+            polygon: vec![[0.0, 0.0], [8.0, 0.0], [8.0, 6.0], [0.0, 6.0]],
+            height: 3.0,
+            kernel_center: [4.0, 3.0],
+            objects: Vec::new(),
+            footprints: Vec::new(),
+        };
+        let motion = MotionModel::default();
+        let orbit = OrbitModel { arc_per_fragment_deg: [30.0, 50.0], radius_fraction: [0.5, 0.9], aim_deg: 20.0 };
+        let (fragments, frames) = (12, 5);
+        let poses = plan_orbit(&room, &motion, &orbit, fragments, frames, &mut Rng::new(7));
+        assert_eq!(poses.len(), fragments * frames);
+        let c = room.kernel_center;
+        let mut azimuths = Vec::new();
+        for (n, pose) in poses.iter().enumerate() {
+            let (x, y, z) = (pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]);
+            assert!(room.camera_allowed([x, y], z, motion.wall_margin), "frame {n} at ({x}, {y})");
+            if n % frames != 0 {
+                continue;
+            }
+            // Radius within the drawn fraction of the free distance along the camera's direction from the centre.
+            let (dx, dy) = (x - c[0], y - c[1]);
+            let azimuth = dy.atan2(dx);
+            let free = room.distance_along(c, [azimuth.cos(), azimuth.sin()]) - motion.wall_margin - 0.2;
+            let r = dx.hypot(dy);
+            assert!(r >= 0.5 * free - 1e-9 && r <= 0.9 * free + 1e-9, "fragment {}: radius {r} of {free}", n / frames);
+            // The optical axis, seen from above, points at the centre within the aim range.
+            let (fx, fy) = (pose[(0, 2)], pose[(1, 2)]);
+            let off = ((fx * -dx + fy * -dy) / (fx.hypot(fy) * r)).clamp(-1.0, 1.0).acos().to_degrees();
+            assert!(off <= 20.0 + 1e-6, "fragment {}: {off} deg off the centre", n / frames);
+            azimuths.push(azimuth);
+        }
+        // Each fragment moves on around the centre, always the same way, by the drawn arc.
+        let steps: Vec<f64> = azimuths
+            .windows(2)
+            .map(|w| {
+                (w[1] - w[0] + 3.0 * std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+            })
+            .map(f64::to_degrees)
+            .collect();
+        let sense = steps[0].signum();
+        for s in &steps {
+            assert!((30.0 - 1e-6..=50.0 + 1e-6).contains(&(s * sense)), "{steps:?}");
+        }
+        // So fragments a few apart stand on opposite sides of the room: a fixed point between them is seen from
+        // directions far apart.
+        assert!(steps.iter().map(|s| s.abs()).sum::<f64>() > 330.0);
     }
 
     #[test]

@@ -7,7 +7,7 @@
 //! is written next to the fragments as `style.json`.
 
 use super::attic::{AtticRecord, camera_room, generate_attic};
-use super::camera::{MotionModel, look_pose, plan_trajectory};
+use super::camera::{MotionModel, OrbitModel, look_pose, plan_orbit, plan_trajectory};
 use super::heldout::{HallRecord, generate_hall};
 use super::object::{ObjectFamily, generate_object};
 use super::room::{Room, RoomShape, RoomSpec, generate_room_with};
@@ -64,6 +64,9 @@ pub struct Overrides {
     pub object_scenes: Option<bool>,
     /// `randomized` rooms only: furnish rows of identical pieces first ([`RoomSpec::repeated`]).
     pub repeated: bool,
+    /// `randomized` rooms only: the camera walks around the room looking across it ([`OrbitModel`]) instead of
+    /// turning near its centre.
+    pub orbit: bool,
 }
 
 /// Fragments larger than this are fused again with a coarser voxel.
@@ -91,6 +94,10 @@ pub struct RoomRecord {
     pub spec: RoomSpec,
     /// How the camera moved.
     pub motion: MotionModel,
+    /// The orbit the camera walked (`Overrides::orbit`): `motion` then gives only height, pitch, roll and
+    /// wall margin.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub orbit: Option<OrbitModel>,
 }
 
 /// Per-fragment variation of the scene's sensor.
@@ -349,6 +356,9 @@ pub fn generate_styled_scene(
     if overrides.width.is_some_and(|w| w < 4) {
         return Err(Error::invalid("synth: the camera needs at least 4 rays per row"));
     }
+    if overrides.orbit && (style != Style::Randomized || overrides.object_scenes == Some(true)) {
+        return Err(Error::invalid("synth: orbits apply to the rooms of the randomized style only"));
+    }
     let mut rng = Rng::derived(seed, STREAM_RECIPE);
     let drawn_object = rng.unit_f64() < 0.3;
     let object = style == Style::Randomized && overrides.object_scenes.unwrap_or(drawn_object);
@@ -403,7 +413,7 @@ pub fn generate_styled_scene(
             roll_deg: 5.0,
         };
         let poses = plan_trajectory(&room, &motion, fragments, frames, &mut pose_rng);
-        let record = RoomRecord { spec: RoomSpec::default(), motion };
+        let record = RoomRecord { spec: RoomSpec::default(), motion, orbit: None };
         (room, poses, "hall".to_string(), Some(record), Some(hall), None, None)
     } else if style == Style::HeldoutTof {
         let (room, roof, attic) = generate_attic(&mut scene_rng);
@@ -418,7 +428,7 @@ pub fn generate_styled_scene(
         };
         let planning = camera_room(&room, &roof, motion.height[1], 0.3);
         let poses = plan_trajectory(&planning, &motion, fragments, frames, &mut pose_rng);
-        let record = RoomRecord { spec: RoomSpec::default(), motion };
+        let record = RoomRecord { spec: RoomSpec::default(), motion, orbit: None };
         (room, poses, "attic".to_string(), Some(record), None, Some(attic), None)
     } else {
         let shape = match rng.below(20) {
@@ -448,14 +458,23 @@ pub fn generate_styled_scene(
             lateral: rng.uniform(0.3, 1.2),
             roll_deg: rng.uniform(3.0, 15.0),
         };
+        // Drawn only for orbits, so the other scenes' recipes stay as they were.
+        let orbit = overrides.orbit.then(|| OrbitModel {
+            arc_per_fragment_deg: [rng.uniform(25.0, 35.0), rng.uniform(45.0, 65.0)],
+            radius_fraction: [rng.uniform(0.3, 0.6), rng.uniform(0.7, 0.95)],
+            aim_deg: rng.uniform(10.0, 35.0),
+        });
         let room = generate_room_with(&mut scene_rng, &spec);
-        let poses = plan_trajectory(&room, &motion, fragments, frames, &mut pose_rng);
+        let poses = match &orbit {
+            Some(orbit) => plan_orbit(&room, &motion, orbit, fragments, frames, &mut pose_rng),
+            None => plan_trajectory(&room, &motion, fragments, frames, &mut pose_rng),
+        };
         let kind = match shape {
             RoomShape::Rectangle => "room",
             RoomShape::LShape => "l_room",
             RoomShape::Corridor => "corridor",
         };
-        (room, poses, kind.to_string(), Some(RoomRecord { spec, motion }), None, None, None)
+        (room, poses, kind.to_string(), Some(RoomRecord { spec, motion, orbit }), None, None, None)
     };
     let mut material_rng = Rng::derived(seed, STREAM_MATERIALS);
     let object_dropout: Vec<f64> = room
