@@ -1,9 +1,10 @@
 #!/bin/bash
 # One training run on a GPU machine with no Rust toolchain (results under $OUT), within BUDGET seconds (default
-# 560): the training kernels' parity tests first, then the data of weights/README's repetition pilot generated
-# there (TRAIN_SCENES scenes of its three sets, default "12 20 16": kinect seed 1, randomized seed 2, randomized
-# repeated-kind seed 4), the default weights continued on the device with the pilot's settings (`train --backend
-# gpu`, --max-seconds up to EVAL_RESERVE seconds before the end, default 200; BATCH pairs a step, default 32),
+# 560): the training kernels' parity tests first, then the data of weights/README's orbit run generated there
+# (TRAIN_SCENES scenes of its five sets, default "12 20 16 16 8": kinect seed 1, randomized seed 2, randomized
+# repeated-kind seed 4, randomized rooms with --orbit seed 6, repeated-kind with --orbit seed 7), the default
+# weights continued on the device with that run's settings (`train --backend gpu`, --max-seconds up to
+# EVAL_RESERVE seconds before the end, default 200; BATCH pairs a step, default 32),
 # and GPU evals of the result: the repetition tuning set (seed 710, never trained on) and the held-out halls
 # (seed 900; reported, never chosen on), EVAL_SCENES scenes each (default 4). Back in $OUT: the weights
 # (gpu-run.safetensors), the loss log, the training log, the parity tests' output, the bench (its train_step
@@ -22,23 +23,28 @@ fi
 # The step's cost in steady state at the recipe's size (`train_step`: 32 pairs x 256 points), CPU beside it.
 timeout "$(cap 90)" $bin bench --json --keypoints 64 --points 256 --pair-points 0 > "$OUT/bench_train.json"
 log "bench (train_step) rc=$?"
-read -r kinect random repeated <<< "${TRAIN_SCENES:-12 20 16}"
+read -r kinect random repeated orbit orbitrep <<< "${TRAIN_SCENES:-12 20 16 16 8}"
 data=/tmp/data/train
 mkdir -p "$data" /tmp/run
-log "synth training data ($kinect + $random + $repeated scenes)"
+log "synth training data ($kinect + $random + $repeated + $orbit + $orbitrep scenes)"
 $bin synth "$data/kinect" --scenes "$kinect" --fragments 10 --seed 1 > /dev/null &
 $bin synth "$data/random" --style randomized --scenes "$random" --fragments 10 --seed 2 > /dev/null &
 $bin synth "$data/repeated" --style randomized --scene-kind repeated --scenes "$repeated" --fragments 10 --seed 4 \
     > /dev/null &
+$bin synth "$data/orbit" --style randomized --scene-kind room --orbit --scenes "$orbit" --fragments 10 --seed 6 \
+    > /dev/null &
+$bin synth "$data/orbitrep" --style randomized --scene-kind repeated --orbit --scenes "$orbitrep" --fragments 10 \
+    --seed 7 > /dev/null &
 wait
 secs=$(($(left) - ${EVAL_RESERVE:-200}))
 [ "$secs" -lt 30 ] && { log "too little time left to train (${secs}s)"; exit 1; }
 log "train for ${secs}s (data preparation included)"
 # The limit stops the run and saves it; the timeout is a backstop 30 s later.
-timeout "$((secs + 30))" $bin train --data "$data/kinect" "$data/random" "$data/repeated" \
-    --out "$OUT/gpu-run.safetensors" --init weights/default.safetensors --backend gpu --steps 1000000 \
-    --max-seconds "$secs" --lr-decay-every 1000 --batch "${BATCH:-32}" --lr 3e-4 --seed 23 --lambda-contrast 1 \
-    --contrast-margin 0.5 --patches-per-pair 4 --checkpoint-every 200 --checkpoint /tmp/run/gpu.ckpt.safetensors \
+timeout "$((secs + 30))" $bin train --data "$data/kinect" "$data/random" "$data/repeated" "$data/orbit" \
+    "$data/orbitrep" --out "$OUT/gpu-run.safetensors" --init weights/default.safetensors --backend gpu \
+    --steps 1000000 --max-seconds "$secs" --lr-decay-every 1000 --batch "${BATCH:-32}" --lr 3e-4 --seed 32 \
+    --lambda-contrast 1 --contrast-margin 0.5 --patches-per-pair 4 --wide-view-share 0.3 --wide-view-deg 60 \
+    --checkpoint-every 200 --checkpoint /tmp/run/gpu.ckpt.safetensors \
     --log "$OUT/losses.csv" > "$OUT/train.log" 2>&1
 log "train rc=$?"
 tail -n 2 "$OUT/train.log" >> "$OUT/log.txt"

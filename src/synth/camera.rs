@@ -150,36 +150,43 @@ impl Default for MotionModel {
     }
 }
 
-/// Plans `frames` world_from_camera poses (`frames_per_fragment` per fragment) along a smooth path: the
-/// camera pans around the room, backing away from the wall it looks at, with a smoothly varying height,
-/// pitch and roll. Knots are placed twice per fragment and interpolated with Catmull-Rom splines. The path
-/// avoids walls and tall furniture; up to 200 random paths are tried.
+/// Plans `frames` world_from_camera poses (`frames_per_fragment` per fragment) along a smooth path. Without an
+/// orbit the camera pans around the room, backing away from the wall it looks at; with one it walks around the
+/// room's centre ([`OrbitModel`]; `motion`'s yaw, back and lateral ranges are then unused). Height, pitch and
+/// roll vary smoothly in `motion`'s ranges. Knots are placed twice per fragment and interpolated with
+/// Catmull-Rom splines. The path avoids walls and tall furniture; up to 200 random paths are tried.
 pub fn plan_trajectory(
     room: &Room,
     motion: &MotionModel,
+    orbit: Option<&OrbitModel>,
     fragments: usize,
     frames_per_fragment: usize,
     rng: &mut Rng,
 ) -> Vec<Matrix4<f64>> {
-    plan_from_knots(room, motion.wall_margin, fragments, frames_per_fragment, rng, |rng, shrink, knots| {
-        let mut yaw = rng.uniform(-std::f64::consts::PI, std::f64::consts::PI);
-        let sense = if rng.below(2) == 0 { 1.0 } else { -1.0 };
-        let mut k = Vec::with_capacity(knots);
-        for _ in 0..knots {
-            let u = [yaw.cos(), yaw.sin()];
-            let perp = [-u[1], u[0]];
-            let back = (room.distance_along(room.kernel_center, [-u[0], -u[1]]) - motion.wall_margin - 0.2).max(0.0);
-            let f = rng.uniform(motion.back_fraction[0], motion.back_fraction[1]) * shrink;
-            let lat = rng.uniform(-motion.lateral, motion.lateral) * shrink;
-            let x = room.kernel_center[0] - f * back * u[0] + lat * perp[0];
-            let y = room.kernel_center[1] - f * back * u[1] + lat * perp[1];
-            let (z, pitch, roll) = draw_height_pitch_roll(motion, rng);
-            k.push([x, y, z, yaw, pitch, roll]);
-            let [lo, hi] = motion.yaw_per_fragment_deg;
-            yaw += sense * rng.uniform(lo, hi).to_radians() / 2.0;
-        }
-        k
+    plan_from_knots(room, motion.wall_margin, fragments, frames_per_fragment, rng, |rng, shrink, knots| match orbit {
+        None => turn_knots(room, motion, rng, shrink, knots),
+        Some(orbit) => orbit_knots(room, motion, orbit, rng, shrink, knots),
     })
+}
+
+/// Knots of a camera that turns near the room's centre, backing away from the wall it looks at.
+fn turn_knots(room: &Room, motion: &MotionModel, rng: &mut Rng, shrink: f64, knots: usize) -> Vec<[f64; 6]> {
+    let (mut yaw, sense) = draw_start_and_sense(rng);
+    let mut k = Vec::with_capacity(knots);
+    for _ in 0..knots {
+        let u = [yaw.cos(), yaw.sin()];
+        let perp = [-u[1], u[0]];
+        let back = (room.distance_along(room.kernel_center, [-u[0], -u[1]]) - motion.wall_margin - 0.2).max(0.0);
+        let f = rng.uniform(motion.back_fraction[0], motion.back_fraction[1]) * shrink;
+        let lat = rng.uniform(-motion.lateral, motion.lateral) * shrink;
+        let x = room.kernel_center[0] - f * back * u[0] + lat * perp[0];
+        let y = room.kernel_center[1] - f * back * u[1] + lat * perp[1];
+        let (z, pitch, roll) = draw_height_pitch_roll(motion, rng);
+        k.push([x, y, z, yaw, pitch, roll]);
+        let [lo, hi] = motion.yaw_per_fragment_deg;
+        yaw += sense * rng.uniform(lo, hi).to_radians() / 2.0;
+    }
+    k
 }
 
 /// A trajectory that walks around the room instead of turning near its centre: the camera circles the room's
@@ -196,33 +203,35 @@ pub struct OrbitModel {
     pub aim_deg: f64,
 }
 
-/// Plans an orbit ([`OrbitModel`]) with the height, pitch, roll and wall margin of `motion` (its yaw, back and
-/// lateral ranges are not used); knots, interpolation and retries as [`plan_trajectory`].
-pub fn plan_orbit(
+/// Knots of a camera that circles the room's centre ([`OrbitModel`]).
+fn orbit_knots(
     room: &Room,
     motion: &MotionModel,
     orbit: &OrbitModel,
-    fragments: usize,
-    frames_per_fragment: usize,
     rng: &mut Rng,
-) -> Vec<Matrix4<f64>> {
-    plan_from_knots(room, motion.wall_margin, fragments, frames_per_fragment, rng, |rng, shrink, knots| {
-        let mut angle = rng.uniform(-std::f64::consts::PI, std::f64::consts::PI);
-        let sense = if rng.below(2) == 0 { 1.0 } else { -1.0 };
-        let c = room.kernel_center;
-        let mut k = Vec::with_capacity(knots);
-        for _ in 0..knots {
-            let u = [angle.cos(), angle.sin()];
-            let free = (room.distance_along(c, u) - motion.wall_margin - 0.2).max(0.0);
-            let r = rng.uniform(orbit.radius_fraction[0], orbit.radius_fraction[1]) * shrink * free;
-            let yaw = angle + std::f64::consts::PI + rng.uniform(-orbit.aim_deg, orbit.aim_deg).to_radians();
-            let (z, pitch, roll) = draw_height_pitch_roll(motion, rng);
-            k.push([c[0] + r * u[0], c[1] + r * u[1], z, yaw, pitch, roll]);
-            let [lo, hi] = orbit.arc_per_fragment_deg;
-            angle += sense * rng.uniform(lo, hi).to_radians() / 2.0;
-        }
-        k
-    })
+    shrink: f64,
+    knots: usize,
+) -> Vec<[f64; 6]> {
+    let (mut angle, sense) = draw_start_and_sense(rng);
+    let c = room.kernel_center;
+    let mut k = Vec::with_capacity(knots);
+    for _ in 0..knots {
+        let u = [angle.cos(), angle.sin()];
+        let free = (room.distance_along(c, u) - motion.wall_margin - 0.2).max(0.0);
+        let r = rng.uniform(orbit.radius_fraction[0], orbit.radius_fraction[1]) * shrink * free;
+        let yaw = angle + std::f64::consts::PI + rng.uniform(-orbit.aim_deg, orbit.aim_deg).to_radians();
+        let (z, pitch, roll) = draw_height_pitch_roll(motion, rng);
+        k.push([c[0] + r * u[0], c[1] + r * u[1], z, yaw, pitch, roll]);
+        let [lo, hi] = orbit.arc_per_fragment_deg;
+        angle += sense * rng.uniform(lo, hi).to_radians() / 2.0;
+    }
+    k
+}
+
+/// A path's starting angle (radians) and the sense it turns in (+1 or -1).
+fn draw_start_and_sense(rng: &mut Rng) -> (f64, f64) {
+    let start = rng.uniform(-std::f64::consts::PI, std::f64::consts::PI);
+    (start, if rng.below(2) == 0 { 1.0 } else { -1.0 })
 }
 
 /// A knot's camera height, pitch and roll (radians) drawn from `motion`'s ranges.
@@ -303,7 +312,7 @@ mod tests {
         let motion = MotionModel::default();
         let orbit = OrbitModel { arc_per_fragment_deg: [30.0, 50.0], radius_fraction: [0.5, 0.9], aim_deg: 20.0 };
         let (fragments, frames) = (12, 5);
-        let poses = plan_orbit(&room, &motion, &orbit, fragments, frames, &mut Rng::new(7));
+        let poses = plan_trajectory(&room, &motion, Some(&orbit), fragments, frames, &mut Rng::new(7));
         assert_eq!(poses.len(), fragments * frames);
         let c = room.kernel_center;
         let mut azimuths = Vec::new();

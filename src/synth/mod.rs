@@ -135,6 +135,7 @@ pub fn generate_scene(seed: u64, settings: &SynthSettings) -> Result<Scene> {
     let poses = camera::plan_trajectory(
         &room,
         &settings.motion,
+        None,
         settings.fragments,
         m,
         &mut Rng::derived(seed, STREAM_TRAJECTORY),

@@ -7,7 +7,7 @@
 //! is written next to the fragments as `style.json`.
 
 use super::attic::{AtticRecord, camera_room, generate_attic};
-use super::camera::{MotionModel, OrbitModel, look_pose, plan_orbit, plan_trajectory};
+use super::camera::{MotionModel, OrbitModel, look_pose, plan_trajectory};
 use super::heldout::{HallRecord, generate_hall};
 use super::object::{ObjectFamily, generate_object};
 use super::room::{Room, RoomShape, RoomSpec, generate_room_with};
@@ -412,7 +412,7 @@ pub fn generate_styled_scene(
             lateral: 0.8,
             roll_deg: 5.0,
         };
-        let poses = plan_trajectory(&room, &motion, fragments, frames, &mut pose_rng);
+        let poses = plan_trajectory(&room, &motion, None, fragments, frames, &mut pose_rng);
         let record = RoomRecord { spec: RoomSpec::default(), motion, orbit: None };
         (room, poses, "hall".to_string(), Some(record), Some(hall), None, None)
     } else if style == Style::HeldoutTof {
@@ -427,7 +427,7 @@ pub fn generate_styled_scene(
             roll_deg: 3.0,
         };
         let planning = camera_room(&room, &roof, motion.height[1], 0.3);
-        let poses = plan_trajectory(&planning, &motion, fragments, frames, &mut pose_rng);
+        let poses = plan_trajectory(&planning, &motion, None, fragments, frames, &mut pose_rng);
         let record = RoomRecord { spec: RoomSpec::default(), motion, orbit: None };
         (room, poses, "attic".to_string(), Some(record), None, Some(attic), None)
     } else {
@@ -465,10 +465,7 @@ pub fn generate_styled_scene(
             aim_deg: rng.uniform(10.0, 35.0),
         });
         let room = generate_room_with(&mut scene_rng, &spec);
-        let poses = match &orbit {
-            Some(orbit) => plan_orbit(&room, &motion, orbit, fragments, frames, &mut pose_rng),
-            None => plan_trajectory(&room, &motion, fragments, frames, &mut pose_rng),
-        };
+        let poses = plan_trajectory(&room, &motion, orbit.as_ref(), fragments, frames, &mut pose_rng);
         let kind = match shape {
             RoomShape::Rectangle => "room",
             RoomShape::LShape => "l_room",
