@@ -437,11 +437,16 @@ fn bad_overrides_are_rejected_with_a_message() {
     settings.fragments = 0;
     assert!(write_dataset(&dir, 0, 1, &settings, false, |_| {}).is_err());
     // Orbits are for randomized rooms: object scenes already circle their object, the held-out styles keep
-    // their own cameras.
-    for settings in
-        [orbiting(styled(Style::Randomized, 2, 24, 1, Some(true))), orbiting(styled(Style::Heldout, 2, 24, 1, None))]
-    {
+    // their own cameras, and the kinect generator has one trajectory (nor does it build repeated rooms).
+    let kinect = SynthSettings { fragments: 2, frames_per_fragment: 1, ..SynthSettings::default() };
+    for settings in [
+        orbiting(styled(Style::Randomized, 2, 24, 1, Some(true))),
+        orbiting(styled(Style::Heldout, 2, 24, 1, None)),
+        orbiting(kinect.clone()),
+    ] {
         let err = write_dataset(&dir, 0, 1, &settings, false, |_| {}).unwrap_err().to_string();
         assert!(err.contains("orbit"), "{err}");
     }
+    let err = write_dataset(&dir, 0, 1, &repeated(kinect), false, |_| {}).unwrap_err().to_string();
+    assert!(err.contains("repeated"), "{err}");
 }

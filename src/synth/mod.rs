@@ -121,6 +121,10 @@ pub fn generate_scene(seed: u64, settings: &SynthSettings) -> Result<Scene> {
             recipe: Some(s.recipe),
         });
     }
+    // The kinect generator has one room family and one trajectory: refuse what would silently be ignored.
+    if settings.overrides.repeated || settings.overrides.orbit {
+        return Err(Error::invalid("synth: repeated rooms and orbits apply to the randomized style only"));
+    }
     if settings.fragments == 0 || settings.frames_per_fragment == 0 {
         return Err(Error::invalid("synth: fragments and frames per fragment must be at least 1"));
     }
