@@ -127,6 +127,14 @@ pub struct Args {
     /// Smallest angle between the two sensors' view directions of a wide-view match, in degrees [default: 60].
     #[arg(long)]
     pub wide_view_deg: Option<f64>,
+    /// Share of the training patches (0..1) cut to the points a second, virtual sensor also sees: the part of a
+    /// patch two scans seen from far apart share [default: 0, no cuts].
+    #[arg(long)]
+    pub occlusion_share: Option<f64>,
+    /// Smallest and largest angle, in degrees, between a cut patch's sensor and the virtual one, seen from the
+    /// keypoint [default: 30,120].
+    #[arg(long, value_delimiter = ',', num_args = 2, value_names = ["LO", "HI"])]
+    pub occlusion_deg: Option<Vec<f64>>,
     /// Start from these weights instead of a random initialisation (their config is used).
     #[arg(long)]
     pub init: Option<PathBuf>,
@@ -205,6 +213,10 @@ fn fresh_settings(args: &Args) -> TrainSettings {
     s.sampling.patches_per_pair = args.patches_per_pair.unwrap_or(s.sampling.patches_per_pair);
     s.sampling.wide_view_share = args.wide_view_share.unwrap_or(s.sampling.wide_view_share);
     s.sampling.wide_view_deg = args.wide_view_deg.unwrap_or(s.sampling.wide_view_deg);
+    s.sampling.occlusion_share = args.occlusion_share.unwrap_or(s.sampling.occlusion_share);
+    if let Some(&[lo, hi]) = args.occlusion_deg.as_deref() {
+        s.sampling.occlusion_deg = [lo, hi];
+    }
     s
 }
 
@@ -244,6 +256,8 @@ fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> an
     check("--patches-per-pair", args.patches_per_pair.is_some_and(|v| v != s.sampling.patches_per_pair));
     check("--wide-view-share", args.wide_view_share.is_some_and(|v| v != s.sampling.wide_view_share));
     check("--wide-view-deg", args.wide_view_deg.is_some_and(|v| v != s.sampling.wide_view_deg));
+    check("--occlusion-share", args.occlusion_share.is_some_and(|v| v != s.sampling.occlusion_share));
+    check("--occlusion-deg", args.occlusion_deg.as_deref().is_some_and(|v| v != s.sampling.occlusion_deg));
     check("--init", args.init.is_some());
     if clashes.is_empty() {
         Ok(())

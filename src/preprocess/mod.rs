@@ -7,7 +7,7 @@ pub mod voxel;
 
 pub use keypoints::select_keypoints;
 pub use normals::{estimate_normals, estimate_normals_at};
-pub use patches::{Patches, extract_patches};
+pub use patches::{Patches, extract_patch_where, extract_patches};
 pub use voxel::voxel_downsample;
 
 use crate::cpu::patch_features::patch_features;

@@ -39,14 +39,7 @@ pub fn extract_patches(
     let sampled: Vec<Vec<u32>> = keypoints
         .par_iter()
         .map(|&k| {
-            let q = &points[k];
-            // Unsorted: the ranking by (hash, index) does not depend on the query's order.
-            let candidates: Vec<u32> = index
-                .within_unsorted(q, radius * (1.0 + QUERY_SLACK))
-                .iter()
-                .filter(|n| n.index != k && in_patch(&points[n.index], q, r2))
-                .map(|n| n.index as u32)
-                .collect();
+            let candidates = patch_candidates(points, index, k, r2, radius);
             sample_candidates(&candidates, k as u32, key, points_per_patch)
         })
         .collect();
@@ -62,9 +55,56 @@ pub fn extract_patches(
     out
 }
 
+/// Cloud indices of the points within `radius` of keypoint `k`, the keypoint itself excluded, in no order
+/// (the ranking by (hash, index) does not depend on the query's order).
+fn patch_candidates(points: &[[f32; 3]], index: &PointIndex, k: usize, r2: f32, radius: f32) -> Vec<u32> {
+    let q = &points[k];
+    index
+        .within_unsorted(q, radius * (1.0 + QUERY_SLACK))
+        .iter()
+        .filter(|n| n.index != k && in_patch(&points[n.index], q, r2))
+        .map(|n| n.index as u32)
+        .collect()
+}
+
+/// One keypoint's patch drawn, by the rule and stream [`extract_patches`] uses, from the candidates `keep` leaves
+/// (the training sampler's occlusion cuts); `None` when `keep` gives `None` or leaves no candidate.
+pub fn extract_patch_where(
+    points: &[[f32; 3]],
+    index: &PointIndex,
+    keypoint: usize,
+    radius: f32,
+    points_per_patch: usize,
+    seed: u64,
+    keep: impl FnOnce(Vec<u32>) -> Option<Vec<u32>>,
+) -> Option<Patches> {
+    let candidates = keep(patch_candidates(points, index, keypoint, radius_squared(radius), radius))?;
+    if candidates.is_empty() {
+        return None;
+    }
+    let neighbors = sample_candidates(&candidates, keypoint as u32, stream_key(seed), points_per_patch);
+    Some(Patches { keypoints: vec![keypoint], neighbors, points_per_patch, empty: Vec::new() })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_patch_drawn_from_kept_candidates_follows_the_same_rule() {
+        let pts: Vec<[f32; 3]> = (0..400).map(|i| [(i % 20) as f32 * 0.01, (i / 20) as f32 * 0.01, 0.0]).collect();
+        let index = PointIndex::new(&pts).unwrap();
+        let all = extract_patches(&pts, &index, &[210], 0.05, 16, 7);
+        assert_eq!(extract_patch_where(&pts, &index, 210, 0.05, 16, 7, Some), Some(all));
+        let even = extract_patch_where(&pts, &index, 210, 0.05, 16, 7, |c| {
+            Some(c.into_iter().filter(|j| j % 2 == 0).collect())
+        })
+        .unwrap();
+        assert_eq!((even.keypoints.clone(), even.neighbors.len()), (vec![210], 16));
+        assert!(even.neighbors.iter().all(|&j| j % 2 == 0 && in_patch(&pts[j as usize], &pts[210], 0.05 * 0.05)));
+        assert_eq!(extract_patch_where(&pts, &index, 210, 0.05, 16, 7, |_| None), None);
+        assert_eq!(extract_patch_where(&pts, &index, 210, 0.05, 16, 7, |_| Some(Vec::new())), None);
+    }
 
     #[test]
     fn samples_within_radius_excluding_centre_and_reports_isolated_points() {

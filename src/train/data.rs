@@ -12,7 +12,9 @@
 //! A sample draws a pair, a match, two patch seeds and two rotations from the step's random stream, then builds
 //! both patches with `crate::preprocess`. With `wide_view_share` > 0 that share of the drawn pairs gives only
 //! wide-view matches: correspondences whose two sensors (each fragment's origin) see the point from directions
-//! at least `wide_view_deg` apart, the views that random draws from ordinary trajectories rarely give.
+//! at least `wide_view_deg` apart, the views that random draws from ordinary trajectories rarely give. With
+//! `occlusion_share` > 0 that share of the patches is cut to what a virtual second sensor sees too
+//! (`super::occlusion`), the part of a patch two scans seen from far apart share.
 //!
 //! Augmentation rotates the source fragment about the origin by a uniform random rotation R_s (and, when enabled,
 //! the target fragment by R_t); the label is the rotation of the augmented target_from_source, R_t R R_s^T, which
@@ -23,6 +25,7 @@
 //! `F_t (R_t R R_s^T) F_s^T`.
 
 use super::objective::PairSample;
+use super::occlusion::{second_sensor, visible_from};
 use crate::cloud::PointCloud;
 use crate::cpu::rotation_head::normal_frame;
 use crate::error::{Error, Result};
@@ -30,7 +33,9 @@ use crate::io::{LoadOptions, read_cloud};
 use crate::model::ModelConfig;
 use crate::model::config::PoseFrame;
 use crate::pose::{matrix_from_quaternion, nearest_rotation};
-use crate::preprocess::{GatheredPatches, estimate_normals, extract_patches, gather, voxel_downsample};
+use crate::preprocess::{
+    GatheredPatches, Patches, estimate_normals, extract_patch_where, extract_patches, gather, voxel_downsample,
+};
 use crate::rng::Rng;
 use crate::spatial::PointIndex;
 use nalgebra::{Matrix3, Matrix4, Vector3};
@@ -74,6 +79,14 @@ pub struct DataSettings {
     /// origin) are at least this many degrees apart.
     #[serde(default = "sixty")]
     pub wide_view_deg: f64,
+    /// Share of the patches (0..=1, each of a sample's two drawn independently) cut to what a second sensor
+    /// would see too (`super::occlusion`): the part two scans seen from far apart share. 0 cuts none.
+    #[serde(default)]
+    pub occlusion_share: f64,
+    /// Range of the angle (degrees) between a cut patch's own sensor and its second sensor, seen from the
+    /// keypoint.
+    #[serde(default = "occlusion_angles")]
+    pub occlusion_deg: [f64; 2],
 }
 
 fn full_turn() -> f64 {
@@ -88,9 +101,14 @@ fn sixty() -> f64 {
     60.0
 }
 
+fn occlusion_angles() -> [f64; 2] {
+    [30.0, 120.0]
+}
+
 impl Default for DataSettings {
     /// 2.5 cm voxels, 30 normal neighbours (as inference), 3 cm matches, at least 32 points per patch,
-    /// source rotation only, uniform over SO(3), one sample per drawn pair, matches drawn uniformly.
+    /// source rotation only, uniform over SO(3), one sample per drawn pair, matches drawn uniformly, no
+    /// occlusion cuts.
     fn default() -> Self {
         DataSettings {
             voxel: 0.025,
@@ -103,6 +121,8 @@ impl Default for DataSettings {
             patches_per_pair: 1,
             wide_view_share: 0.0,
             wide_view_deg: 60.0,
+            occlusion_share: 0.0,
+            occlusion_deg: occlusion_angles(),
         }
     }
 }
@@ -202,6 +222,8 @@ struct Plan {
     target_point: u32,
     seeds: [u64; 2],
     rotations: [[f64; 4]; 2],
+    /// Per patch, the stream of its occlusion cut, if cut.
+    cuts: [Option<u64>; 2],
 }
 
 /// Draws training samples; deterministic given (seed, step).
@@ -217,6 +239,9 @@ pub struct Sampler {
     points_per_patch: usize,
     pose_frame: PoseFrame,
 }
+
+/// Occluders of an occlusion cut: the points within this many patch radii of the keypoint.
+const OCCLUDER_RADII: f32 = 2.0;
 
 /// Pair draws per sample before giving up (pairs without any match are skipped).
 const MAX_DRAWS: usize = 1000;
@@ -272,7 +297,9 @@ impl Sampler {
         let wide_ok = (0.0..=1.0).contains(&settings.wide_view_share)
             && settings.wide_view_deg > 0.0
             && settings.wide_view_deg <= 180.0;
-        if !(voxel_ok && match_ok && angle_ok && group_ok && wide_ok) {
+        let [lo, hi] = settings.occlusion_deg;
+        let cut_ok = (0.0..=1.0).contains(&settings.occlusion_share) && 0.0 <= lo && lo <= hi && hi <= 180.0;
+        if !(voxel_ok && match_ok && angle_ok && group_ok && wide_ok && cut_ok) {
             return Err(Error::invalid(format!("data settings out of range: {settings:?}")));
         }
         let mut ids: HashMap<PathBuf, usize> = HashMap::new();
@@ -445,7 +472,11 @@ impl Sampler {
                 .map(|(source_point, target_point)| {
                     let seeds = [rng.next_u64(), rng.next_u64()];
                     let rotations = [random_rotation(rng, max), random_rotation(rng, max)];
-                    Plan { pair, source_point, target_point, seeds, rotations }
+                    // Drawn only when cuts are on, so settings without them keep their random stream.
+                    let share = self.settings.occlusion_share;
+                    let mut cut = || (share > 0.0 && rng.unit_f64() < share).then(|| rng.next_u64());
+                    let cuts = [cut(), cut()];
+                    Plan { pair, source_point, target_point, seeds, rotations, cuts }
                 })
                 .collect());
         }
@@ -454,6 +485,25 @@ impl Sampler {
              at least {} points per patch)?",
             self.settings.match_distance, self.settings.min_patch_points
         )))
+    }
+
+    /// The patch of `keypoint` cut to what a second sensor drawn from stream `cut` sees too; `None` (no cut) when
+    /// no second sensor faces the keypoint's surface, it does not see the keypoint, or it leaves fewer than
+    /// `min_patch_points`. The fragment's own sensor is its origin; the z-buffer's cells are two voxels (or two
+    /// match distances without downsampling) wide.
+    fn cut_patch(&self, frag: &Fragment, keypoint: usize, seed: u64, cut: u64) -> Option<Patches> {
+        let mut rng = Rng::new(cut);
+        let (p, normal) = (frag.points[keypoint], frag.normals[keypoint]);
+        let sensor = second_sensor(p, normal, Vector3::zeros(), self.settings.occlusion_deg, &mut rng)?;
+        let cell =
+            2.0 * f64::from(if self.settings.voxel > 0.0 { self.settings.voxel } else { self.settings.match_distance });
+        let occluders: Vec<u32> =
+            frag.index.within_unsorted(&p, OCCLUDER_RADII * self.radius).iter().map(|nb| nb.index as u32).collect();
+        let (radius, n, min) = (self.radius, self.points_per_patch, self.settings.min_patch_points);
+        extract_patch_where(&frag.points, &frag.index, keypoint, radius, n, seed, |candidates| {
+            visible_from(&frag.points, &frag.normals, &candidates, &occluders, keypoint, &sensor, cell)
+                .filter(|kept| kept.len() >= min)
+        })
     }
 
     /// Builds one sample from its plan.
@@ -469,12 +519,17 @@ impl Sampler {
         let mut ppf = Vec::with_capacity(2 * n * 4);
         let mut pc = Vec::with_capacity(2 * n * 3);
         let mut frames = [Matrix3::identity(); 2];
-        for (slot, (frag, point, seed, r)) in
-            [(src, plan.source_point, plan.seeds[0], &r_s), (tgt, plan.target_point, plan.seeds[1], &r_t)]
-                .into_iter()
-                .enumerate()
+        for (slot, (frag, point, seed, r, cut)) in [
+            (src, plan.source_point, plan.seeds[0], &r_s, plan.cuts[0]),
+            (tgt, plan.target_point, plan.seeds[1], &r_t, plan.cuts[1]),
+        ]
+        .into_iter()
+        .enumerate()
         {
-            let patches = extract_patches(&frag.points, &frag.index, &[point as usize], radius, n, seed);
+            let patches = match cut.and_then(|cut| self.cut_patch(frag, point as usize, seed, cut)) {
+                Some(patches) => patches,
+                None => extract_patches(&frag.points, &frag.index, &[point as usize], radius, n, seed),
+            };
             if patches.keypoints.len() != 1 {
                 return Err(Error::invalid("internal: a usable keypoint gave an empty patch"));
             }
@@ -563,6 +618,35 @@ mod tests {
         assert_eq!(seen, [true, true]);
         // A batch that is not a multiple of the group size ends with a smaller group.
         assert_eq!(sampler.batch(3, 0, 6).unwrap().len(), 6);
+    }
+
+    #[test]
+    fn occlusion_cuts_change_patches_only_when_on() {
+        // A 2 m x 2 m plane 1 m in front of its sensor, paired with itself: no occluders, so a cut is the second
+        // sensor's image edges, which cut the patches of keypoints seen near them.
+        let scratch = tempfile::tempdir().unwrap();
+        let file = scratch.path().join("plane.ply");
+        let plane: Vec<[f32; 3]> = plane_at(1.0).iter().map(|p| [p[0] - 1.0, p[1] - 1.0, p[2]]).collect();
+        crate::io::write_ply(&file, &PointCloud::from_points(plane)).unwrap();
+        let pairs = vec![FragmentPair { source: file.clone(), target: file, target_from_source: Matrix4::identity() }];
+        let config = ModelConfig { points_per_patch: 32, ..ModelConfig::default() };
+        let batch = |settings: DataSettings, seed: u64| {
+            let mut sampler = Sampler::new(pairs.clone(), settings, &config).unwrap();
+            (0..4).flat_map(|step| sampler.batch(seed, step, 8).unwrap()).map(|s| s.ppf).collect::<Vec<_>>()
+        };
+        let plain = DataSettings { voxel: 0.0, ..DataSettings::default() };
+        let off = batch(plain.clone(), 3);
+        // Without cuts the angle range does not touch the random stream.
+        assert_eq!(batch(DataSettings { occlusion_deg: [10.0, 20.0], ..plain.clone() }, 3), off);
+        let cut = DataSettings { occlusion_share: 1.0, ..plain.clone() };
+        let on = batch(cut.clone(), 3);
+        assert_eq!(batch(cut, 3), on, "cuts are drawn from the step's stream");
+        assert_eq!(on.len(), off.len());
+        assert_ne!(on, off);
+        for (share, deg) in [(-0.1, [30.0, 120.0]), (1.5, [30.0, 120.0]), (0.5, [120.0, 30.0]), (0.5, [0.0, 181.0])] {
+            let settings = DataSettings { occlusion_share: share, occlusion_deg: deg, ..Default::default() };
+            assert!(Sampler::new(pairs.clone(), settings, &config).is_err());
+        }
     }
 
     #[test]

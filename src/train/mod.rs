@@ -35,6 +35,7 @@ pub mod data;
 pub mod grad;
 pub mod loss;
 pub mod objective;
+pub mod occlusion;
 pub mod trainer;
 
 pub use adam::{Adam, AdamSettings};
