@@ -133,8 +133,8 @@ pub struct Args {
     pub occlusion_share: Option<f64>,
     /// Smallest and largest angle, in degrees, between a cut patch's sensor and the virtual one, seen from the
     /// keypoint [default: 30,120].
-    #[arg(long, value_delimiter = ',', num_args = 2, value_names = ["LO", "HI"])]
-    pub occlusion_deg: Option<Vec<f64>>,
+    #[arg(long, value_name = "LO,HI", value_parser = angle_range)]
+    pub occlusion_deg: Option<[f64; 2]>,
     /// Start from these weights instead of a random initialisation (their config is used).
     #[arg(long)]
     pub init: Option<PathBuf>,
@@ -214,10 +214,18 @@ fn fresh_settings(args: &Args) -> TrainSettings {
     s.sampling.wide_view_share = args.wide_view_share.unwrap_or(s.sampling.wide_view_share);
     s.sampling.wide_view_deg = args.wide_view_deg.unwrap_or(s.sampling.wide_view_deg);
     s.sampling.occlusion_share = args.occlusion_share.unwrap_or(s.sampling.occlusion_share);
-    if let Some(&[lo, hi]) = args.occlusion_deg.as_deref() {
-        s.sampling.occlusion_deg = [lo, hi];
-    }
+    s.sampling.occlusion_deg = args.occlusion_deg.unwrap_or(s.sampling.occlusion_deg);
     s
+}
+
+/// Parses `LO,HI` (degrees).
+fn angle_range(text: &str) -> Result<[f64; 2], String> {
+    let parts: Vec<&str> = text.split(',').collect();
+    let [lo, hi] = parts[..] else {
+        return Err(format!("expected two angles LO,HI in degrees, got {text:?}"));
+    };
+    let angle = |t: &str| t.trim().parse::<f64>().map_err(|e| format!("{t:?} is not an angle: {e}"));
+    Ok([angle(lo)?, angle(hi)?])
 }
 
 /// Refuses options that would change a resumed run.
@@ -257,7 +265,7 @@ fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> an
     check("--wide-view-share", args.wide_view_share.is_some_and(|v| v != s.sampling.wide_view_share));
     check("--wide-view-deg", args.wide_view_deg.is_some_and(|v| v != s.sampling.wide_view_deg));
     check("--occlusion-share", args.occlusion_share.is_some_and(|v| v != s.sampling.occlusion_share));
-    check("--occlusion-deg", args.occlusion_deg.as_deref().is_some_and(|v| v != s.sampling.occlusion_deg));
+    check("--occlusion-deg", args.occlusion_deg.is_some_and(|v| v != s.sampling.occlusion_deg));
     check("--init", args.init.is_some());
     if clashes.is_empty() {
         Ok(())
