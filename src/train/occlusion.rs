@@ -1,15 +1,17 @@
 //! Occlusion cuts: the part of a training patch that a second sensor would see too.
 //!
 //! Two scans of one surface seen from directions far apart share only part of each keypoint's patch: the rest
-//! is hidden from one of the sensors by the surface itself or by what stands in front of it. A cut keeps the
+//! is hidden from one of the sensors by the surface itself or by what stands in front of it, or lies outside
+//! its image. A cut keeps the
 //! points of a fragment's patch that a virtual second sensor also sees, so the feature-consistency loss asks the
 //! codeword of that shared part to equal the codeword of the other fragment's whole patch.
 //!
 //! The second sensor looks at the keypoint from the fragment's own sensor direction turned by a drawn angle about
 //! a random axis, at the same distance, and must see the keypoint's surface from its front. Visibility is a point
 //! z-buffer: every point near the keypoint is projected through the second sensor onto square cells whose side
-//! is `cell` (world units) at the keypoint's depth; a point is visible when it faces the second sensor and lies
-//! little enough behind its cell's nearest point (`visible_from`).
+//! is `cell` (world units) at the keypoint's depth; a point is visible when it lies within the second sensor's
+//! image (the keypoint drawn at a random place in it), faces the sensor and lies little enough behind its cell's
+//! nearest point (`visible_from`).
 
 use crate::rng::Rng;
 use nalgebra::{Rotation3, Unit, Vector3};
@@ -79,10 +81,10 @@ pub fn second_sensor(
 /// The `candidates` (indices into `points`, whose unit normals are `normals`) that `sensor` sees past the
 /// `occluders` (indices into `points`, the candidates among them), looking at point `keypoint` through cells of
 /// side `cell` at the keypoint's depth. A point is seen when it lies within the sensor's image, its normal faces
-/// the sensor (the fragment holds only
-/// the surfaces its own sensor saw, so a back face would be seen through a missing front) and it lies behind its
-/// cell's nearest point by at most one cell plus its own surface's depth spread over a cell (the tangent of its
-/// incidence angle, at most four), in cells at its depth. `None` when the keypoint itself is not seen.
+/// the sensor (the fragment holds only the surfaces its own sensor saw, so a back face would be seen through a
+/// missing front) and it lies behind its cell's nearest point by at most one cell plus its own surface's depth
+/// spread over a cell (the tangent of its incidence angle, at most four), in cells at its depth. `None` when the
+/// keypoint itself is not seen.
 pub fn visible_from(
     points: &[[f32; 3]],
     normals: &[[f32; 3]],
