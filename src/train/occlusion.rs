@@ -13,6 +13,7 @@
 //! image (the keypoint drawn at a random place in it), faces the sensor and lies little enough behind its cell's
 //! nearest point (`visible_from`).
 
+use crate::pose::v3;
 use crate::rng::Rng;
 use nalgebra::{Rotation3, Unit, Vector3};
 use std::collections::HashMap;
@@ -26,10 +27,6 @@ const SENSOR_DRAWS: usize = 16;
 
 /// Largest depth spread of a surface over one cell, in cells (an incidence of 76 degrees).
 const MAX_SPREAD_CELLS: f64 = 4.0;
-
-fn vector(p: [f32; 3]) -> Vector3<f64> {
-    Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
-}
 
 /// A virtual second sensor.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -55,14 +52,14 @@ pub fn second_sensor(
     angle_deg: [f64; 2],
     rng: &mut Rng,
 ) -> Option<SecondSensor> {
-    let k = vector(keypoint);
+    let k = v3(keypoint);
     let to_sensor = sensor - k;
     let distance = to_sensor.norm();
     if distance <= f64::EPSILON {
         return None;
     }
     let toward = to_sensor / distance;
-    let n = vector(normal);
+    let n = v3(normal);
     for _ in 0..SENSOR_DRAWS {
         let angle = rng.uniform(angle_deg[0], angle_deg[1]).to_radians();
         let r = Vector3::new(rng.normal(), rng.normal(), rng.normal());
@@ -95,7 +92,7 @@ pub fn visible_from(
     cell: f64,
 ) -> Option<Vec<u32>> {
     let sensor = second.position;
-    let axis = vector(points[keypoint]) - sensor;
+    let axis = v3(points[keypoint]) - sensor;
     let depth = axis.norm();
     if depth <= f64::EPSILON || cell <= 0.0 {
         return None;
@@ -106,7 +103,7 @@ pub fn visible_from(
     let w = axis.cross(&u);
     let pixel = cell / depth;
     let project = |j: usize| {
-        let d = vector(points[j]) - sensor;
+        let d = v3(points[j]) - sensor;
         let z = d.dot(&axis);
         let image = [d.dot(&u) / z, d.dot(&w) / z];
         (z > cell * 1e-3).then(|| (image, ((image[0] / pixel).floor() as i64, (image[1] / pixel).floor() as i64), d, z))
@@ -123,7 +120,7 @@ pub fn visible_from(
     }
     let seen = |j: usize| {
         project(j).is_some_and(|(image, key, d, z)| {
-            let facing = -vector(normals[j]).dot(&d) / d.norm();
+            let facing = -v3(normals[j]).dot(&d) / d.norm();
             let spread = (1.0 - facing * facing).max(0.0).sqrt() / facing.max(1e-9);
             let tolerance = (1.0 + spread.min(MAX_SPREAD_CELLS)) * cell * z / depth;
             facing > 0.0 && in_image(image) && z <= nearest.get(&key).copied().unwrap_or(z) + tolerance
@@ -240,7 +237,7 @@ mod tests {
         let mut rng = Rng::new(5);
         let keypoint = [0.5, -0.2, 2.0];
         let normal = [0.0, 0.0, -1.0];
-        let k = vector(keypoint);
+        let k = v3(keypoint);
         let (mut some, mut none) = (0, 0);
         for _ in 0..200 {
             match second_sensor(keypoint, normal, Vector3::zeros(), [40.0, 70.0], &mut rng) {
@@ -250,7 +247,7 @@ mod tests {
                     let angle = (s - k).angle(&(-k)).to_degrees();
                     assert!((40.0 - 1e-6..=70.0 + 1e-6).contains(&angle), "{angle}");
                     assert!(((s - k).norm() - k.norm()).abs() < 1e-9);
-                    assert!((s - k).normalize().dot(&vector(normal)) >= MIN_FACING_COS - 1e-12);
+                    assert!((s - k).normalize().dot(&v3(normal)) >= MIN_FACING_COS - 1e-12);
                 }
                 None => none += 1,
             }
