@@ -135,6 +135,10 @@ pub struct Args {
     /// keypoint [default: 30,120].
     #[arg(long, value_name = "LO,HI", value_parser = angle_range)]
     pub occlusion_deg: Option<[f64; 2]>,
+    /// Cut only the PPF branch's patches (the rotation-invariant codewords); the PC branch, RelativeNet's input,
+    /// keeps whole patches.
+    #[arg(long)]
+    pub occlusion_ppf_only: bool,
     /// Start from these weights instead of a random initialisation (their config is used).
     #[arg(long)]
     pub init: Option<PathBuf>,
@@ -215,6 +219,7 @@ fn fresh_settings(args: &Args) -> TrainSettings {
     s.sampling.wide_view_deg = args.wide_view_deg.unwrap_or(s.sampling.wide_view_deg);
     s.sampling.occlusion_share = args.occlusion_share.unwrap_or(s.sampling.occlusion_share);
     s.sampling.occlusion_deg = args.occlusion_deg.unwrap_or(s.sampling.occlusion_deg);
+    s.sampling.occlusion_ppf_only = args.occlusion_ppf_only;
     s
 }
 
@@ -266,6 +271,7 @@ fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> an
     check("--wide-view-deg", args.wide_view_deg.is_some_and(|v| v != s.sampling.wide_view_deg));
     check("--occlusion-share", args.occlusion_share.is_some_and(|v| v != s.sampling.occlusion_share));
     check("--occlusion-deg", args.occlusion_deg.is_some_and(|v| v != s.sampling.occlusion_deg));
+    check("--occlusion-ppf-only", args.occlusion_ppf_only && !s.sampling.occlusion_ppf_only);
     check("--init", args.init.is_some());
     if clashes.is_empty() {
         Ok(())

@@ -87,6 +87,9 @@ pub struct DataSettings {
     /// keypoint.
     #[serde(default = "occlusion_angles")]
     pub occlusion_deg: [f64; 2],
+    /// Cuts reach the PPF branch only: the pose-variant PC branch (RelativeNet's input) keeps the whole patch.
+    #[serde(default)]
+    pub occlusion_ppf_only: bool,
 }
 
 fn full_turn() -> f64 {
@@ -123,6 +126,7 @@ impl Default for DataSettings {
             wide_view_deg: 60.0,
             occlusion_share: 0.0,
             occlusion_deg: occlusion_angles(),
+            occlusion_ppf_only: false,
         }
     }
 }
@@ -526,25 +530,34 @@ impl Sampler {
         .into_iter()
         .enumerate()
         {
-            let patches = match cut.and_then(|cut| self.cut_patch(frag, point as usize, seed, cut)) {
-                Some(patches) => patches,
-                None => extract_patches(&frag.points, &frag.index, &[point as usize], radius, n, seed),
+            let whole = || extract_patches(&frag.points, &frag.index, &[point as usize], radius, n, seed);
+            let cut = cut.and_then(|cut| self.cut_patch(frag, point as usize, seed, cut));
+            let features = |patches: &Patches| -> Result<_> {
+                if patches.keypoints.len() != 1 {
+                    return Err(Error::invalid("internal: a usable keypoint gave an empty patch"));
+                }
+                let g = gather(&frag.points, &frag.normals, patches);
+                let g = GatheredPatches {
+                    centers: g.centers.iter().map(|&v| rotate(r, v)).collect(),
+                    center_normals: g.center_normals.iter().map(|&v| rotate(r, v)).collect(),
+                    points: g.points.iter().map(|&v| rotate(r, v)).collect(),
+                    normals: g.normals.iter().map(|&v| rotate(r, v)).collect(),
+                };
+                let (f, c) = g.features(n, radius, self.pose_frame);
+                Ok((f, c, g.center_normals[0]))
             };
-            if patches.keypoints.len() != 1 {
-                return Err(Error::invalid("internal: a usable keypoint gave an empty patch"));
-            }
-            let g = gather(&frag.points, &frag.normals, &patches);
-            let g = GatheredPatches {
-                centers: g.centers.iter().map(|&v| rotate(r, v)).collect(),
-                center_normals: g.center_normals.iter().map(|&v| rotate(r, v)).collect(),
-                points: g.points.iter().map(|&v| rotate(r, v)).collect(),
-                normals: g.normals.iter().map(|&v| rotate(r, v)).collect(),
+            let (f, c, center_normal) = match cut {
+                Some(cut) if self.settings.occlusion_ppf_only => {
+                    let (f, _, center_normal) = features(&cut)?;
+                    (f, features(&whole())?.1, center_normal)
+                }
+                Some(cut) => features(&cut)?,
+                None => features(&whole())?,
             };
-            let (f, c) = g.features(n, radius, self.pose_frame);
             ppf.extend(f);
             pc.extend(c);
             if self.pose_frame == PoseFrame::Normal {
-                frames[slot] = Matrix3::from_row_slice(&normal_frame(g.center_normals[0]).map(f64::from));
+                frames[slot] = Matrix3::from_row_slice(&normal_frame(center_normal).map(f64::from));
             }
         }
         let r = nearest_rotation(&self.pairs[plan.pair].target_from_source.fixed_view::<3, 3>(0, 0).into_owned());
@@ -632,17 +645,31 @@ mod tests {
         let config = ModelConfig { points_per_patch: 32, ..ModelConfig::default() };
         let batch = |settings: DataSettings, seed: u64| {
             let mut sampler = Sampler::new(pairs.clone(), settings, &config).unwrap();
-            (0..4).flat_map(|step| sampler.batch(seed, step, 8).unwrap()).map(|s| s.ppf).collect::<Vec<_>>()
+            (0..4)
+                .flat_map(|step| sampler.batch(seed, step, 8).unwrap())
+                .map(|s| (s.ppf, s.pc))
+                .unzip::<_, _, Vec<_>, Vec<_>>()
         };
         let plain = DataSettings { voxel: 0.0, ..DataSettings::default() };
         let off = batch(plain.clone(), 3);
-        // Without cuts the angle range does not touch the random stream.
-        assert_eq!(batch(DataSettings { occlusion_deg: [10.0, 20.0], ..plain.clone() }, 3), off);
+        // Without cuts the angle range and the branch choice do not touch the random stream.
+        let unused = DataSettings { occlusion_deg: [10.0, 20.0], occlusion_ppf_only: true, ..plain.clone() };
+        assert_eq!(batch(unused, 3), off);
         let cut = DataSettings { occlusion_share: 1.0, ..plain.clone() };
         let on = batch(cut.clone(), 3);
-        assert_eq!(batch(cut, 3), on, "cuts are drawn from the step's stream");
-        assert_eq!(on.len(), off.len());
-        assert_ne!(on, off);
+        assert_eq!(batch(cut.clone(), 3), on, "cuts are drawn from the step's stream");
+        assert_eq!(on.0.len(), off.0.len());
+        assert_ne!(on.0, off.0);
+        assert_ne!(on.1, off.1);
+        // Cuts on the PPF branch only: the PPF inputs are the cut ones, the PC inputs the whole patches' of the
+        // same plans. Those come from cuts whose second sensor can only look from behind the plane, never
+        // facing it: drawn as `cut`'s (same stream), none made.
+        let never = batch(DataSettings { occlusion_deg: [179.0, 180.0], ..cut.clone() }, 3);
+        assert_ne!(never.0, on.0);
+        let ppf_only = batch(DataSettings { occlusion_ppf_only: true, ..cut }, 3);
+        assert_eq!(ppf_only.0, on.0);
+        assert_eq!(ppf_only.1, never.1);
+        assert_ne!(ppf_only.1, on.1);
         for (share, deg) in [(-0.1, [30.0, 120.0]), (1.5, [30.0, 120.0]), (0.5, [120.0, 30.0]), (0.5, [0.0, 181.0])] {
             let settings = DataSettings { occlusion_share: share, occlusion_deg: deg, ..Default::default() };
             assert!(Sampler::new(pairs.clone(), settings, &config).is_err());
