@@ -86,6 +86,85 @@ pub fn extract_patch_where(
     Some(Patches { keypoints: vec![keypoint], neighbors, points_per_patch, empty: Vec::new() })
 }
 
+/// DIAGNOSTIC: the vis settings (distance, cells, tolerance) from `DPR_VIS`, if set.
+pub fn vis_settings() -> Option<[f32; 3]> {
+    let v: Vec<f32> = std::env::var("DPR_VIS").ok()?.split(',').map(|x| x.parse().unwrap()).collect();
+    Some([v[0], v[1], v[2]])
+}
+
+/// DIAGNOSTIC: the candidates visible (z-buffer) from a virtual viewpoint `dist * radius` along the keypoint
+/// normal; `cells` image cells per radius at the keypoint plane; `tol` depth tolerance (of radius).
+pub fn visible_candidates(
+    points: &[[f32; 3]],
+    normals: &[[f32; 3]],
+    candidates: &[u32],
+    k: usize,
+    radius: f32,
+    [dist, cells, tol]: [f32; 3],
+) -> Vec<u32> {
+    let n = normals[k];
+    let frame = crate::cpu::rotation_head::normal_frame(n);
+    let p = points[k];
+    let eye = [p[0] + dist * radius * n[0], p[1] + dist * radius * n[1], p[2] + dist * radius * n[2]];
+    let cell = 1.0 / (cells * dist);
+    let mut proj = Vec::with_capacity(candidates.len());
+    let mut best: std::collections::HashMap<(i32, i32), f32> = std::collections::HashMap::new();
+    for &j in candidates {
+        let q = points[j as usize];
+        let rel = [q[0] - eye[0], q[1] - eye[1], q[2] - eye[2]];
+        let l = crate::cpu::patch_features::apply_frame(&frame, rel);
+        let depth = -l[2];
+        if depth <= 1e-6 * radius {
+            proj.push(None);
+            continue;
+        }
+        let c = ((l[0] / depth / cell).floor() as i32, (l[1] / depth / cell).floor() as i32);
+        let e = best.entry(c).or_insert(f32::INFINITY);
+        *e = e.min(depth);
+        proj.push(Some((c, depth)));
+    }
+    candidates
+        .iter()
+        .zip(proj)
+        .filter(|(_, pr)| pr.is_some_and(|(c, d)| d <= best[&c] + tol * radius))
+        .map(|(&j, _)| j)
+        .collect()
+}
+
+/// DIAGNOSTIC: [`extract_patches`] keeping only [`visible_candidates`].
+#[allow(clippy::too_many_arguments)]
+pub fn extract_visible(
+    points: &[[f32; 3]],
+    normals: &[[f32; 3]],
+    index: &PointIndex,
+    keypoints: &[usize],
+    radius: f32,
+    points_per_patch: usize,
+    seed: u64,
+    vis: [f32; 3],
+) -> Patches {
+    let key = stream_key(seed);
+    let r2 = radius_squared(radius);
+    let sampled: Vec<Vec<u32>> = keypoints
+        .par_iter()
+        .map(|&k| {
+            let candidates = patch_candidates(points, index, k, r2, radius);
+            let kept = visible_candidates(points, normals, &candidates, k, radius, vis);
+            sample_candidates(&kept, k as u32, key, points_per_patch)
+        })
+        .collect();
+    let mut out = Patches { points_per_patch, ..Patches::default() };
+    for (&k, nbrs) in keypoints.iter().zip(sampled) {
+        if nbrs.is_empty() {
+            out.empty.push(k);
+        } else {
+            out.keypoints.push(k);
+            out.neighbors.extend(nbrs);
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
