@@ -207,23 +207,7 @@ impl ScanCloud for HostScanCloud {
         lap: Lap<'_>,
     ) -> Result<DescribedKeypoints> {
         let n = self.settings.points_per_patch;
-        let patches = match crate::preprocess::patches::vis_settings() {
-            None => extract_patches(&cloud.points, &self.index, keypoints, radius, n, seed),
-            Some(vis) => {
-                self.fill_normals(cloud, keypoints.to_vec());
-                let normals = cloud.normals.as_ref().expect("normals");
-                crate::preprocess::patches::extract_visible(
-                    &cloud.points,
-                    normals,
-                    &self.index,
-                    keypoints,
-                    radius,
-                    n,
-                    seed,
-                    vis,
-                )
-            }
-        };
+        let patches = extract_patches(&cloud.points, &self.index, keypoints, radius, n, seed);
         lap("patches");
         let mut needed: Vec<usize> = patches.keypoints.clone();
         needed.extend(patches.neighbors.iter().map(|&j| j as usize));

@@ -507,17 +507,6 @@ impl Sampler {
         extract_patch_where(&frag.points, &frag.index, keypoint, radius, n, seed, |candidates| {
             visible_from(&frag.points, &frag.normals, &candidates, &occluders, keypoint, &sensor, cell)
                 .filter(|kept| kept.len() >= min)
-                .map(|kept| match crate::preprocess::patches::vis_settings() {
-                    None => kept,
-                    Some(v) => crate::preprocess::patches::visible_candidates(
-                        &frag.points,
-                        &frag.normals,
-                        &kept,
-                        keypoint,
-                        radius,
-                        v,
-                    ),
-                })
         })
     }
 
@@ -541,21 +530,7 @@ impl Sampler {
         .into_iter()
         .enumerate()
         {
-            let vis = crate::preprocess::patches::vis_settings();
-            let whole = || match vis {
-                None => extract_patches(&frag.points, &frag.index, &[point as usize], radius, n, seed),
-                Some(v) => extract_patch_where(&frag.points, &frag.index, point as usize, radius, n, seed, |c| {
-                    Some(crate::preprocess::patches::visible_candidates(
-                        &frag.points,
-                        &frag.normals,
-                        &c,
-                        point as usize,
-                        radius,
-                        v,
-                    ))
-                })
-                .unwrap_or_default(),
-            };
+            let whole = || extract_patches(&frag.points, &frag.index, &[point as usize], radius, n, seed);
             let cut = cut.and_then(|cut| self.cut_patch(frag, point as usize, seed, cut));
             let features = |patches: &Patches| -> Result<_> {
                 if patches.keypoints.len() != 1 {
