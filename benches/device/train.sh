@@ -3,8 +3,10 @@
 # 560): the training kernels' parity tests first, then the data of weights/README's orbit run generated there
 # (TRAIN_SCENES scenes of its five sets, default "12 20 16 16 8": kinect seed 1, randomized seed 2, randomized
 # repeated-kind seed 4, randomized rooms with --orbit seed 6, repeated-kind with --orbit seed 7), the default
-# weights continued on the device with that run's settings (`train --backend gpu`, --max-seconds up to
-# EVAL_RESERVE seconds before the end, default 200; BATCH pairs a step, default 32),
+# weights continued on the device with that run's settings plus half the patches cut on the PPF branch only and
+# a slower decay (weights/README, "A slower learning-rate decay"; `train --backend gpu`, --max-seconds up to
+# EVAL_RESERVE seconds before the end, default 200; BATCH pairs a step, default 32; LR_DECAY_EVERY steps per
+# halving of the learning rate, default 2500: stretch it with a longer run),
 # and GPU evals of the result: the repetition tuning set (seed 710, never trained on) and the held-out halls
 # (seed 900; reported, never chosen on), EVAL_SCENES scenes each (default 4). Back in $OUT: the weights
 # (gpu-run.safetensors), the loss log, the training log, the parity tests' output, the bench (its train_step
@@ -42,8 +44,9 @@ log "train for ${secs}s (data preparation included)"
 # The limit stops the run and saves it; the timeout is a backstop 30 s later.
 timeout "$((secs + 30))" $bin train --data "$data/kinect" "$data/random" "$data/repeated" "$data/orbit" \
     "$data/orbitrep" --out "$OUT/gpu-run.safetensors" --init weights/default.safetensors --backend gpu \
-    --steps 1000000 --max-seconds "$secs" --lr-decay-every 1000 --batch "${BATCH:-32}" --lr 3e-4 --seed 32 \
-    --lambda-contrast 1 --contrast-margin 0.5 --patches-per-pair 4 --wide-view-share 0.3 --wide-view-deg 60 \
+    --steps 1000000 --max-seconds "$secs" --lr-decay-every "${LR_DECAY_EVERY:-2500}" --batch "${BATCH:-32}" \
+    --lr 3e-4 --seed 35 --lambda-contrast 1 --contrast-margin 0.5 --patches-per-pair 4 --wide-view-share 0.3 \
+    --wide-view-deg 60 --occlusion-share 0.5 --occlusion-deg 30,120 --occlusion-ppf-only \
     --checkpoint-every 200 --checkpoint /tmp/run/gpu.ckpt.safetensors \
     --log "$OUT/losses.csv" > "$OUT/train.log" 2>&1
 log "train rc=$?"
