@@ -1,6 +1,6 @@
 //! Feature-match recall when each keypoint is matched on its PPF-FoldNet codewords at several patch radii side
 //! by side (each codeword unit-normalised and weighted, then concatenated), against the ground truth of a
-//! dataset `dpr-gpu eval` reads. A measurement tool for weights/README.md ("Matching on codewords at several
+//! dataset `dpr-gpu eval` reads. A measurement tool for docs/experiments/context-radii.md ("Matching on codewords at several
 //! radii"), not part of the pipeline.
 //!
 //! cargo run --release --example multi_radius_matching -- DATASET RADII WEIGHTS [KEYPOINTS] [VOXEL] [SCALE] [MODEL]
@@ -14,7 +14,7 @@
 //! Beside each weight set's recall it gives the recall of the pairs grouped by their view angle: the median, over
 //! the source keypoints with a target keypoint within tau1 of their true position, of the angle at that point
 //! between the directions to the two fragments' sensors (each fragment's origin), the viewpoint change a
-//! descriptor must bear (weights/README.md, "Viewpoint change, not repetition").
+//! descriptor must bear (docs/experiments/viewpoint-change.md).
 use dpr_gpu::eval::dataset::load_dataset;
 use dpr_gpu::eval::metrics::count_feature_inliers;
 use dpr_gpu::eval::score::Thresholds;

@@ -1,10 +1,10 @@
 #!/bin/bash
 # One training run on a GPU machine with no Rust toolchain (results under $OUT), within BUDGET seconds (default
-# 560): the training kernels' parity tests first, then the data of weights/README's orbit run generated there
+# 560): the training kernels' parity tests first, then the data of the orbit run (docs/experiments/orbit.md) generated there
 # (TRAIN_SCENES scenes of its five sets, default "12 20 16 16 8": kinect seed 1, randomized seed 2, randomized
 # repeated-kind seed 4, randomized rooms with --orbit seed 6, repeated-kind with --orbit seed 7), the default
 # weights continued on the device with that run's settings plus half the patches cut on the PPF branch only and
-# a slower decay (weights/README, "A slower learning-rate decay"; `train --backend gpu`, --max-seconds up to
+# a slower decay (docs/experiments/slow-decay.md; `train --backend gpu`, --max-seconds up to
 # EVAL_RESERVE seconds before the end, default 200; BATCH pairs a step, default 32; LR_DECAY_EVERY steps per
 # halving of the learning rate, default 2500: stretch it with a longer run),
 # and GPU evals of the result: the repetition tuning set (seed 710, never trained on) and the held-out halls

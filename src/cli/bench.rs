@@ -54,7 +54,7 @@ pub struct Args {
     /// Seed of the synthetic inputs.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Print one JSON document (schema `dpr-gpu-bench/2`, fields in the README) on stdout instead of the table.
+    /// Print one JSON document (schema `dpr-gpu-bench/2`, fields in docs/gpu.md) on stdout instead of the table.
     #[arg(long)]
     pub json: bool,
     /// The GPU's peak f32 throughput in TFLOP/s, from its datasheet (adapters do not report it): GPU GFLOP/s

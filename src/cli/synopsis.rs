@@ -1,4 +1,4 @@
-//! The command-line synopsis, generated from the argument definitions so that the README's copy (checked by
+//! The command-line synopsis, generated from the argument definitions so that the copy in docs/cli.md (checked by
 //! `tests/readme.rs`) cannot drift from `--help`.
 
 use clap::CommandFactory;

@@ -113,7 +113,7 @@ pub struct Args {
     #[arg(long)]
     pub no_rotate_source: bool,
     /// Largest augmentation rotation in degrees (180: uniform over SO(3)) [default: 180, what the default
-    /// angle-bin head trains on; the paper's quaternion head did not learn beyond about 45 (weights/README.md)].
+    /// angle-bin head trains on; the paper's quaternion head did not learn beyond about 45 (docs/experiments/paper-head.md)].
     #[arg(long)]
     pub max_rotation: Option<f64>,
     /// Samples per drawn fragment pair, at keypoints a patch radius apart: patches of one scene side by side in

@@ -359,7 +359,7 @@ impl Precision {
 
     /// The precision a value of [`CPU_PRECISION_ENV`] asks for on a CPU with or without AVX-512 BF16, and why.
     /// Unset, empty or `auto`: bf16 where the CPU has it, else f32 (the default: the encoders take half the
-    /// time, and on the shipped weights bf16 registers the same pairs as f32, see the README's speed section);
+    /// time, and on the shipped weights bf16 registers the same pairs as f32, see docs/speed.md);
     /// `f32`: f32 (bit-identical on every CPU); `bf16`: bf16, an error where the CPU lacks it.
     pub fn choose(value: Option<&str>, bf16_available: bool) -> crate::error::Result<(Precision, String)> {
         let invalid = |why: String| Err(crate::error::Error::invalid(why));

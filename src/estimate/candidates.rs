@@ -19,7 +19,7 @@ use nalgebra::Matrix4;
 pub const MIN_INLIER_SHARE: f64 = 0.5;
 
 /// A candidate also needs a violating share ([`super::visibility::Consistency::violate`], a share of the
-/// checked points) at least this much below the first's. Chosen on the repetition tuning set (weights/README.md,
+/// checked points) at least this much below the first's. Chosen on the repetition tuning set (docs/experiments/pose-candidates.md,
 /// "Choosing among the best poses by what both scans saw"): the wrong first poses that were replaced put 8-27 %
 /// of the points in seen-empty space, the right first poses that were lost under 5 % (a 180-degree turn of a
 /// nearly symmetric room agrees as well as the right pose), so only a clear drop overrides.
