@@ -47,6 +47,7 @@ pub mod pipeline;
 pub mod pose;
 pub mod preprocess;
 pub mod rng;
+pub mod scale;
 pub mod settings;
 pub mod snapshot;
 pub mod spatial;

@@ -82,8 +82,11 @@ pub const DEFAULT_ICP_ITERATIONS: usize = 30;
 pub struct RegistrationSettings {
     /// Weights file; `None` uses the shipped `weights/default.safetensors`.
     pub weights: Option<PathBuf>,
-    /// Patch radius r. `None`: the radius the weights were trained with times [`RADIUS_PER_TRAINING_RADIUS`]
-    /// (0.60 m for the shipped weights).
+    /// Patch radius r, in cloud units. `None` (the default): chosen from the clouds themselves where the
+    /// registration sees them all ([`crate::scale`]: [`crate::scale::RADIUS_PER_SIZE`] times the scans' median
+    /// distance from their centroid; `register`, `eval` per scene, `multiway` over all its scans), so clouds
+    /// in any unit and at any scale register without it; where one scan is described alone, the radius the
+    /// weights were trained with times [`RADIUS_PER_TRAINING_RADIUS`] (0.60 m for the shipped weights).
     pub radius: Option<f32>,
     /// Voxel size for downsampling before normals and keypoints; `Some(0.0)` keeps every point. `None` (the
     /// default): for a cloud without normals, the voxel the weights were trained with, scaled to the radius in
@@ -166,7 +169,7 @@ pub struct ContextRadius {
 
 /// The default context radii: one patch twice the radius, its codewords weighted as the main radius's, used
 /// only for pairs the main radius does not register with trust ([`ContextWhen::Untrusted`]). Chosen on the
-/// synthetic validation sets (weights/README.md, "Context radii only for untrusted pairs"): Kinect-like
+/// synthetic validation sets (docs/experiments/context-radii.md, "Context radii only for untrusted pairs"): Kinect-like
 /// registration recall 0.97 with either estimator at every rotation (RelativeNet 0.97-1.00, RANSAC 1.00 without
 /// it), randomized feature-match recall 0.79 -> 0.88; pairs the main radius trusts pay nothing.
 pub const DEFAULT_CONTEXT_RADII: [ContextRadius; 1] = [ContextRadius { factor: 2.0, weight: 1.0 }];
@@ -177,7 +180,7 @@ pub const MAX_CONTEXT_FACTOR: f32 = 8.0;
 pub const MAX_CONTEXT_RADII: usize = 4;
 
 /// The default of `RegistrationSettings::pose_candidates`: the 16 best distinct poses compete. Chosen on the
-/// synthetic tuning sets (weights/README.md, "Choosing among the best poses by what both scans saw"): on the
+/// synthetic tuning sets (docs/experiments/pose-candidates.md, "Choosing among the best poses by what both scans saw"): on the
 /// repetition tuning set RelativeNet registration recall 65 -> 72 of 75 and RANSAC's 63 -> 65, on the
 /// randomized one RelativeNet 80 -> 81 of 85 (RANSAC unchanged), no false alarm added.
 pub const DEFAULT_POSE_CANDIDATES: usize = 16;
@@ -186,7 +189,7 @@ pub const MAX_POSE_CANDIDATES: usize = 64;
 
 /// The default patch radius as a multiple of the radius the weights were trained with: describing each keypoint
 /// with twice the context it was trained on (a patch keeps its number of points, so it samples a larger
-/// neighbourhood more sparsely). Chosen on synthetic validation scenes that no training saw (weights/README.md,
+/// neighbourhood more sparsely). Chosen on synthetic validation scenes that no training saw (docs/experiments/inference-radius.md,
 /// "Inference radius"): with the randomized generator, feature-match recall 0.47 at 1x, 0.70 at 1.5x, 0.79 at 2x,
 /// 0.80 at 3x, registration recall 71, 76, 81 and 80 of 85; with the Kinect-like one FMR 0.96 -> 0.99.
 pub const RADIUS_PER_TRAINING_RADIUS: f32 = 2.0;
@@ -197,12 +200,12 @@ pub const RADIUS_PER_TRAINING_RADIUS: f32 = 2.0;
 /// the training radius is 0.69 at full density and 0.85 at this voxel; with the files' own normals it is 0.96 at
 /// full density and 0.87 at this voxel, so clouds with normals keep every point. At the default radius, on the
 /// randomized validation scenes without normals, this voxel gives FMR 0.62 where radius / 12 (the training
-/// voxel per training radius) gives 0.54 (weights/README.md).
+/// voxel per training radius) gives 0.54 (docs/experiments/inference-radius.md).
 pub const VOXEL_PER_RADIUS: f32 = 1.0 / 24.0;
 
 /// The default inlier threshold as a fraction of the patch radius: 0.10 m at the default 0.60 m, the 3DMatch
 /// feature-match distance tau1 and the distance the verdict's thresholds were validated at (at radius / 3 its
-/// spread rule rejects correct poses; weights/README.md, "Inference radius").
+/// spread rule rejects correct poses; docs/experiments/inference-radius.md, "Inference radius").
 pub const INLIER_THRESHOLD_PER_RADIUS: f32 = 1.0 / 6.0;
 
 /// ICP's default largest point-pair distance as a fraction of the patch radius: 5 cm at the default 0.60 m
@@ -390,6 +393,8 @@ pub struct RegistrationResult {
     pub success: bool,
     /// Why it cannot be trusted (`None` on success).
     pub reason: Option<String>,
+    /// The patch radius it ran at, how it was chosen, and the distances that follow it.
+    pub scale: crate::scale::ScaleReport,
 }
 
 impl std::fmt::Display for PoseEstimate {

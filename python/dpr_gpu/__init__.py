@@ -34,9 +34,11 @@ from ._dpr_gpu import (
     Registrar,
     RegistrationResult,
     __version__,
+    choose_radius,
     multiway_origin,
     optimize_pairs,
     read_cloud,
+    scan_size,
     select_pairs,
 )
 
@@ -49,11 +51,13 @@ __all__ = [
     "Registrar",
     "RegistrationResult",
     "__version__",
+    "choose_radius",
     "multiway",
     "multiway_origin",
     "optimize_pairs",
     "read_cloud",
     "register",
+    "scan_size",
     "select_pairs",
 ]
 

@@ -18,6 +18,8 @@ __all__ = [
     "RegistrationResult",
     "Registrar",
     "multiway_origin",
+    "scan_size",
+    "choose_radius",
     "optimize_pairs",
     "read_cloud",
     "select_pairs",
@@ -180,6 +182,9 @@ class RegistrationResult:
     """The outcome of registering a source scan onto a target scan."""
 
     @property
+    def scale(self) -> dict[str, Any]:
+        """The patch radius, how it was chosen, and the voxel, inlier threshold and ICP distance."""
+    @property
     def target_from_source(self) -> npt.NDArray[np.float64]:
         """4x4 rigid transform (float64) mapping source points into the target frame."""
     @property
@@ -336,6 +341,12 @@ def read_cloud(
 
 def multiway_origin(points: _Points) -> Tuple[int, int, int]:
     """The whole-unit origin ``multiway`` subtracts from every scan of a collection whose first scan is ``points``."""
+
+def scan_size(points: _Points, *, origin: Tuple[int, int, int] = (0, 0, 0), drop_zero_points: bool = False) -> float:
+    """Median distance of the scan's points from their centroid, as ``multiway`` measures it."""
+
+def choose_radius(sizes: Sequence[float]) -> float:
+    """The patch radius chosen for scans of these sizes: 0.55 times their median."""
 
 def select_pairs(
     n: int,

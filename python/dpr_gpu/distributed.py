@@ -47,9 +47,11 @@ from ._dpr_gpu import (
     PairResult,
     Registrar,
     _library_defaults,
+    choose_radius,
     multiway_origin,
     optimize_pairs,
     read_cloud,
+    scan_size,
     select_pairs,
 )
 
@@ -89,6 +91,7 @@ class _Worker:
         chosen = any(os.environ.get(v) for v in ("DPR_GPU_ADAPTER_INDEX", "WGPU_ADAPTER_NAME"))
         if gpu_ids and not chosen and str(gpu_ids[0]).isdigit():
             os.environ["DPR_GPU_ADAPTER_INDEX"] = str(gpu_ids[0])
+        self._settings = dict(settings)
         self._registrar = Registrar(**settings)
         self._cache: "collections.OrderedDict[int, DescribedScan]" = collections.OrderedDict()
         self._cache_scans = max(1, cache_scans)
@@ -110,6 +113,18 @@ class _Worker:
             "fetched_scans": self._fetched,
             "gpu_ids": [str(g) for g in ray.get_gpu_ids()],
         }
+
+    def size(self, scan: Any, origin: Tuple[int, int, int], drop_zero_points: bool) -> float:
+        """The size of one scan (an array, or a file read here) as ``Registrar.multiway`` measures it to choose
+        the patch radius (``scan_size``)."""
+        if isinstance(scan, (str, os.PathLike)):
+            scan, _ = read_cloud(scan, drop_zero_points=drop_zero_points)
+        return scan_size(scan, origin=origin, drop_zero_points=drop_zero_points)
+
+    def set_radius(self, radius: float) -> None:
+        """Rebuilds this worker's registrar at the patch radius chosen from every scan (before any describe)."""
+        self._settings["radius"] = radius
+        self._registrar = Registrar(**self._settings)
 
     def _keep(self, scan: DescribedScan) -> None:
         self._cache[scan.index] = scan
@@ -300,6 +315,20 @@ def run(
         clock = time.perf_counter()
         scan_refs = [s if isinstance(s, (str, os.PathLike)) else ray.put(s) for s in scans]
         normal_refs = [None if normals is None or normals[k] is None else ray.put(normals[k]) for k in range(n)]
+        if settings.get("radius") is None:
+            # One radius for every scan, chosen from all of them as Registrar.multiway chooses it.
+            sizes = ray.get(
+                _dispatch(
+                    ray,
+                    actors,
+                    list(range(n)),
+                    lambda actor, k: actor.size.remote(scan_refs[k], origin, drop_zero_points),
+                )
+            )
+            radius = choose_radius(sizes)
+            ray.get([a.set_radius.remote(radius) for a in actors])
+            stages["scale"] = time.perf_counter() - clock
+            clock = time.perf_counter()
 
         def describe(actor: Any, k: int) -> Any:
             method = actor.describe.options(num_returns=2)

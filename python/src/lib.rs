@@ -64,6 +64,8 @@ fn _dpr_gpu(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(multiway::multiway_origin, m)?)?;
     m.add_function(wrap_pyfunction!(multiway::select_pairs, m)?)?;
+    m.add_function(wrap_pyfunction!(multiway::scan_size, m)?)?;
+    m.add_function(wrap_pyfunction!(multiway::choose_radius, m)?)?;
     m.add_function(wrap_pyfunction!(multiway::optimize_pairs, m)?)?;
     m.add_function(wrap_pyfunction!(described::_described_scan_from_state, m)?)?;
     m.add_function(wrap_pyfunction!(described::_pair_result_from_state, m)?)?;

@@ -104,6 +104,28 @@ pub(crate) fn run<'py>(
     MultiwayResult { result, origin }.to_dict(py)
 }
 
+/// The size of one scan of a collection (the median distance of its points from their centroid, after the
+/// collection's ``origin`` is subtracted and, with ``drop_zero_points``, exact zeros dropped), as
+/// ``Registrar.multiway`` measures it to choose the patch radius: ``choose_radius`` of every scan's size gives
+/// the radius ``Registrar.multiway`` uses when none is set.
+#[pyfunction]
+#[pyo3(signature = (points, *, origin = (0, 0, 0), drop_zero_points = false))]
+pub(crate) fn scan_size(points: &Bound<'_, PyAny>, origin: (i64, i64, i64), drop_zero_points: bool) -> PyResult<f64> {
+    let options = LoadOptions {
+        origin: OriginShift::At([origin.0, origin.1, origin.2]),
+        drop_zero_points,
+        ..LoadOptions::default()
+    };
+    let (cloud, _) = cloud_from_arrays(points, None, "points", &options)?;
+    dpr_gpu::scale::scan_size(&cloud, "points").map_err(to_py_err)
+}
+
+/// The patch radius chosen for scans of these sizes (``scan_size`` of each): 0.55 times their median.
+#[pyfunction]
+pub(crate) fn choose_radius(sizes: Vec<f64>) -> PyResult<f32> {
+    Ok(dpr_gpu::scale::choose(&sizes).map_err(to_py_err)?.radius)
+}
+
 /// The whole-unit origin that ``Registrar.multiway`` subtracts from every scan of a collection whose first scan
 /// is ``points``: the first finite point rounded, when one of its coordinates has magnitude 1e4 or more (a
 /// georeferenced scan), else ``(0, 0, 0)``. Pass it to ``Registrar.describe_scan`` for every scan.

@@ -374,7 +374,7 @@ impl Registrar {
                 source,
                 target,
                 shifted_target_from_source: shifted,
-                inlier_threshold: inner.inlier_threshold(),
+                inlier_threshold: result.scale.inlier_threshold,
             },
         })
     }

@@ -139,6 +139,21 @@ impl RegistrationResult {
         timings_dict(py, &self.result.timings)
     }
 
+    /// The scale the pair was registered at, a dict: ``radius`` (the patch radius), ``rule`` (``"given"`` or how
+    /// it was chosen from the two clouds), ``voxel`` (for a cloud without normals; None: every point kept),
+    /// ``inlier_threshold`` and ``icp_distance`` (None: ICP off), all in cloud units.
+    #[getter]
+    fn scale<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let s = &self.result.scale;
+        let d = PyDict::new(py);
+        d.set_item("radius", s.radius)?;
+        d.set_item("rule", &s.rule)?;
+        d.set_item("voxel", s.voxel)?;
+        d.set_item("inlier_threshold", s.inlier_threshold)?;
+        d.set_item("icp_distance", s.icp_distance)?;
+        Ok(d)
+    }
+
     /// The backend (and adapter) that ran the learned stages, e.g. ``"cpu"``.
     #[getter]
     fn backend(&self) -> &str {

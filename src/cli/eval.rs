@@ -5,15 +5,17 @@ use crate::cli::register::{RegisterOptions, parse_estimator};
 use crate::eval::dataset::{SceneData, load_dataset};
 use crate::eval::gtlog::{LogRecord, format_log, read_log};
 use crate::eval::report::{
-    EstimatorReport, Report, RotationReport, format_pairs, format_table, legend, protocol_notes, rotation_notes,
+    EstimatorReport, Report, RotationReport, SceneScale, format_pairs, format_table, legend, protocol_notes,
+    rotation_notes,
 };
 use crate::eval::rotate::{FragmentRotation, RotationSweep, angle_label};
 use crate::eval::run::{
-    EvalOptions, estimator_name, pairs_to_run, run_scene, run_scene_sweep, score_log, score_log_sweep,
+    EvalOptions, estimator_name, pairs_to_run, run_scene, run_scene_sweep, scene_scale, score_log, score_log_sweep,
 };
 use crate::eval::score::{REFERENCE_RADIUS, Thresholds};
 use crate::io::write_atomic;
 use crate::pipeline::Registrar;
+use crate::scale::ScaleChoice;
 use crate::settings::Estimator;
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -112,6 +114,9 @@ fn write_report(out: &Path, report: &Report) -> anyhow::Result<()> {
     println!();
     print!("{}", format_table(report));
     print!("{}", legend(&report.thresholds));
+    for s in &report.scales {
+        println!("scale of {}: radius {} ({})", s.scene, crate::scale::significant(f64::from(s.radius)), s.rule);
+    }
     if report.estimators.iter().all(|e| e.mean.registration_recall.is_none()) {
         println!(
             "note: RR is '-' because no gt.log pair here counts for registration recall (the 3DMatch protocol counts \
@@ -159,7 +164,9 @@ fn score_logs_sweep(
     let count = scenes.len();
     let mut per_angle: Vec<Vec<_>> = vec![Vec::new(); sweep.degrees.len()];
     let mut rotations = Vec::new();
+    let mut scales = SceneScales::default();
     for mut scene in scenes {
+        let opts = &scales.options(args, &scene, opts)?;
         let mut logs = Vec::new();
         let mut paths = Vec::new();
         for &d in &sweep.degrees {
@@ -174,12 +181,14 @@ fn score_logs_sweep(
         }
         rotations.extend(r);
     }
+    let thresholds = scales.thresholds.unwrap_or(opts.thresholds);
     Ok(Report {
         dataset: args.dataset.display().to_string(),
         mode: "log".into(),
         log: Some(log.to_string()),
-        thresholds: opts.thresholds,
-        protocol: protocol_notes(&opts.thresholds),
+        thresholds,
+        protocol: protocol_notes(&thresholds),
+        scales: scales.scenes,
         settings: None,
         rotation: Some(rotation_report(sweep, rotations)),
         estimators: sweep
@@ -224,17 +233,21 @@ fn verdict_summary(e: &EstimatorReport) -> Option<String> {
 fn score_logs(args: &Args, log: &str, scenes: Vec<SceneData>, opts: &EvalOptions) -> anyhow::Result<Report> {
     let count = scenes.len();
     let mut scores = Vec::new();
+    let mut scales = SceneScales::default();
     for mut scene in scenes {
         let path = log_path_for(log, &scene, count)?;
         let records = read_result_log(&scene, &path)?;
-        scores.push(score_log(&mut scene, &records, opts).with_context(|| format!("scoring {}", path.display()))?);
+        let opts = scales.options(args, &scene, opts)?;
+        scores.push(score_log(&mut scene, &records, &opts).with_context(|| format!("scoring {}", path.display()))?);
     }
+    let thresholds = scales.thresholds.unwrap_or(opts.thresholds);
     Ok(Report {
         dataset: args.dataset.display().to_string(),
         mode: "log".into(),
         log: Some(log.to_string()),
-        thresholds: opts.thresholds,
-        protocol: protocol_notes(&opts.thresholds),
+        thresholds,
+        protocol: protocol_notes(&thresholds),
+        scales: scales.scenes,
         settings: None,
         rotation: None,
         estimators: vec![EstimatorReport::new("log", scores)],
@@ -271,19 +284,25 @@ fn run_pipeline(
     let mut scores: Vec<Vec<Vec<_>>> = vec![vec![Vec::new(); estimators.len()]; views];
     let mut fragments = Vec::new();
     let mut rotations = Vec::new();
+    let mut scales = SceneScales::default();
     for mut scene in scenes {
         bar.set_message(scene.name.clone());
+        let opts = &scales.options(args, &scene, opts)?;
+        let registrar = &match scales.last.clone() {
+            Some(choice) => registrar.at_scale(choice),
+            None => registrar.at_scale(ScaleChoice::given(registrar.radius())),
+        };
         let name = scene.name.clone();
         let context = || format!("evaluating scene {name}");
         let angles = match sweep {
             None => {
                 let run =
-                    run_scene(&mut scene, &registrar, &estimators, opts, &mut || bar.inc(1)).with_context(context)?;
+                    run_scene(&mut scene, registrar, &estimators, opts, &mut || bar.inc(1)).with_context(context)?;
                 fragments.extend(run.fragments);
                 vec![(None, run.estimators)]
             }
             Some(s) => {
-                let run = run_scene_sweep(&mut scene, &registrar, &estimators, opts, s, &mut || bar.inc(1))
+                let run = run_scene_sweep(&mut scene, registrar, &estimators, opts, s, &mut || bar.inc(1))
                     .with_context(context)?;
                 fragments.extend(run.fragments);
                 rotations.extend(run.rotations);
@@ -312,17 +331,54 @@ fn run_pipeline(
             });
         }
     }
+    let thresholds = scales.thresholds.unwrap_or(opts.thresholds);
     Ok(Report {
         dataset: args.dataset.display().to_string(),
         mode: "pipeline".into(),
         log: None,
-        thresholds: opts.thresholds,
-        protocol: protocol_notes(&opts.thresholds),
+        thresholds,
+        protocol: protocol_notes(&thresholds),
+        scales: scales.scenes,
         settings: Some(settings),
         rotation: sweep.map(|s| rotation_report(s, rotations)),
         estimators: entries,
         fragments,
     })
+}
+
+/// The protocol's thresholds for a scene registered at `radius`: `--protocol-scale` when given, else scaled by
+/// radius / 0.60.
+fn protocol_thresholds(args: &Args, radius: f64) -> Thresholds {
+    match args.protocol_scale {
+        Some(s) => Thresholds::scaled(s),
+        None => Thresholds::for_radius(radius),
+    }
+}
+
+/// The radius chosen for each scene when --radius is not given, and the protocol's thresholds of the first.
+#[derive(Default)]
+struct SceneScales {
+    scenes: Vec<SceneScale>,
+    thresholds: Option<Thresholds>,
+    /// The last scene's choice.
+    last: Option<ScaleChoice>,
+}
+
+impl SceneScales {
+    /// `opts` for `scene`: with no --radius, the protocol's distances follow the radius chosen from the scene's
+    /// clouds ([`scene_scale`]; unless --protocol-scale fixes them), and the choice is recorded.
+    fn options(&mut self, args: &Args, scene: &SceneData, opts: &EvalOptions) -> anyhow::Result<EvalOptions> {
+        self.last = None;
+        if args.register.radius.is_some() {
+            return Ok(opts.clone());
+        }
+        let choice = scene_scale(scene, opts).with_context(|| format!("choosing the scale of scene {}", scene.name))?;
+        let thresholds = protocol_thresholds(args, f64::from(choice.radius));
+        self.thresholds.get_or_insert(thresholds);
+        self.scenes.push(SceneScale { scene: scene.name.clone(), radius: choice.radius, rule: choice.rule() });
+        self.last = Some(choice);
+        Ok(EvalOptions { thresholds, ..opts.clone() })
+    }
 }
 
 /// Runs `dpr-gpu eval`.
@@ -333,8 +389,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let thresholds = match args.protocol_scale {
         Some(s) if !(s > 0.0 && s.is_finite()) => bail!("--protocol-scale must be positive, got {s}"),
-        Some(s) => Thresholds::scaled(s),
-        None => Thresholds::for_radius(radius),
+        _ => protocol_thresholds(&args, radius),
     };
     let opts = EvalOptions {
         thresholds,

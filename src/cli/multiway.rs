@@ -310,6 +310,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let odometry_trusted =
         result.edges.iter().filter(|e| e.kind == crate::multiway::EdgeKind::Odometry && e.pair.trusted).count();
     println!("scans: {} ({} described, {} pairs reused)", paths.len(), result.described, result.reused_pairs);
+    if let Some(scale) = &result.scale {
+        println!("scale: {scale}");
+    }
     println!("pairs registered: {} ({} odometry trusted of {})", result.edges.len(), odometry_trusted, paths.len() - 1);
     println!(
         "loop closures: {} candidates, {} trusted, {} kept after the line processes",

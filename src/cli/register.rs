@@ -26,12 +26,14 @@ pub struct RegisterOptions {
     /// Keypoint selection: random (3DMatch convention) or uniform (farthest-point sampling).
     #[arg(long, default_value = "random")]
     pub keypoint_mode: String,
-    /// Patch radius in cloud units (default: twice the radius the weights were trained with, 0.60 m).
+    /// Patch radius in cloud units [default: chosen from the scans, 0.55 x their median distance from the
+    /// centroid (median over the scans of the job), printed as `scale:`; the voxel, inlier threshold and ICP
+    /// distance follow it].
     #[arg(long)]
     pub radius: Option<f32>,
     /// Voxel size for downsampling before normals and keypoints (cloud units); 0 keeps every point [default:
     /// for a file without normals radius / 24, the density the weights' normals were estimated at in training
-    /// (2.5 cm at the default 0.60 m radius); a file with normals keeps every point].
+    /// (2.5 cm at a 0.60 m radius); a file with normals keeps every point].
     #[arg(long)]
     pub voxel: Option<f32>,
     /// Neighbours for PCA normals (when the file has none).
@@ -343,7 +345,7 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
     if let Some(path) = &args.snapshot {
         // Drawn in the shifted frames: a picture does not change with a common shift, and f32 stays precise.
         let lines =
-            crate::snapshot::inlier_lines(&registration.correspondences, &shifted, registrar.inlier_threshold());
+            crate::snapshot::inlier_lines(&registration.correspondences, &shifted, result.scale.inlier_threshold);
         let options = crate::snapshot::SnapshotOptions { lines, ..Default::default() };
         crate::snapshot::write_snapshot(path, &source, &target, &shifted, &options)?;
     }
@@ -372,6 +374,7 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
             println!("large coordinates: both clouds shifted by -{origin:?} for the computation");
         }
         println!("backend: {} ({})", result.backend, registrar.backend_reason());
+        println!("scale: {}", result.scale);
         println!("target_from_source (p_target = T p_source):");
         print!("{}", crate::pose::matrix_text(&t));
         let e = &result.estimate;

@@ -119,6 +119,10 @@ pub struct Report {
     pub thresholds: Thresholds,
     /// Rules, in words.
     pub protocol: Vec<String>,
+    /// The radius chosen from each scene's clouds (none when a radius was given); the thresholds above are the
+    /// first scene's, each scene's follow its radius.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub scales: Vec<SceneScale>,
     /// Registration settings (pipeline mode).
     pub settings: Option<RegistrationSettings>,
     /// The rotation sweep (`--rotate` only).
@@ -128,6 +132,17 @@ pub struct Report {
     pub estimators: Vec<EstimatorReport>,
     /// Per-fragment description statistics (pipeline mode).
     pub fragments: Vec<FragmentReport>,
+}
+
+/// The patch radius chosen from one scene's clouds.
+#[derive(Clone, Debug, Serialize)]
+pub struct SceneScale {
+    /// Scene name.
+    pub scene: String,
+    /// Patch radius (cloud units).
+    pub radius: f32,
+    /// How it was chosen ([`crate::scale::ScaleChoice::rule`]).
+    pub rule: String,
 }
 
 /// The protocol rules, as printed in reports.
@@ -323,6 +338,7 @@ mod tests {
             log: None,
             thresholds: Thresholds::default(),
             protocol: Vec::new(),
+            scales: Vec::new(),
             settings: None,
             rotation,
             estimators,

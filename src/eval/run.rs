@@ -244,6 +244,25 @@ pub fn pairs_to_run(scene: &SceneData, opts: &EvalOptions) -> Vec<(usize, usize)
     }
 }
 
+/// The radius chosen from the data for `scene` ([`crate::scale::choose`] over every fragment its pairs use), so
+/// one scene is described at one radius and a scene in millimetres is evaluated as the same scene in metres.
+pub fn scene_scale(scene: &SceneData, opts: &EvalOptions) -> Result<crate::scale::ScaleChoice> {
+    let mut used: Vec<usize> = pairs_to_run(scene, opts).into_iter().flat_map(|(i, j)| [i, j]).collect();
+    used.sort_unstable();
+    used.dedup();
+    let sizes = used
+        .into_iter()
+        .map(|f| {
+            let path = scene.files.get(f).ok_or_else(|| {
+                Error::invalid(format!("{}: a pair names fragment {f}, which has no file", scene.name))
+            })?;
+            let cloud = load_cloud(path, &opts.load)?;
+            crate::scale::scan_size(&cloud, &path.display().to_string())
+        })
+        .collect::<Result<Vec<f64>>>()?;
+    crate::scale::choose(&sizes)
+}
+
 /// Registers the pairs of `scene` (see [`pairs_to_run`]) with every estimator on the same correspondences,
 /// describing each fragment once (random stream = fragment index) and dropping it after its last pair.
 /// `on_pair` is called after each pair.

@@ -110,6 +110,9 @@ pub struct MultiwayResult {
     pub described: usize,
     /// Pairs taken from the store instead of registered.
     pub reused_pairs: usize,
+    /// The patch radius every scan was described at and how it was chosen (`None` from
+    /// [`optimize_pairs`] alone).
+    pub scale: Option<crate::scale::ScaleReport>,
 }
 
 /// Where pair results (and pooled codewords) are kept between runs, so an interrupted run resumes; see the
@@ -187,6 +190,10 @@ pub fn multiway_detailed(
     if settings.max_information_points == 0 {
         return Err(Error::invalid("the information matrices need at least one point"));
     }
+    // One radius for every scan: chosen from all of them when the settings give none.
+    let names: Vec<String> = (0..n).map(|k| format!("scan {k}")).collect();
+    let clouds: Vec<(&PointCloud, &str)> = scans.iter().zip(&names).map(|(c, name)| (c, name.as_str())).collect();
+    let registrar = &registrar.at_scale_of(&clouds)?;
     let information = InformationSettings {
         distance: settings.information_distance.unwrap_or(f64::from(registrar.inlier_threshold())),
         max_points: settings.max_information_points,
@@ -256,6 +263,7 @@ pub fn multiway_detailed(
     let mut result = optimize_pairs(n, &results, &option)?;
     result.described = described_count;
     result.reused_pairs = reused;
+    result.scale = Some(registrar.scale_report());
     Ok(result)
 }
 
@@ -325,6 +333,7 @@ pub fn optimize_pairs(n: usize, results: &[PairResult], option: &GlobalOptimizat
         line_process_weight: report.line_process_weight,
         described: 0,
         reused_pairs: 0,
+        scale: None,
     })
 }
 

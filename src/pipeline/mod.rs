@@ -14,6 +14,7 @@ use crate::model::{Model, Weights};
 use crate::pose::matrix_from_hypothesis;
 use crate::preprocess::select_keypoints;
 use crate::rng::Rng;
+use crate::scale::{ScaleChoice, ScaleReport};
 use crate::settings::*;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -130,13 +131,21 @@ pub const PAIR_STAGES: usize = 15;
 pub const ROUND_STAGES: usize = 9;
 
 /// A configured pipeline: model and backend loaded once, reused across pairs.
+///
+/// With no radius in its settings, [`Registrar::register`] chooses it from the two clouds
+/// ([`crate::scale`]); the steps that see one scan at a time ([`Registrar::describe`],
+/// [`Registrar::register_described`]) use the radius as it stands (the weights' training radius times
+/// [`RADIUS_PER_TRAINING_RADIUS`]) unless the registrar comes from [`Registrar::at_scale_of`], which fixes it
+/// from every scan of the job first.
 pub struct Registrar {
     /// The settings it was built with.
     pub settings: RegistrationSettings,
-    backend: Box<dyn Backend>,
+    backend: Arc<dyn Backend>,
     /// Why this backend (see [`choose_backend`]).
     backend_reason: String,
-    progress: Option<Box<ProgressFn>>,
+    progress: Option<Arc<ProgressFn>>,
+    /// How the radius was chosen, when [`Registrar::at_scale`] chose it from the data.
+    auto_scale: Option<ScaleChoice>,
 }
 
 impl Registrar {
@@ -162,15 +171,65 @@ impl Registrar {
         validate_settings(settings, &backend.model().config)?;
         Ok(Registrar {
             settings: settings.clone(),
-            backend,
+            backend: Arc::from(backend),
             backend_reason: "given by the caller".into(),
             progress: None,
+            auto_scale: None,
         })
+    }
+
+    /// This registrar at `scale`: the same backend and settings, with the radius `scale` chose when the settings
+    /// give none (a given radius stays, whatever `scale` says).
+    pub fn at_scale(&self, scale: ScaleChoice) -> Registrar {
+        let mut settings = self.settings.clone();
+        let auto_scale = match (self.settings.radius, &self.auto_scale) {
+            (Some(_), auto) => auto.clone(),
+            (None, _) => {
+                settings.radius = Some(scale.radius);
+                Some(scale)
+            }
+        };
+        Registrar {
+            settings,
+            backend: self.backend.clone(),
+            backend_reason: self.backend_reason.clone(),
+            progress: self.progress.clone(),
+            auto_scale,
+        }
+    }
+
+    /// This registrar with the radius chosen from `clouds` (each named for errors) when its settings give none
+    /// ([`crate::scale::choose_for`]); see [`Registrar::at_scale`].
+    pub fn at_scale_of(&self, clouds: &[(&PointCloud, &str)]) -> Result<Registrar> {
+        if self.settings.radius.is_some() {
+            return Ok(self.at_scale(ScaleChoice::given(self.radius())));
+        }
+        for (cloud, what) in clouds {
+            cloud.validate(what)?;
+        }
+        Ok(self.at_scale(crate::scale::choose_for(clouds)?))
+    }
+
+    /// How the radius in use was chosen: from the data ([`Registrar::at_scale_of`]) or given (the settings'
+    /// radius, or the default [`Registrar::radius`] when neither is known yet).
+    pub fn scale(&self) -> ScaleChoice {
+        self.auto_scale.clone().unwrap_or_else(|| ScaleChoice::given(self.radius()))
+    }
+
+    /// The radius in use with everything that follows it ([`ScaleReport`]).
+    pub fn scale_report(&self) -> ScaleReport {
+        ScaleReport {
+            radius: self.radius(),
+            rule: self.scale().rule(),
+            voxel: self.voxel(false),
+            inlier_threshold: self.inlier_threshold(),
+            icp_distance: self.icp_max_distance(),
+        }
     }
 
     /// Calls `progress` after every stage (for a progress display); see [`ProgressFn`].
     pub fn with_progress(mut self, progress: Box<ProgressFn>) -> Registrar {
-        self.progress = Some(progress);
+        self.progress = Some(Arc::from(progress));
         self
     }
 
@@ -682,6 +741,9 @@ impl Registrar {
     /// (for bindings and pictures that show keypoints and matches). Runs the progressive schedule: each round
     /// describes more keypoints of both scans, and the first trusted round ends it.
     pub fn register_detailed(&self, source: &PointCloud, target: &PointCloud) -> Result<Registration> {
+        if self.settings.radius.is_none() {
+            return self.at_scale_of(&[(source, "source"), (target, "target")])?.register_detailed(source, target);
+        }
         let mut clock = Stopwatch::new(self.progress.as_deref().map(|p| (p, "")));
         let viewpoint = self.settings.viewpoint;
         clock.scope = "source.";
@@ -741,6 +803,7 @@ impl Registrar {
             empty_patches: described_source.empty_patches + described_target.empty_patches,
             timings: clock.timings,
             backend: self.backend.name(),
+            scale: self.scale_report(),
         };
         Ok(Registration { result, source: described_source, target: described_target, correspondences })
     }
