@@ -84,7 +84,7 @@ pub struct RegistrationSettings {
     pub weights: Option<PathBuf>,
     /// Patch radius r, in cloud units. `None` (the default): chosen from the clouds themselves where the
     /// registration sees them all ([`crate::scale`]: [`crate::scale::RADIUS_PER_SIZE`] times the scans' median
-    /// distance from their centroid; `register`, `eval` per scene, `multiway` over all its scans), so clouds
+    /// distance from their centre; `register`, `eval` per scene, `multiway` over all its scans), so clouds
     /// in any unit and at any scale register without it; where one scan is described alone, the radius the
     /// weights were trained with times [`RADIUS_PER_TRAINING_RADIUS`] (0.60 m for the shipped weights).
     pub radius: Option<f32>,

@@ -27,13 +27,26 @@ pub struct VerdictSettings {
     /// Smallest inliers / correspondences ratio for a trusted pose.
     pub min_inlier_ratio: f64,
     /// Smallest spread of the inliers (square root of the second-largest eigenvalue of their covariance, in
-    /// cloud units) as a multiple of the inlier threshold: below it the inliers are collinear or clustered.
+    /// cloud units) as a multiple of the inlier threshold: below it the inliers are collinear or clustered
+    /// (unless the scan itself is thinner, see `min_spread_over_scan`).
     pub min_spread_over_threshold: f64,
+    /// On a thin scan the rule above asks the inliers to spread across the scan's main axis further than the
+    /// scan itself does: the spread needed is at most this share of the spread of all correspondences' source
+    /// points across their main axis (the scan as the matcher sees it), so "collinear" is judged against the
+    /// scan's own thickness; never below [`MIN_SPREAD_FLOOR_OVER_THRESHOLD`] times the inlier threshold, so
+    /// inliers on one line of a scan that is a line are still degenerate. 0 turns it off (the threshold rule
+    /// alone).
+    pub min_spread_over_scan: f64,
 }
 
 impl Default for VerdictSettings {
     fn default() -> Self {
-        VerdictSettings { min_inliers: 12, min_inlier_ratio: 0.055, min_spread_over_threshold: 2.0 }
+        VerdictSettings {
+            min_inliers: 12,
+            min_inlier_ratio: 0.055,
+            min_spread_over_threshold: 2.0,
+            min_spread_over_scan: 0.5,
+        }
     }
 }
 
@@ -52,9 +65,19 @@ impl VerdictSettings {
                 self.min_spread_over_threshold
             )));
         }
+        if !(self.min_spread_over_scan.is_finite() && (0.0..=1.0).contains(&self.min_spread_over_scan)) {
+            return Err(crate::Error::invalid(format!(
+                "min inlier spread over the scan's must be in 0..1, got {}",
+                self.min_spread_over_scan
+            )));
+        }
         Ok(())
     }
 }
+
+/// The least spread across the main axis any scan's inliers need, as a multiple of the inlier threshold (see
+/// [`VerdictSettings::min_spread_over_scan`]).
+pub const MIN_SPREAD_FLOOR_OVER_THRESHOLD: f64 = 0.5;
 
 /// Whether a result can be trusted, and why not.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -105,7 +128,12 @@ pub fn judge(
         ));
     }
     let [major, second] = spreads(&inliers);
-    let min_spread = settings.min_spread_over_threshold * f64::from(threshold);
+    let mut min_spread = settings.min_spread_over_threshold * f64::from(threshold);
+    if settings.min_spread_over_scan > 0.0 {
+        let scan: Vec<Vector3<f64>> = correspondences.iter().map(|c| f(&c.source_point)).collect();
+        let floor = MIN_SPREAD_FLOOR_OVER_THRESHOLD * f64::from(threshold);
+        min_spread = min_spread.min((settings.min_spread_over_scan * spreads(&scan)[1]).max(floor));
+    }
     if major < min_spread {
         return Verdict::fail(format!(
             "degenerate inliers: all within a tiny region (spread {major:.4}, at least {min_spread:.4} needed)"
@@ -166,6 +194,34 @@ mod tests {
         let pts: Vec<[f32; 3]> = (0..40).map(|i| [(i % 7) as f32 * 0.3, (i / 7) as f32 * 0.3, 0.0]).collect();
         let v = judge(&identity(), &corr(&pts), 0.1, &VerdictSettings::default());
         assert!(v.success, "{v:?}");
+    }
+
+    #[test]
+    fn collinear_is_judged_against_the_scans_own_thickness() {
+        // A rod 4 long and 0.4 thick (spread 0.14 across; threshold 0.1: the rule alone needs 0.2): all
+        // correspondences lie on it, and the inliers, a third of them, spread along it and across it as the rod
+        // does.
+        let rod: Vec<[f32; 3]> = (0..60).map(|i| [i as f32 / 15.0, 0.1 * ((i * 7) % 5) as f32 - 0.2, 0.0]).collect();
+        let wrong = Matrix4::new_translation(&nalgebra::Vector3::new(0.0, 1.0, 0.0));
+        let mut c = corr(&rod);
+        for k in (1..c.len()).filter(|k| k % 3 != 0) {
+            c[k].target_point = [c[k].target_point[0], c[k].target_point[1] + 1.0, 0.0];
+        }
+        let mut pose = identity();
+        let v = judge(&pose, &c, 0.1, &VerdictSettings::default());
+        assert!(v.success, "a thin scan's inliers as thin as the scan: {v:?}");
+        let threshold_only = VerdictSettings { min_spread_over_scan: 0.0, ..VerdictSettings::default() };
+        assert!(!judge(&pose, &c, 0.1, &threshold_only).success, "the threshold rule alone rejects it");
+        // The same inliers inside a wide scan (the other correspondences far off the line) are collinear.
+        let mut wide = c.clone();
+        for (k, w) in wide.iter_mut().enumerate().filter(|(k, _)| k % 3 != 0) {
+            w.source_point[1] += 3.0 * (k % 2) as f32;
+        }
+        let v = judge(&pose, &wide, 0.1, &VerdictSettings::default());
+        assert!(!v.success && v.reason.as_deref().unwrap().contains("collinear"), "{v:?}");
+        // The other two thirds are inliers of another pose, which is judged the same way.
+        pose.target_from_source = wrong;
+        assert!(judge(&pose, &c, 0.1, &VerdictSettings::default()).success);
     }
 
     #[test]

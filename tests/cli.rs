@@ -176,7 +176,7 @@ fn a_copied_binary_registers_the_example_pair_with_its_built_in_weights() {
     assert_eq!(v["success"], true);
     // No radius given: it was chosen from the two clouds, and the distances follow it.
     let scale = &v["scale"];
-    assert!(scale["rule"].as_str().unwrap().starts_with("auto: 0.55 x median distance"), "{scale}");
+    assert!(scale["rule"].as_str().unwrap().starts_with("auto: 0.6 x median distance"), "{scale}");
     let radius = scale["radius"].as_f64().unwrap();
     assert!((scale["inlier_threshold"].as_f64().unwrap() - radius / 6.0).abs() < 1e-6, "{scale}");
 }

@@ -14,7 +14,12 @@ fn a_trusted_result_is_the_estimators_choice_whatever_the_candidates() {
     let (source, target, _) = common::room_pair(8, 4000);
     let weights = Weights::init(&common::tiny_config(), 3).unwrap();
     // A verdict that trusts any pose (the tiny random weights' RelativeNet poses have hardly an inlier).
-    let lenient = VerdictSettings { min_inliers: 0, min_inlier_ratio: 0.0, min_spread_over_threshold: 0.0 };
+    let lenient = VerdictSettings {
+        min_inliers: 0,
+        min_inlier_ratio: 0.0,
+        min_spread_over_threshold: 0.0,
+        min_spread_over_scan: 0.0,
+    };
     for estimator in [Estimator::RelativeNet, Estimator::Ransac] {
         let base = RegistrationSettings {
             keypoints: 160,

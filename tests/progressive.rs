@@ -49,7 +49,12 @@ fn a_pair_that_needs_every_round_ends_with_the_direct_result() {
 /// main radius alone.
 fn early_stopping_pair() -> (PointCloud, PointCloud, RegistrationSettings) {
     let (source, target, _) = common::room_pair(8, 4000);
-    let lenient = VerdictSettings { min_inliers: 3, min_inlier_ratio: 0.0, min_spread_over_threshold: 0.0 };
+    let lenient = VerdictSettings {
+        min_inliers: 3,
+        min_inlier_ratio: 0.0,
+        min_spread_over_threshold: 0.0,
+        min_spread_over_scan: 0.0,
+    };
     let settings = RegistrationSettings {
         keypoints: 320,
         first_keypoints: Some(40),

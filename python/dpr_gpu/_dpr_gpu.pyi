@@ -343,10 +343,10 @@ def multiway_origin(points: _Points) -> Tuple[int, int, int]:
     """The whole-unit origin ``multiway`` subtracts from every scan of a collection whose first scan is ``points``."""
 
 def scan_size(points: _Points, *, origin: Tuple[int, int, int] = (0, 0, 0), drop_zero_points: bool = False) -> float:
-    """Median distance of the scan's points from their centroid, as ``multiway`` measures it."""
+    """Median distance of the scan's points from its centre (coordinate-wise median), as ``multiway`` measures it."""
 
 def choose_radius(sizes: Sequence[float]) -> float:
-    """The patch radius chosen for scans of these sizes: 0.55 times their median."""
+    """The patch radius chosen for scans of these sizes: 0.6 times their median."""
 
 def select_pairs(
     n: int,

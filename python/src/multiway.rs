@@ -104,7 +104,7 @@ pub(crate) fn run<'py>(
     MultiwayResult { result, origin }.to_dict(py)
 }
 
-/// The size of one scan of a collection (the median distance of its points from their centroid, after the
+/// The size of one scan of a collection (the median distance of its points from its centre, the coordinate-wise median, after the
 /// collection's ``origin`` is subtracted and, with ``drop_zero_points``, exact zeros dropped), as
 /// ``Registrar.multiway`` measures it to choose the patch radius: ``choose_radius`` of every scan's size gives
 /// the radius ``Registrar.multiway`` uses when none is set.
@@ -120,7 +120,7 @@ pub(crate) fn scan_size(points: &Bound<'_, PyAny>, origin: (i64, i64, i64), drop
     dpr_gpu::scale::scan_size(&cloud, "points").map_err(to_py_err)
 }
 
-/// The patch radius chosen for scans of these sizes (``scan_size`` of each): 0.55 times their median.
+/// The patch radius chosen for scans of these sizes (``scan_size`` of each): 0.6 times their median.
 #[pyfunction]
 pub(crate) fn choose_radius(sizes: Vec<f64>) -> PyResult<f32> {
     Ok(dpr_gpu::scale::choose(&sizes).map_err(to_py_err)?.radius)

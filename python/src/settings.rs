@@ -115,6 +115,7 @@ impl SettingsArgs {
                 min_inliers: count("min_inliers", self.min_inliers)?,
                 min_inlier_ratio: self.min_inlier_ratio,
                 min_spread_over_threshold: self.min_spread_over_threshold,
+                ..VerdictSettings::default()
             },
             context_radii: self
                 .context_radii

@@ -127,6 +127,9 @@ fn write_report(out: &Path, report: &Report) -> anyhow::Result<()> {
         if let Some(line) = verdict_summary(e) {
             println!("{}: {line}", e.estimator);
         }
+        if let Some(line) = overlap_recall(e) {
+            println!("{}: {line}", e.estimator);
+        }
     }
     println!("report: {}", out.join("report.json").display());
     Ok(())
@@ -203,6 +206,47 @@ fn score_logs_sweep(
 
 /// How often the success verdict was right over the gt pairs an estimator registered: trusted and correct
 /// (true successes), trusted but wrong (false alarms), untrusted but correct (missed), untrusted and wrong.
+/// Overlap bins of [`overlap_recall`]: lower bounds, the 3DLoMatch band (10-30 %) first.
+pub const OVERLAP_BINS: [f64; 4] = [0.0, 0.1, 0.3, 0.5];
+
+/// Registration recall by ground-truth overlap (gt pairs that count for recall): "< 10 %: 0/1, 10-30 %: 3/5,
+/// 30-50 %: 4/4, >= 50 %: 10/10" (empty bins left out); `None` without overlaps (log scoring).
+fn overlap_recall(e: &EstimatorReport) -> Option<String> {
+    let samples: Vec<(f64, bool)> = e
+        .scenes
+        .iter()
+        .flat_map(|s| &s.pairs)
+        .filter(|p| p.counts_for_recall)
+        .filter_map(|p| Some((p.run.as_ref()?.gt_overlap?, p.success?)))
+        .collect();
+    overlap_recall_line(&samples)
+}
+
+/// [`overlap_recall`]'s line for (overlap, registered correctly) samples.
+fn overlap_recall_line(samples: &[(f64, bool)]) -> Option<String> {
+    let mut bins = [[0usize; 2]; OVERLAP_BINS.len()];
+    for &(overlap, good) in samples {
+        let bin = OVERLAP_BINS.iter().rposition(|&low| overlap >= low).unwrap_or(0);
+        bins[bin][0] += 1;
+        bins[bin][1] += usize::from(good);
+    }
+    let parts: Vec<String> = bins
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| b[0] > 0)
+        .map(|(k, b)| {
+            let pct = |v: f64| (v * 100.0).round();
+            let label = match (k, OVERLAP_BINS.get(k + 1)) {
+                (0, Some(&hi)) => format!("< {} %", pct(hi)),
+                (_, Some(&hi)) => format!("{}-{} %", pct(OVERLAP_BINS[k]), pct(hi)),
+                (_, None) => format!(">= {} %", pct(OVERLAP_BINS[k])),
+            };
+            format!("{label}: {}/{}", b[1], b[0])
+        })
+        .collect();
+    (!parts.is_empty()).then(|| format!("recall by ground-truth overlap: {}", parts.join(", ")))
+}
+
 fn verdict_summary(e: &EstimatorReport) -> Option<String> {
     let mut counts = [[0usize; 2]; 2];
     let (mut outside, mut outside_trusted) = (0, 0);
@@ -429,4 +473,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         (None, s) => run_pipeline(&args, scenes, &opts, s.as_ref())?,
     };
     write_report(&args.out, &report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::overlap_recall_line;
+
+    #[test]
+    fn recall_is_binned_by_overlap() {
+        let samples = [(0.05, false), (0.12, true), (0.29, false), (0.3, true), (0.49, true), (0.9, true)];
+        let line = overlap_recall_line(&samples).unwrap();
+        assert_eq!(line, "recall by ground-truth overlap: < 10 %: 0/1, 10-30 %: 1/2, 30-50 %: 2/2, >= 50 %: 1/1");
+        assert_eq!(overlap_recall_line(&[]), None);
+        let only_high = overlap_recall_line(&[(0.7, false)]).unwrap();
+        assert_eq!(only_high, "recall by ground-truth overlap: >= 50 %: 0/1");
+    }
 }

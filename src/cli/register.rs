@@ -26,8 +26,8 @@ pub struct RegisterOptions {
     /// Keypoint selection: random (3DMatch convention) or uniform (farthest-point sampling).
     #[arg(long, default_value = "random")]
     pub keypoint_mode: String,
-    /// Patch radius in cloud units [default: chosen from the scans, 0.55 x their median distance from the
-    /// centroid (median over the scans of the job), printed as `scale:`; the voxel, inlier threshold and ICP
+    /// Patch radius in cloud units [default: chosen from the scans, 0.6 x their median distance from their
+    /// centre (median over the scans of the job), printed as `scale:`; the voxel, inlier threshold and ICP
     /// distance follow it].
     #[arg(long)]
     pub radius: Option<f32>,
@@ -180,6 +180,7 @@ impl RegisterOptions {
             min_inliers: self.min_inliers,
             min_inlier_ratio: self.min_inlier_ratio,
             min_spread_over_threshold: self.min_inlier_spread,
+            ..crate::verdict::VerdictSettings::default()
         };
         s.icp = (!self.no_icp).then_some(IcpSettings {
             max_correspondence_distance: self.icp_distance,

@@ -388,12 +388,11 @@ fn run_views(
                     keypoints: features.keypoints.len(),
                     timings: features.timings.clone(),
                 });
-                let index = opts.all_pairs.then(|| {
-                    PreparedFragment::from_points(
-                        features.cloud.points.iter().map(|p| p.map(f64::from)).collect(),
-                        opts.thresholds.overlap_distance,
-                    )
-                });
+                // For the estimated overlap (--all-pairs) and the ground-truth overlap of gt pairs.
+                let index = Some(PreparedFragment::from_points(
+                    features.cloud.points.iter().map(|p| p.map(f64::from)).collect(),
+                    opts.thresholds.overlap_distance,
+                ));
                 cache.insert(key, Described { features, index });
             }
         }
@@ -412,9 +411,19 @@ fn run_views(
                 );
                 matches[v].insert((i, j), FeatureMatch { correspondences: c.len(), inliers });
             }
+            let gt_overlap = match (scene.lookup(i, j), &target.index, &source.index) {
+                (Some(g), Some(ti), Some(si)) => Some(estimated_overlap(
+                    ti,
+                    si,
+                    &rotated_ground_truth(&g.transform, &m),
+                    opts.thresholds.overlap_distance,
+                )),
+                _ => None,
+            };
             for (e, &estimator) in estimators.iter().enumerate() {
                 let mut run = PairRun {
                     timings: vec![StageTime { stage: "correspond".into(), seconds: correspond_s }],
+                    gt_overlap,
                     ..PairRun::default()
                 };
                 // The progressive schedule `register` runs, over prefixes of the described keypoints.

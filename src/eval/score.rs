@@ -88,6 +88,8 @@ pub struct PairRun {
     pub estimator_inliers: usize,
     /// Estimated overlap (share of fragment-i points near transformed fragment j), with `--all-pairs`.
     pub estimated_overlap: Option<f64>,
+    /// The overlap under the ground truth, the same measure (gt.log pairs): what recall by overlap bin bins.
+    pub gt_overlap: Option<f64>,
     /// Wall time of the pair's stages (correspond, estimate).
     pub timings: Vec<StageTime>,
     /// Why the estimator produced no pose, if it failed.
