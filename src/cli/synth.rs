@@ -47,6 +47,10 @@ pub struct Args {
     /// Smallest overlap for a pair to enter gt.log [default: 0.30 (3DMatch rule); 0.20 for --style randomized].
     #[arg(long)]
     pub min_overlap: Option<f64>,
+    /// Largest overlap for a pair to enter gt.log [default: 1]; with --min-overlap 0.1, 0.3 gives
+    /// 3DLoMatch-style low-overlap pairs (for evaluation: `eval` reports recall by overlap bin).
+    #[arg(long)]
+    pub max_overlap: Option<f64>,
     /// Scene kinds of --style randomized: mixed (about 30 % object-scale scenes), room, object, or repeated
     /// (rooms with rows of identical pieces).
     #[arg(long, value_enum, default_value_t = SceneKind::Mixed)]
@@ -131,6 +135,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !(0.0..=1.0).contains(&min_overlap) {
         bail!("--min-overlap must be between 0 and 1, got {min_overlap}");
     }
+    let max_overlap = args.max_overlap.unwrap_or(1.0);
+    if !(min_overlap..=1.0).contains(&max_overlap) {
+        bail!("--max-overlap must be between --min-overlap ({min_overlap}) and 1, got {max_overlap}");
+    }
     let defaults = SynthSettings::default();
     let width = args.width.unwrap_or(defaults.camera.width);
     let settings = SynthSettings {
@@ -138,7 +146,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         frames_per_fragment: args.frames.unwrap_or(defaults.frames_per_fragment),
         voxel: args.voxel.unwrap_or(defaults.voxel),
         camera: CameraModel { width, height: width * 3 / 4, ..CameraModel::default() },
-        ground_truth: GroundTruthRule { min_overlap, ..GroundTruthRule::default() },
+        ground_truth: GroundTruthRule { min_overlap, max_overlap, ..GroundTruthRule::default() },
         style: args.style,
         overrides: Overrides {
             voxel: args.voxel,

@@ -21,6 +21,11 @@ pub struct GroundTruthRule {
     pub overlap_distance: f64,
     /// Pairs with at least this overlap fraction enter gt.log (0.30).
     pub min_overlap: f64,
+    /// Pairs with more overlap than this stay out (1: none; 0.30 with a `min_overlap` of 0.10 gives
+    /// 3DLoMatch-style low-overlap pairs). Left out of serialised settings at its default, so earlier outputs
+    /// keep their bytes.
+    #[serde(skip_serializing_if = "is_one")]
+    pub max_overlap: f64,
     /// Transformed fragment-j points closer than this to fragment i form the correspondence set (0.006 m).
     pub info_distance: f64,
     /// The correspondence set is randomly subsampled to at most this many points (5000).
@@ -33,10 +38,15 @@ impl Default for GroundTruthRule {
             grid: 0.01,
             overlap_distance: 0.03,
             min_overlap: 0.30,
+            max_overlap: 1.0,
             info_distance: 0.006,
             max_info_points: 5000,
         }
     }
+}
+
+fn is_one(v: &f64) -> bool {
+    *v == 1.0
 }
 
 /// One ground-truth pair.
@@ -211,7 +221,7 @@ pub fn ground_truth_pairs(
         .filter_map(|(k, &(i, j))| {
             let transform = super::metrics::inverse(&world_from_fragment[i]) * world_from_fragment[j];
             let overlap = overlap_fraction(&prepared[i], &prepared[j], &transform, rule.overlap_distance);
-            if overlap < rule.min_overlap {
+            if overlap < rule.min_overlap || overlap > rule.max_overlap {
                 return None;
             }
             let mut rng = Rng::derived(seed, k as u64);
@@ -247,6 +257,11 @@ mod tests {
         assert!((pairs[0].overlap - 0.52).abs() < 1e-9 && pairs[0].transform == t);
         // Q: the 25 x 50 coincident points, all within 6 mm; information (0,0) counts them.
         assert!((pairs[0].information[(0, 0)] - 1250.0).abs() < 1e-9);
+        // Low-overlap lists: 0.52 is above a 0.30 cap and within a 0.60 one.
+        let low = GroundTruthRule { min_overlap: 0.1, max_overlap: 0.3, ..GroundTruthRule::default() };
+        assert!(ground_truth_pairs(&[i.clone(), j.clone()], &[Matrix4::identity(), t], &low, 1).is_empty());
+        let capped = GroundTruthRule { max_overlap: 0.6, ..low };
+        assert_eq!(ground_truth_pairs(&[i.clone(), j.clone()], &[Matrix4::identity(), t], &capped, 1).len(), 1);
         // Far apart: no pair.
         let mut far = t;
         far[(0, 3)] = 5.0;
