@@ -363,6 +363,7 @@ impl Registrar {
         let shifted = result.estimate.target_from_source;
         result.estimate.target_from_source = unshift_pose(&shifted, origin);
         let dropped = [source_report, target_report].iter().map(|r| r.dropped_non_finite + r.dropped_zero).sum();
+        let inlier_threshold = result.scale.inlier_threshold;
         Ok(RegistrationResult {
             result,
             correspondences: registration.correspondences,
@@ -370,12 +371,7 @@ impl Registrar {
             target_keypoints: registration.target.keypoints,
             origin,
             dropped_points: dropped,
-            snapshot: SnapshotInputs {
-                source,
-                target,
-                shifted_target_from_source: shifted,
-                inlier_threshold: result.scale.inlier_threshold,
-            },
+            snapshot: SnapshotInputs { source, target, shifted_target_from_source: shifted, inlier_threshold },
         })
     }
 
