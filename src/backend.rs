@@ -15,9 +15,12 @@ use crate::preprocess::GatheredPatches;
 use crate::settings::MatchMode;
 use std::sync::Arc;
 
+mod features;
+mod ranking;
 mod scan;
 mod steps;
-pub use crate::pipeline::PoseRows;
+pub use features::{PoseRows, ScanFeatures};
+pub use ranking::{best_hypothesis, compare_hypotheses, hypotheses_of, repeat_per_candidate};
 pub use scan::{
     DescribedKeypoints, HeldPoints, HostScanCloud, Lap, ScanCloud, ScanSettings, check_points, downsample,
     has_usable_normals, host_start_scan, kept_positions, normalise_usable_normals,
@@ -148,8 +151,8 @@ pub trait Backend: Send + Sync {
     /// on the host clouds ([`crate::estimate::icp::refine_on_host`]).
     fn refine_icp(
         &self,
-        source: &crate::pipeline::ScanFeatures,
-        target: &crate::pipeline::ScanFeatures,
+        source: &ScanFeatures,
+        target: &ScanFeatures,
         initial: nalgebra::Matrix4<f64>,
         problem: &crate::estimate::icp::IcpProblem,
     ) -> Result<nalgebra::Matrix4<f64>> {

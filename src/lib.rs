@@ -46,6 +46,7 @@ pub mod multiway;
 pub mod pipeline;
 pub mod pose;
 pub mod preprocess;
+pub mod result;
 pub mod rng;
 pub mod scale;
 pub mod settings;

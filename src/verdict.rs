@@ -3,7 +3,7 @@
 //! correspondences, or inliers that are degenerate (nearly collinear, or all within a tiny region), since such
 //! support fixes no rotation.
 
-use crate::settings::{Correspondence, PoseEstimate};
+use crate::result::{Correspondence, PoseEstimate};
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 

@@ -4,20 +4,20 @@
 
 mod common;
 
-use dpr_gpu::backend::CpuBackend;
+use dpr_gpu::backend::{Backend, CpuBackend, best_hypothesis, hypotheses_of};
 use dpr_gpu::cpu::codeword_distance::codeword_distance;
 use dpr_gpu::cpu::mutual_knn::mutual_knn;
 use dpr_gpu::cpu::patch_features::point_features;
 use dpr_gpu::cpu::rotation_head::quaternion_rotation;
 use dpr_gpu::estimate::candidates::same_pose;
-use dpr_gpu::estimate::{ransac, ransac_candidates, refine, verify};
+use dpr_gpu::estimate::{ransac, ransac_candidates, refine};
 use dpr_gpu::model::{Model, Weights};
 use dpr_gpu::pose::{
-    matrix_from_parts, matrix_from_quaternion, quaternion_from_matrix, rotation_error_deg, transform_point,
-    translation_error,
+    matrix_from_hypothesis, matrix_from_parts, matrix_from_quaternion, quaternion_from_matrix, rotation_error_deg,
+    transform_point, translation_error,
 };
 use dpr_gpu::rng::Rng;
-use dpr_gpu::settings::{MatchMode, RansacSettings};
+use dpr_gpu::settings::{MatchMode, PoseEstimate, RansacSettings};
 use nalgebra::{Matrix4, Vector3};
 use proptest::prelude::*;
 
@@ -169,6 +169,21 @@ fn problem(seed: u64, n: usize, inlier_ratio: f64) -> Problem {
         p.source.push(s);
     }
     p
+}
+
+/// RelativeNet's hypothesize-and-verify on host inputs: one hypothesis per correspondence (its rotation, t =
+/// p_target - R p_source), all scored on `backend`, the best ([`best_hypothesis`]) refined on its inliers.
+fn verify(
+    backend: &dyn Backend,
+    rotations: &[[f32; 9]],
+    source: &[[f32; 3]],
+    target: &[[f32; 3]],
+    threshold: f32,
+) -> dpr_gpu::Result<PoseEstimate> {
+    let hypotheses = hypotheses_of(backend, rotations, source, target, 1)?;
+    let scores = backend.score_hypotheses(&hypotheses, source, target, threshold)?;
+    let best = best_hypothesis(&scores).expect("hypotheses to verify");
+    Ok(refine(matrix_from_hypothesis(&hypotheses[best]), source, target, threshold, hypotheses.len()))
 }
 
 #[test]

@@ -49,7 +49,7 @@ pub struct DescribedKeypoints {
 pub type Lap<'a> = &'a mut dyn FnMut(&str);
 
 /// A scan's preprocessed points as the backend that prepared it holds them (the GPU backend: a device
-/// buffer), kept with the described scan ([`crate::pipeline::ScanFeatures::held_points`]) so that stages after
+/// buffer), kept with the described scan ([`super::ScanFeatures::held_points`]) so that stages after
 /// description (ICP) read them where they are.
 pub trait HeldPoints: Send + Sync + std::fmt::Debug {
     /// The concrete type, for the backend that made it.

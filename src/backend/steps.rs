@@ -4,14 +4,12 @@
 //! `host_*` steps) are what the CPU backend runs and what a backend without a device store falls back to;
 //! they call the stage methods in the order the pipeline always did, so their results are those of before.
 
-use super::Backend;
+use super::{Backend, PoseRows, best_hypothesis, compare_hypotheses, hypotheses_of};
 use crate::cpu::hypotheses::Hypothesis;
 use crate::cpu::mutual_knn::Match;
 use crate::cpu::score_hypotheses::HypothesisScore;
 use crate::error::{Error, Result};
-use crate::estimate::best_hypothesis;
 use crate::model::Net;
-use crate::pipeline::PoseRows;
 use crate::preprocess::GatheredPatches;
 use crate::settings::MatchMode;
 use std::any::Any;
@@ -384,7 +382,7 @@ pub fn rank(scores: &[HypothesisScore], keep: usize) -> Vec<usize> {
         return best_hypothesis(scores).into_iter().collect();
     }
     let mut order: Vec<usize> = (0..scores.len()).collect();
-    order.sort_by(|&a, &b| crate::estimate::verify::compare_hypotheses(scores, a, b));
+    order.sort_by(|&a, &b| compare_hypotheses(scores, a, b));
     order.truncate(keep);
     order
 }
@@ -478,7 +476,7 @@ pub fn host_verify<B: Backend + ?Sized>(backend: &B, request: MatchedRows<'_>) -
     if rotations.len() != m * request.len() {
         return Err(Error::invalid(format!("verify: {} rotations for {} rows", rotations.len(), request.len())));
     }
-    let hypotheses = crate::estimate::verify::hypotheses_of(backend, &rotations, s.points, t.points, m)?;
+    let hypotheses = hypotheses_of(backend, &rotations, s.points, t.points, m)?;
     let scores = backend.score_hypotheses(&hypotheses, s.points, t.points, request.threshold())?;
     if scores.len() != hypotheses.len() {
         return Err(Error::invalid("verify: a score per hypothesis expected"));

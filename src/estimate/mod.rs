@@ -5,10 +5,8 @@ pub mod candidates;
 pub mod icp;
 pub mod ransac;
 pub mod refine;
-pub mod verify;
 pub mod visibility;
 
 pub use icp::icp_point_to_plane;
 pub use ransac::{ransac, ransac_candidates};
 pub use refine::{evaluate, inlier_set, refine};
-pub use verify::{best_hypothesis, verify};

@@ -93,7 +93,7 @@ pub struct GpuContext {
     /// The device's limits (the adapter's).
     pub limits: wgpu::Limits,
     /// Optional features enabled on the device (`TIMESTAMP_QUERY` when the adapter has it; the cooperative-matrix
-    /// GEMM's `SHADER_F16 | SUBGROUP | EXPERIMENTAL_COOPERATIVE_MATRIX` when [`super::gemm::device_features`]
+    /// GEMM's `SHADER_F16 | SUBGROUP | EXPERIMENTAL_COOPERATIVE_MATRIX` when [`super::features::device_features`]
     /// asks for them).
     pub features: wgpu::Features,
     max_buffer_bytes: AtomicU64,
@@ -168,11 +168,12 @@ impl GpuContext {
                 return Err(Error::Gpu(format!("adapter {name} has {limit} = {have}; dpr-gpu needs at least {min}")));
             }
         }
-        let features = (adapter.features() & wgpu::Features::TIMESTAMP_QUERY) | super::gemm::device_features(&adapter);
+        let features =
+            (adapter.features() & wgpu::Features::TIMESTAMP_QUERY) | super::features::device_features(&adapter);
         let experimental = if features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX) {
             // SAFETY: wgpu marks cooperative matrices experimental (its implementation may have bugs). The feature
             // is requested only for the `dense_coop_f16` kernel, on an adapter that reports the configuration the
-            // kernel uses (`gemm::coop_f16_support`), and `DPR_GPU_GEMM=fast|portable` keeps it off.
+            // kernel uses (`features::coop_f16_support`), and `DPR_GPU_GEMM=fast|portable` keeps it off.
             unsafe { wgpu::ExperimentalFeatures::enabled() }
         } else {
             wgpu::ExperimentalFeatures::disabled()

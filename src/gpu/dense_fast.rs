@@ -2,7 +2,7 @@
 //! tiles (the [`super::gemm::GemmVariant::Fast`] GEMM). Same parameters and bindings as [`super::dense`], which
 //! records it ([`super::dense::record_with`]). CPU twin: [`crate::cpu::dense_fast`].
 
-use super::dense::DenseParams;
+use super::dense_params::DenseParams;
 use super::kernel::{BindKind, GpuKernel};
 use crate::cpu::dense::DenseShape;
 

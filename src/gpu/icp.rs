@@ -16,10 +16,10 @@ use super::preprocess::{CellTable, downsample_buffer, knn_cell, record_knn_norma
 use super::recorder::Recorder;
 use super::{Gpu, GpuBackend};
 use crate::backend::HeldPoints;
+use crate::backend::ScanFeatures;
 use crate::cpu::icp_normal_equations::{TERMS, normal_equations, pose_rows, used_points};
 use crate::error::{Error, Result};
 use crate::estimate::icp::{IcpProblem, iterate, source_stride};
-use crate::pipeline::ScanFeatures;
 use nalgebra::Matrix4;
 use std::sync::Arc;
 

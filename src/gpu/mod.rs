@@ -25,8 +25,10 @@ pub mod dense;
 pub mod dense_coop_f16;
 pub mod dense_fast;
 pub mod dense_input_grad;
+pub mod dense_params;
 pub mod dense_weight_grad;
 pub mod farthest_point;
+pub mod features;
 pub mod gemm;
 pub mod grid_knn;
 pub mod group_row_sums;
@@ -59,13 +61,12 @@ pub mod transpose;
 pub mod unit_rows;
 pub mod voxel_average;
 
-use crate::backend::{Backend, MatchedRows, PatchBatch, RotationInputs, RowMatch, ScanRows, Verified};
+use crate::backend::{Backend, MatchedRows, PatchBatch, PoseRows, RotationInputs, RowMatch, ScanRows, Verified};
 use crate::cpu::hypotheses::Hypothesis;
 use crate::cpu::mutual_knn::Match;
 use crate::cpu::score_hypotheses::HypothesisScore;
 use crate::error::{Error, Result};
 use crate::model::{Model, Net};
-use crate::pipeline::PoseRows;
 use crate::preprocess::GatheredPatches;
 use crate::settings::MatchMode;
 use buffer::Workspace;
@@ -408,8 +409,8 @@ impl Backend for GpuBackend {
 
     fn refine_icp(
         &self,
-        source: &crate::pipeline::ScanFeatures,
-        target: &crate::pipeline::ScanFeatures,
+        source: &crate::backend::ScanFeatures,
+        target: &crate::backend::ScanFeatures,
         initial: nalgebra::Matrix4<f64>,
         problem: &crate::estimate::icp::IcpProblem,
     ) -> Result<nalgebra::Matrix4<f64>> {

@@ -9,11 +9,12 @@ use super::nets::{self, items_per_chunk};
 use super::preprocess::{DeviceCloud, SampledPatches};
 use super::recorder::Recorder;
 use super::{Gpu, GpuBackend, hypotheses, pose_feature, score_hypotheses, to_u32};
-use crate::backend::{MatchedRows, PatchBatch, RankedHypothesis, RowMatch, ScanRows, Verified, check_restored, rank};
+use crate::backend::{
+    MatchedRows, PatchBatch, PoseRows, RankedHypothesis, RowMatch, ScanRows, Verified, check_restored, rank,
+    repeat_per_candidate,
+};
 use crate::cpu::score_hypotheses::HypothesisScore;
 use crate::error::{Error, Result};
-use crate::estimate::verify::repeat_per_candidate;
-use crate::pipeline::PoseRows;
 use std::any::Any;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};

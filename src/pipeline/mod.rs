@@ -23,8 +23,8 @@ use std::time::Instant;
 mod scan;
 mod stages;
 
+pub use crate::backend::{PoseRows, ScanFeatures};
 use scan::DescribingScan;
-pub use scan::{PoseRows, ScanFeatures};
 pub use stages::{Round, keypoint_stages};
 
 /// Fewest points a scan may have after preprocessing.

@@ -6,76 +6,7 @@
 //! K at once: the keypoint order is a prefix-stable seeded sample, each patch draws from its own stream (derived
 //! from its keypoint), and every network row depends only on its own patch.
 
-use crate::backend::{ContextRows, HeldPoints, ScanCloud, ScanRows};
-use crate::cloud::PointCloud;
-use crate::settings::StageTime;
-use std::sync::Arc;
-
-/// Per-scan output of the description stages.
-#[derive(Clone, Debug)]
-pub struct ScanFeatures {
-    /// The scan after preprocessing (downsampled, with unit normals). From `Registrar::register_detailed`, a
-    /// cloud without normals in its file has `normals: None`: normals are estimated only where patches need
-    /// them.
-    pub cloud: PointCloud,
-    /// Where the scan's sensor sat, in the scan's frame: estimated normals face it, and the choice among pose
-    /// candidates reads lines of sight from it.
-    pub viewpoint: [f32; 3],
-    /// Keypoint positions (scan frame), only keypoints with a non-empty patch.
-    pub keypoints: Vec<[f32; 3]>,
-    /// Their unit normals (scan frame): the normal frames of normal-aligned patches.
-    pub keypoint_normals: Vec<[f32; 3]>,
-    /// Each kept keypoint's position in the scan's keypoint order (ascending; keypoints dropped for an empty
-    /// patch leave gaps).
-    pub keypoint_ranks: Vec<u32>,
-    /// Keypoints of the order described so far, kept or dropped.
-    pub candidates: usize,
-    /// Keypoints dropped because their patch was empty.
-    pub empty_patches: usize,
-    /// The described rows (one per kept keypoint), held by the backend that described them: PPF-FoldNet
-    /// codewords, PC-FoldNet's inputs and the pose features computed so far. Shared by clones; pairs that
-    /// read one scan reuse them.
-    pub rows: Arc<dyn ScanRows>,
-    /// The rows described at each context radius of the settings (row for row with `rows`; empty without
-    /// context radii): only their codewords are used, in matching. Shared by clones.
-    pub context: Vec<ContextRows>,
-    /// The preprocessed points as the backend that prepared the scan holds them (the GPU backend: a device
-    /// buffer; `None` on the host, where `cloud.points` are they), for stages after description (ICP) to read
-    /// them where they are. Shared by clones.
-    pub held_points: Option<Arc<dyn HeldPoints>>,
-    /// Stage times spent describing this scan.
-    pub timings: Vec<StageTime>,
-}
-
-impl ScanFeatures {
-    /// Rows (kept keypoints) among the first `candidates` keypoints of the order.
-    pub fn rows_within(&self, candidates: usize) -> usize {
-        self.keypoint_ranks.partition_point(|&r| (r as usize) < candidates)
-    }
-
-    /// The rotation-invariant PPF-FoldNet codewords, `keypoints.len() x codeword`, row-major (read back from
-    /// the backend that holds them).
-    pub fn read_codewords(&self) -> crate::Result<Vec<f32>> {
-        self.rows.read_codewords()
-    }
-
-    /// PC-FoldNet's inputs and the pose features computed so far (read back).
-    pub fn read_pose_rows(&self) -> crate::Result<PoseRows> {
-        self.rows.read_pose_rows()
-    }
-}
-
-/// PC-FoldNet's input rows (`points_per_patch x 3` per kept keypoint) and, once computed, each row's pose
-/// feature (`codeword` wide): the pose part of a scan's rows on the host (e.g. to serialise a described scan).
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct PoseRows {
-    /// PC-FoldNet input, `rows x input_width`.
-    pub input: Vec<f32>,
-    /// Pose features, `rows x codeword`; meaningful where `ready`.
-    pub features: Vec<f32>,
-    /// Whether each row's pose feature has been computed.
-    pub ready: Vec<bool>,
-}
+use crate::backend::{ScanCloud, ScanFeatures};
 
 /// A scan between description rounds: what extending its description needs besides the features so far.
 pub(crate) struct DescribingScan {
