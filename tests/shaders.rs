@@ -366,14 +366,14 @@ fn params_structs_match_the_wgsl_layout() {
 fn every_kernel_is_declared_in_its_host_module_with_its_twin_in_cpu_named_after_it() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
     for spec in KERNELS {
-        let host_path = root.join("gpu").join(format!("{}.rs", spec.name));
+        let host_path = root.join("gpu").join("kernels").join(format!("{}.rs", spec.name));
         let host = std::fs::read_to_string(&host_path)
             .unwrap_or_else(|e| panic!("{}: no host module {} ({e})", spec.name, host_path.display()));
         let twin_path = root.join("cpu").join(format!("{}.rs", spec.name));
         assert!(twin_path.is_file(), "{}: no CPU twin module {}", spec.name, twin_path.display());
         assert!(
             host.contains(&format!("const NAME: &'static str = \"{}\";", spec.name)),
-            "{}: src/gpu/{}.rs does not declare the kernel (`impl GpuKernel` with NAME = \"{}\")",
+            "{}: src/gpu/kernels/{}.rs does not declare the kernel (`impl GpuKernel` with NAME = \"{}\")",
             spec.name,
             spec.name,
             spec.name

@@ -9,11 +9,11 @@
 //! The same stride rule as the host ([`crate::estimate::icp::source_stride`]); the sums are f32 in a fixed
 //! order (deterministic), where the host sums f64.
 
-use super::buffer::{GpuBuffer, storage_buffer};
-use super::grid_knn::GridBuffers;
-use super::icp_normal_equations::{decode_total, params, record, sums_bytes};
+use super::device::buffer::{GpuBuffer, storage_buffer};
+use super::device::recorder::Recorder;
+use super::kernels::grid_knn::GridBuffers;
+use super::kernels::icp_normal_equations::{decode_total, params, record, sums_bytes};
 use super::preprocess::{CellTable, downsample_buffer, knn_cell, record_knn_normals};
-use super::recorder::Recorder;
 use super::{Gpu, GpuBackend};
 use crate::backend::HeldPoints;
 use crate::backend::ScanFeatures;
@@ -68,7 +68,7 @@ impl DeviceIcpTarget {
             return Err(Error::invalid(format!("ICP max correspondence distance {distance} must be positive")));
         }
         let k = problem.normal_neighbors.max(3);
-        super::grid_knn::check_k(k)?;
+        super::kernels::grid_knn::check_k(k)?;
         if n == 0 {
             return Err(Error::invalid("ICP: the target has no points"));
         }

@@ -1,65 +1,41 @@
 //! The WGSL compute path: every learned and massively parallel stage as a hand-written kernel run through
 //! wgpu on any GPU (Vulkan, Metal, DX12), checked against the CPU twins in [`crate::cpu`].
 //!
-//! Layout: one module per kernel (`shaders/k.wgsl` + `gpu/k.rs` declaring it as a [`kernel::GpuKernel`] +
-//! its CPU twin `cpu/k.rs`, listed once in [`registry::KERNELS`]); [`context`] (instance, adapter, device, error scopes), [`buffer`] (typed buffers,
-//! reusable workspace, readback), [`recorder`] (batched dispatches, one submission per chunk), [`nets`]
-//! (the networks composed from kernels). [`Gpu`] holds the device and the compiled pipelines;
-//! [`GpuBackend`] adds the uploaded weights and implements [`Backend`].
+//! Layout, bottom up, each room importing only the ones below it:
+//! - [`device`]: [`context`] (instance, adapter, device, error scopes), [`features`] (the device features
+//!   requested), [`buffer`] (typed buffers, reusable workspace, readback), [`kernel`] (the kernel trait),
+//!   [`recorder`] (batched dispatches, one submission per chunk). It knows no kernel.
+//! - [`kernels`]: one module per kernel (`shaders/k.wgsl` + `gpu/kernels/k.rs` declaring it as a
+//!   [`kernel::GpuKernel`] + its CPU twin `cpu/k.rs`, listed once in [`registry::KERNELS`]).
+//! - [`preprocess`] (a scan's cloud on the device: voxel grid, neighbours, normals, patches), [`nets`] (the
+//!   networks composed from kernels), [`train`] (the trainer and its backward passes).
+//! - Here: [`Gpu`] holds the device and the compiled pipelines; [`GpuBackend`] adds the uploaded weights and
+//!   implements [`Backend`], its steps in [`scan`], [`rows`] and [`icp`]; [`testing`] helps the tests.
 //!
 //! The dense layers' GEMM has variants ([`gemm::GemmVariant`]: the portable reference, a faster portable
 //! kernel, and a cooperative-matrix f16 kernel where the adapter has one), chosen per device; every other
 //! kernel is its portable f32 version.
 
-pub mod adam_step;
-pub mod backward;
-pub mod bitonic_sort;
-pub mod buffer;
-pub mod cell_bounds;
-pub mod cell_keys;
-pub mod chamfer_grad;
-pub mod chamfer_nearest;
-pub mod codeword_distance;
-pub mod context;
-pub mod dense;
-pub mod dense_coop_f16;
-pub mod dense_fast;
-pub mod dense_input_grad;
-pub mod dense_params;
-pub mod dense_weight_grad;
-pub mod farthest_point;
-pub mod features;
-pub mod gemm;
-pub mod grid_knn;
-pub mod group_row_sums;
-pub mod hypotheses;
+pub mod device;
 pub mod icp;
-pub mod icp_normal_equations;
-pub mod kernel;
-pub mod max_pool;
-pub mod max_pool_backward;
-pub mod mutual_knn;
+pub mod kernels;
 pub mod nets;
-pub mod patch_features;
-pub mod patch_gather;
-pub mod patch_sample;
-pub mod pca_normals;
-pub mod pose_feature;
-pub mod prefix_scan;
 pub mod preprocess;
-pub mod recorder;
-pub mod registry;
-pub mod relu_backward;
-pub mod rotation_head;
 pub mod rows;
 pub mod scan;
-pub mod score_hypotheses;
-pub mod segments;
 pub mod testing;
 pub mod train;
-pub mod transpose;
-pub mod unit_rows;
-pub mod voxel_average;
+
+// The modules' paths from before the rooms (`gpu::dense`, `gpu::buffer`, `gpu::backward`...), kept for callers.
+pub use device::{buffer, context, features, kernel, recorder};
+pub use kernels::{
+    adam_step, bitonic_sort, cell_bounds, cell_keys, chamfer_grad, chamfer_nearest, codeword_distance, dense,
+    dense_coop_f16, dense_fast, dense_input_grad, dense_params, dense_weight_grad, farthest_point, gemm, grid_knn,
+    group_row_sums, hypotheses, icp_normal_equations, max_pool, max_pool_backward, mutual_knn, patch_features,
+    patch_gather, patch_sample, pca_normals, pose_feature, prefix_scan, registry, relu_backward, rotation_head,
+    score_hypotheses, segments, transpose, unit_rows, voxel_average,
+};
+pub use train::backward;
 
 use crate::backend::{Backend, MatchedRows, PatchBatch, PoseRows, RotationInputs, RowMatch, ScanRows, Verified};
 use crate::cpu::hypotheses::Hypothesis;

@@ -4,11 +4,12 @@
 //! stay, and hypothesize-and-verify gathers its rows by device copies and returns only the scores and the best
 //! hypotheses.
 
-use super::buffer::{self, Workspace, storage_buffer};
+use super::device::buffer::{self, Workspace, storage_buffer};
+use super::device::recorder::Recorder;
+use super::kernels::{hypotheses, pose_feature, score_hypotheses};
 use super::nets::{self, items_per_chunk};
 use super::preprocess::{DeviceCloud, SampledPatches};
-use super::recorder::Recorder;
-use super::{Gpu, GpuBackend, hypotheses, pose_feature, score_hypotheses, to_u32};
+use super::{Gpu, GpuBackend, to_u32};
 use crate::backend::{
     MatchedRows, PatchBatch, PoseRows, RankedHypothesis, RowMatch, ScanRows, Verified, check_restored, rank,
     repeat_per_candidate,
@@ -339,7 +340,7 @@ impl GpuBackend {
     }
 
     /// Mutual kNN on the codewords where they are; only the matches come back.
-    /// With context rows, the matching rows are built where the codewords are ([`super::unit_rows`]).
+    /// With context rows, the matching rows are built where the codewords are ([`super::kernels::unit_rows`]).
     pub(super) fn correspond_on_device(&self, request: RowMatch<'_>) -> Result<Vec<crate::cpu::mutual_knn::Match>> {
         let ((s, ns), (t, nt)) = (request.source(), request.target());
         let dim = s.codeword();
@@ -357,11 +358,11 @@ impl GpuBackend {
             let target = ws.buffer(ctx, "match_target_blocks", (nt.max(1) * width * 4) as u64)?;
             let mut rec = Recorder::new(gpu, "matching rows");
             for (b, &(weight, bs, bt)) in blocks.iter().enumerate() {
-                let block = super::unit_rows::Block { width: dim, out_width: width, column: b * dim, weight };
+                let block = super::kernels::unit_rows::Block { width: dim, out_width: width, column: b * dim, weight };
                 for (rows, n, out) in [(bs, ns, &source), (bt, nt, &target)] {
                     if n > 0 {
                         let codewords = self.own(rows, "correspond")?.lock().codewords.clone();
-                        super::unit_rows::record(&mut rec, n, block, &codewords, out)?;
+                        super::kernels::unit_rows::record(&mut rec, n, block, &codewords, out)?;
                     }
                 }
             }

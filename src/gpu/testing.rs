@@ -11,7 +11,7 @@
 //! wgpu would otherwise pick a GL adapter, which is not what CI means to test (lavapipe is Vulkan).
 
 use super::Gpu;
-use super::context::{self, GpuContext};
+use super::device::context::{self, GpuContext};
 use std::io::Write;
 use std::sync::{Arc, OnceLock};
 

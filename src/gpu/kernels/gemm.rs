@@ -1,0 +1,104 @@
+//! Which GEMM kernel runs the dense layers: [`GemmVariant`], chosen once per device from the adapter's features
+//! and limits ([`select`]), overridable with [`GEMM_ENV`] (`DPR_GPU_GEMM=portable|fast|coop|auto`) for tests and
+//! benchmarks.
+//!
+//! - [`GemmVariant::Portable`] (`shaders/dense.wgsl`): the reference kernel, 64 x 64 tiles; runs everywhere.
+//! - [`GemmVariant::Fast`] (`shaders/dense_fast.wgsl`): 128 x 128 tiles, 8 x 8 outputs per invocation, vec4
+//!   workgroup-memory reads, double-buffered k-tiles; the same f32 function in the same summation order. Needs
+//!   16 KiB of workgroup memory (every Vulkan, Metal and DX12 device has it).
+//! - [`GemmVariant::CoopF16`] (`shaders/dense_coop_f16.wgsl`): tensor cores through wgpu's
+//!   `EXPERIMENTAL_COOPERATIVE_MATRIX`, f16 inputs and f32 accumulation, 16 x 16 x 16 matrices. Chosen only when
+//!   the adapter reports that configuration ([`coop_f16_support`]); its precision has its own twin
+//!   ([`crate::cpu::dense_coop_f16`]).
+//!
+//! Automatic choice: `coop_f16` where supported, else `fast`, else `portable`. The portable kernel stays the
+//! reference every other variant is tested against, and the fallback.
+
+use super::dense::Dense;
+use super::dense_coop_f16::{self, DenseCoopF16};
+use super::dense_fast::{self, DenseFast};
+use crate::error::{Error, Result};
+use crate::gpu::device::context::GpuContext;
+pub use crate::gpu::device::features::{GEMM_ENV, GemmVariant, coop_f16_support, requested};
+use crate::gpu::device::kernel::{GpuKernel, KernelSpec};
+
+impl GemmVariant {
+    /// The kernel that implements it.
+    pub fn kernel(self) -> &'static KernelSpec {
+        match self {
+            GemmVariant::Portable => &Dense::SPEC,
+            GemmVariant::Fast => &DenseFast::SPEC,
+            GemmVariant::CoopF16 => &DenseCoopF16::SPEC,
+        }
+    }
+
+    /// Output rows and columns one workgroup computes.
+    pub fn tile(self) -> (usize, usize) {
+        match self {
+            GemmVariant::Portable => (super::dense_params::TILE_M, super::dense_params::TILE_N),
+            GemmVariant::Fast => (dense_fast::TILE_M, dense_fast::TILE_N),
+            GemmVariant::CoopF16 => (dense_coop_f16::TILE_M, dense_coop_f16::TILE_N),
+        }
+    }
+
+    /// Whether the products are formed from f32 inputs (`false`: f16 inputs, f32 accumulation).
+    pub fn is_f32(self) -> bool {
+        self != GemmVariant::CoopF16
+    }
+
+    /// Why the variant cannot run on `ctx`'s device, or `None` when it can.
+    pub fn unavailable_reason(self, ctx: &GpuContext) -> Option<String> {
+        let missing = self.kernel().features - ctx.features;
+        if !missing.is_empty() {
+            let why = match self {
+                GemmVariant::CoopF16 => coop_f16_support(&ctx.adapter).err().unwrap_or_default(),
+                _ => String::new(),
+            };
+            let sep = if why.is_empty() { "" } else { ": " };
+            return Some(format!("the device was created without {missing}{sep}{why}"));
+        }
+        match self {
+            GemmVariant::Portable => None,
+            GemmVariant::Fast => {
+                let have = ctx.limits.max_compute_workgroup_storage_size;
+                (have < dense_fast::WORKGROUP_STORAGE_BYTES).then(|| {
+                    format!(
+                        "max_compute_workgroup_storage_size is {have} bytes; it needs {}",
+                        dense_fast::WORKGROUP_STORAGE_BYTES
+                    )
+                })
+            }
+            GemmVariant::CoopF16 => coop_f16_support(&ctx.adapter).err(),
+        }
+    }
+}
+
+/// The variant a new device runs: [`GEMM_ENV`]'s when set (an error naming the reason when the device cannot
+/// run it), else the first of `coop_f16`, `fast`, `portable` the device can run.
+pub fn select(ctx: &GpuContext) -> Result<GemmVariant> {
+    if let Some(v) = requested()? {
+        return match v.unavailable_reason(ctx) {
+            None => Ok(v),
+            Some(why) => Err(Error::Gpu(format!("{GEMM_ENV}={v}: this adapter cannot run it: {why}"))),
+        };
+    }
+    let order = [GemmVariant::CoopF16, GemmVariant::Fast, GemmVariant::Portable];
+    Ok(order.into_iter().find(|v| v.unavailable_reason(ctx).is_none()).unwrap_or(GemmVariant::Portable))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_variant_has_its_own_kernel_and_tile() {
+        let names: std::collections::BTreeSet<&str> = GemmVariant::ALL.iter().map(|v| v.kernel().name).collect();
+        assert_eq!(names.len(), GemmVariant::ALL.len());
+        for v in GemmVariant::ALL {
+            let (m, n) = v.tile();
+            assert!(m >= 64 && n >= 64, "{v}");
+        }
+        assert!(GemmVariant::Portable.kernel().features.is_empty(), "the reference needs no feature");
+        assert!(GemmVariant::Fast.kernel().features.is_empty(), "the fast kernel needs no feature");
+    }
+}
