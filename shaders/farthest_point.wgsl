@@ -33,9 +33,7 @@ const INF_BITS: u32 = 0x7f800000u;
 var<workgroup> best_bits: array<u32, 256>;
 var<workgroup> best_index: array<u32, 256>;
 
-fn point(i: u32) -> vec3<f32> {
-    return vec3<f32>(points[i * 3u], points[i * 3u + 1u], points[i * 3u + 2u]);
-}
+// #include point
 
 fn fence(x: f32) -> f32 {
     return bitcast<f32>(bitcast<u32>(x) ^ params.zero);

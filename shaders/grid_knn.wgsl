@@ -38,33 +38,13 @@ var<private> best_d: array<f32, 64>;
 var<private> best_i: array<u32, 64>;
 var<private> count: u32;
 
-fn point(i: u32) -> vec3<f32> {
-    return vec3<f32>(points[i * 3u], points[i * 3u + 1u], points[i * 3u + 2u]);
-}
+// #include point
 
 fn before(d: f32, i: u32, e: f32, j: u32) -> bool {
     return d < e || (d == e && i < j);
 }
 
-// The run of cell key `key`, or NONE (lower bound over the sorted run keys).
-fn find(key: vec2<u32>) -> u32 {
-    let cells = u32(grid[7]);
-    var lo = 0u;
-    var hi = cells;
-    while lo < hi {
-        let mid = (lo + hi) / 2u;
-        let r = run_keys[mid];
-        if r.x < key.x || (r.x == key.x && r.y < key.y) {
-            lo = mid + 1u;
-        } else {
-            hi = mid;
-        }
-    }
-    if lo < cells && all(run_keys[lo] == key) {
-        return lo;
-    }
-    return NONE;
-}
+// #include run_keys
 
 fn visit(o: vec3<i32>, dims: vec3<i32>, q: vec3<f32>, k: u32) {
     if any(o < vec3<i32>(0)) || any(o >= dims) {

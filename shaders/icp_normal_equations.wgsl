@@ -65,30 +65,9 @@ fn moved(r: vec4<f32>, p: vec3<f32>) -> f32 {
     return ((fence(r.x * p.x) + fence(r.y * p.y)) + fence(r.z * p.z)) + r.w;
 }
 
-fn distance_squared(p: vec3<f32>, q: vec3<f32>) -> f32 {
-    let d = p - q;
-    return (fence(d.x * d.x) + fence(d.y * d.y)) + fence(d.z * d.z);
-}
+// #include distance_squared
 
-// The run of cell key `key`, or NONE (lower bound over the sorted run keys).
-fn find(key: vec2<u32>) -> u32 {
-    let cells = u32(grid[7]);
-    var lo = 0u;
-    var hi = cells;
-    while lo < hi {
-        let mid = (lo + hi) / 2u;
-        let r = run_keys[mid];
-        if r.x < key.x || (r.x == key.x && r.y < key.y) {
-            lo = mid + 1u;
-        } else {
-            hi = mid;
-        }
-    }
-    if lo < cells && all(run_keys[lo] == key) {
-        return lo;
-    }
-    return NONE;
-}
+// #include run_keys
 
 // The nearest target point to m within max_d2 (ties to the lower index), or NONE.
 fn nearest(m: vec3<f32>) -> u32 {

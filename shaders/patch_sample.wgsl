@@ -48,19 +48,14 @@ const CELL_LIMIT: f32 = 1073741824.0;
 @group(0) @binding(7) var<storage, read> offsets: array<u32>;
 @group(0) @binding(8) var<storage, read_write> out: array<u32>;
 
-fn point(i: u32) -> vec3<f32> {
-    return vec3<f32>(points[i * 3u], points[i * 3u + 1u], points[i * 3u + 2u]);
-}
+// #include point
 
 // x, rounded on its own: XOR with a runtime zero hides it from FMA contraction.
 fn fence(x: f32) -> f32 {
     return bitcast<f32>(bitcast<u32>(x) ^ params.zero);
 }
 
-fn distance_squared(p: vec3<f32>, q: vec3<f32>) -> f32 {
-    let d = p - q;
-    return (fence(d.x * d.x) + fence(d.y * d.y)) + fence(d.z * d.z);
-}
+// #include distance_squared
 
 fn mix32(v: u32) -> u32 {
     var x = v;
@@ -72,25 +67,7 @@ fn mix32(v: u32) -> u32 {
     return x;
 }
 
-// The run of cell key `key`, or NONE (lower bound over the sorted run keys).
-fn find(key: vec2<u32>) -> u32 {
-    let cells = u32(grid[7]);
-    var lo = 0u;
-    var hi = cells;
-    while lo < hi {
-        let mid = (lo + hi) / 2u;
-        let r = run_keys[mid];
-        if r.x < key.x || (r.x == key.x && r.y < key.y) {
-            lo = mid + 1u;
-        } else {
-            hi = mid;
-        }
-    }
-    if lo < cells && all(run_keys[lo] == key) {
-        return lo;
-    }
-    return NONE;
-}
+// #include run_keys
 
 @compute @workgroup_size(WG_SIZE)
 fn main(

@@ -27,9 +27,7 @@ const SWEEPS: u32 = 8u;
 @group(0) @binding(3) var<storage, read> knn_index: array<u32>;
 @group(0) @binding(4) var<storage, read_write> normals: array<f32>;
 
-fn point(i: u32) -> vec3<f32> {
-    return vec3<f32>(points[i * 3u], points[i * 3u + 1u], points[i * 3u + 2u]);
-}
+// #include point
 
 fn fallback(to_view: vec3<f32>) -> vec3<f32> {
     let len = sqrt(to_view.x * to_view.x + to_view.y * to_view.y + to_view.z * to_view.z);

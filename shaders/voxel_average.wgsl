@@ -26,9 +26,7 @@ const WG_SIZE: u32 = 64u;
 @group(0) @binding(6) var<storage, read_write> out_points: array<f32>;
 @group(0) @binding(7) var<storage, read_write> out_normals: array<f32>;
 
-fn point(i: u32) -> vec3<f32> {
-    return vec3<f32>(points[i * 3u], points[i * 3u + 1u], points[i * 3u + 2u]);
-}
+// #include point
 
 fn normal(i: u32) -> vec3<f32> {
     return vec3<f32>(normals[i * 3u], normals[i * 3u + 1u], normals[i * 3u + 2u]);

@@ -229,14 +229,16 @@ fn every_shader_translates_to_well_formed_spirv() {
     }
 }
 
-/// Parses and validates `spec`'s source with the capabilities of its declared features (none for a portable
-/// kernel), panicking with naga's rendered diagnostic.
+/// Parses and validates `spec`'s composed source (its shared modules included, as the device compiles it) with
+/// the capabilities of its declared features (none for a portable kernel), panicking with naga's rendered
+/// diagnostic.
 fn module(spec: &KernelSpec) -> naga::Module {
-    let module = naga::front::wgsl::parse_str(spec.source)
-        .unwrap_or_else(|e| panic!("shaders/{}.wgsl does not parse:\n{}", spec.name, e.emit_to_string(spec.source)));
+    let source = spec.composed_source().unwrap_or_else(|e| panic!("shaders/{}.wgsl: {e}", spec.name));
+    let module = naga::front::wgsl::parse_str(&source)
+        .unwrap_or_else(|e| panic!("shaders/{}.wgsl does not parse:\n{}", spec.name, e.emit_to_string(&source)));
     Validator::new(ValidationFlags::all(), capabilities(spec.features))
         .validate(&module)
-        .unwrap_or_else(|e| panic!("shaders/{}.wgsl does not validate:\n{}", spec.name, e.emit_to_string(spec.source)));
+        .unwrap_or_else(|e| panic!("shaders/{}.wgsl does not validate:\n{}", spec.name, e.emit_to_string(&source)));
     module
 }
 
@@ -260,6 +262,38 @@ fn every_shader_file_is_registered_once() {
     }
 }
 
+/// Each shared module in shaders/common/ is embedded and included by at least two kernels, and no kernel
+/// defines a function a module it includes defines (the copy the module replaced).
+#[test]
+fn every_shared_module_is_used_and_replaces_its_copies() {
+    use dpr_gpu::gpu::device::wgsl::{INCLUDE, MODULES};
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("shaders").join("common");
+    let files: BTreeSet<String> = std::fs::read_dir(&dir)
+        .expect("shaders/common/ exists")
+        .filter_map(|e| Some(e.ok()?.path().file_stem()?.to_string_lossy().into_owned()))
+        .collect();
+    let embedded: BTreeSet<String> = MODULES.iter().map(|(n, _)| n.to_string()).collect();
+    assert_eq!(files, embedded, "shaders/common/*.wgsl and gpu::device::wgsl::MODULES differ");
+    for (name, text) in MODULES {
+        let users: Vec<&str> = KERNELS
+            .iter()
+            .filter(|k| k.source.lines().any(|l| l.trim() == format!("{INCLUDE}{name}")))
+            .map(|k| k.name)
+            .collect();
+        assert!(users.len() >= 2, "shaders/common/{name}.wgsl is included by {users:?} only");
+        let defined: Vec<&str> = text.lines().filter_map(|l| l.strip_prefix("fn ")?.split('(').next()).collect();
+        for k in KERNELS {
+            for f in &defined {
+                assert!(
+                    !k.source.contains(&format!("\nfn {f}(")),
+                    "{}: defines {f} again beside shaders/common/{name}.wgsl",
+                    k.name
+                );
+            }
+        }
+    }
+}
+
 #[test]
 fn every_shader_parses_and_validates() {
     for spec in KERNELS {
@@ -272,7 +306,7 @@ fn every_shader_parses_and_validates() {
 #[test]
 fn declared_features_are_exactly_what_each_shader_needs() {
     for spec in KERNELS {
-        let module = naga::front::wgsl::parse_str(spec.source).expect("parses");
+        let module = naga::front::wgsl::parse_str(&spec.composed_source().unwrap()).expect("parses");
         for feature in spec.features.iter() {
             let without = capabilities(spec.features) - capabilities(feature);
             let result = Validator::new(ValidationFlags::all(), without).validate(&module);

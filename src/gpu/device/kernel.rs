@@ -73,9 +73,9 @@ impl ParamsLayout {
 /// its source.
 #[derive(Clone, Copy, Debug)]
 pub struct KernelSpec {
-    /// File stem, shared by `shaders/{name}.wgsl`, `gpu/{name}.rs` and the CPU twin `cpu/{name}.rs`.
+    /// File stem, shared by `shaders/{name}.wgsl`, `gpu/kernels/{name}.rs` and the CPU twin `cpu/{name}.rs`.
     pub name: &'static str,
-    /// WGSL source.
+    /// WGSL source as written (its `// #include` lines not yet composed: see [`KernelSpec::composed_source`]).
     pub source: &'static str,
     /// Bindings 0.. of group 0, in order.
     pub binds: &'static [BindKind],
@@ -86,6 +86,14 @@ pub struct KernelSpec {
     /// Device features the shader needs (`enable f16;` and the like); empty for the portable kernels. A kernel
     /// is compiled only on devices that have them ([`crate::gpu::kernels::registry::Kernels`]).
     pub features: wgpu::Features,
+}
+
+impl KernelSpec {
+    /// The source the device compiles: [`KernelSpec::source`] with its shared modules composed in
+    /// ([`super::wgsl::compose`]).
+    pub fn composed_source(&self) -> Result<std::borrow::Cow<'static, str>> {
+        super::wgsl::compose(self.source)
+    }
 }
 
 /// One WGSL kernel, declared once: a unit type in `gpu/{NAME}.rs` implements this, and one line in
@@ -153,6 +161,7 @@ impl Kernel {
                 count: None,
             })
             .collect();
+        let source = spec.composed_source()?;
         ctx.scoped(&format!("compiling kernel '{}'", spec.name), || {
             let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some(spec.name),
@@ -165,7 +174,7 @@ impl Kernel {
             });
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some(spec.name),
-                source: wgpu::ShaderSource::Wgsl(spec.source.into()),
+                source: wgpu::ShaderSource::Wgsl(source),
             });
             let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(spec.name),
