@@ -43,7 +43,7 @@ fn main() -> anyhow::Result<()> {
             other => bail!("unknown option {other}"),
         }
     }
-    if overlaps.iter().any(|o| !(*o > 0.0 && *o < 1.0)) || !(distance > 0.0) {
+    if overlaps.iter().any(|o| !(*o > 0.0 && *o < 1.0)) || !(distance.is_finite() && distance > 0.0) {
         bail!("overlaps must be in (0, 1) and the distance positive");
     }
     let scene = load_pairs_file(&pairs_path)?;
