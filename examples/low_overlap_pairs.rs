@@ -13,7 +13,6 @@
 //! and `pairs.txt` with the unchanged ground truth (a cut moves no point). Pairs already below an overlap keep
 //! the whole source for it; pairs that cannot reach it are skipped, and each line printed says what was made.
 
-use anyhow::{Context, bail};
 use dpr_gpu::eval::dataset::load_pairs_file;
 use dpr_gpu::eval::groundtruth::PreparedFragment;
 use dpr_gpu::eval::run::estimated_overlap;
@@ -26,25 +25,27 @@ const DEFAULT_DISTANCE: f64 = 0.05;
 /// Grid of the overlap measure (the 3DMatch rule's 1 cm).
 const GRID: f64 = 0.01;
 
-fn main() -> anyhow::Result<()> {
+type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
+
+fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     if args.len() < 2 {
-        bail!("usage: low_overlap_pairs PAIRS.txt OUT [--overlap 0.1,0.2,0.3] [--distance 0.05]");
+        return Err("usage: low_overlap_pairs PAIRS.txt OUT [--overlap 0.1,0.2,0.3] [--distance 0.05]".into());
     }
     let (pairs_path, out) = (PathBuf::from(&args[0]), PathBuf::from(&args[1]));
     let mut overlaps = vec![0.1, 0.2, 0.3];
     let mut distance = DEFAULT_DISTANCE;
     let mut rest = args[2..].iter();
     while let Some(flag) = rest.next() {
-        let value = rest.next().with_context(|| format!("{flag} needs a value"))?;
+        let value = rest.next().ok_or_else(|| format!("{flag} needs a value"))?;
         match flag.as_str() {
-            "--overlap" => overlaps = value.split(',').map(str::parse).collect::<Result<_, _>>()?,
+            "--overlap" => overlaps = value.split(',').map(str::parse).collect::<std::result::Result<_, _>>()?,
             "--distance" => distance = value.parse()?,
-            other => bail!("unknown option {other}"),
+            other => return Err(format!("unknown option {other}").into()),
         }
     }
     if overlaps.iter().any(|o| !(*o > 0.0 && *o < 1.0)) || !(distance.is_finite() && distance > 0.0) {
-        bail!("overlaps must be in (0, 1) and the distance positive");
+        return Err("overlaps must be in (0, 1) and the distance positive".into());
     }
     let scene = load_pairs_file(&pairs_path)?;
     std::fs::create_dir_all(&out)?;
