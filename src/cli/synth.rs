@@ -1,4 +1,5 @@
-//! `dpr-gpu synth`: procedural indoor scenes scanned by a simulated depth camera, in the 3DMatch layout.
+//! `dpr-gpu synth`: procedural indoor scenes scanned by a simulated depth camera (or outdoor scenes scanned by a
+//! simulated LiDAR), in the 3DMatch layout.
 
 use crate::eval::groundtruth::GroundTruthRule;
 use crate::synth::camera::CameraModel;
@@ -40,7 +41,12 @@ pub struct Args {
     /// training (noise model and level, density, voxel, dropouts and holes, intrinsics and range, room and
     /// furniture families, wide trajectories, about 30 % object-scale scenes); writes the drawn parameters to
     /// style.json. heldout: structured-light camera in halls with families no other style builds;
-    /// heldout-tof: low time-of-flight camera in attic flats with families no other style builds. The two
+    /// heldout-tof: low time-of-flight camera in attic flats with families no other style builds. lidar: a
+    /// 32-ring spinning LiDAR (range noise growing with range, beam divergence, returns thinning with range,
+    /// no sky returns) on a vehicle driving through a street (buildings with recessed facades, curbs, poles,
+    /// parked cars, trees and bushes); one sweep per fragment, 1-3 m apart, gt pairs 1-10 m apart; --width
+    /// sets the azimuth steps. heldout-lidar: a 64-ring scanner with another vertical field of view in an
+    /// industrial yard (containers, tanks, sheds, trailers, heaps) that lidar never builds. The three
     /// held-out styles are the generalisation checks - never train or tune on them.
     #[arg(long, value_enum, default_value_t = Style::Kinect)]
     pub style: Style,

@@ -9,8 +9,9 @@
 //!
 //! [`style`] selects the generator: `kinect` (the one described above, the default), `randomized` (domain
 //! randomisation for training, including object-scale scenes), `heldout` and `heldout-tof` (each a different
-//! sensor and scene families, kept for the generalisation check); styled scenes also write the parameters they drew to
-//! `style.json`.
+//! sensor and scene families, kept for the generalisation check), `lidar` and `heldout-lidar` (outdoor sweeps of a
+//! spinning LiDAR, [`lidar`] and [`outdoor`]: one sweep per fragment); styled scenes also write the parameters they
+//! drew to `style.json`.
 //!
 //! Everything is deterministic per seed: each frame draws from its own derived random stream and results are
 //! collected in order, so thread scheduling does not matter.
@@ -21,7 +22,9 @@ pub mod furniture;
 pub mod fuse;
 pub mod geometry;
 pub mod heldout;
+pub mod lidar;
 pub mod object;
+pub mod outdoor;
 pub mod room;
 pub mod sensor;
 pub mod style;
@@ -87,13 +90,18 @@ pub struct Scene {
     pub world_from_camera: Vec<Matrix4<f64>>,
     /// The room that was scanned (for object scenes: an empty floor plan whose objects are the object's parts).
     pub room: Room,
-    /// What a styled scene drew (`None` for `kinect`).
+    /// What a styled scene drew (`None` for `kinect` and the LiDAR styles).
     pub recipe: Option<SceneRecipe>,
+    /// What a LiDAR scene drew (`lidar`, `heldout-lidar`); its fragments are sweeps.
+    pub lidar: Option<outdoor::LidarRecipe>,
 }
 
 impl Scene {
     /// The gt.log / gt.info pairs of this scene (spec 3.3); `seed` drives the subsampling of step 5.
     pub fn ground_truth(&self, rule: &GroundTruthRule, seed: u64) -> Vec<GtPair> {
+        if self.lidar.is_some() {
+            return outdoor::lidar_ground_truth(&self.fragments, &self.world_from_fragment, rule, seed);
+        }
         ground_truth_pairs(&self.fragments, &self.world_from_fragment, rule, seed)
     }
 
@@ -111,6 +119,19 @@ const STREAM_FRAMES: u64 = 1 << 32;
 
 /// Builds a room (or an object), plans the trajectory, scans and fuses the fragments, in `settings.style`.
 pub fn generate_scene(seed: u64, settings: &SynthSettings) -> Result<Scene> {
+    if matches!(settings.style, Style::Lidar | Style::HeldoutLidar) {
+        let s = outdoor::generate_lidar_scene(seed, settings.style, settings.fragments, &settings.overrides)?;
+        let world_from_camera = s.world_from_fragment.clone();
+        let (fragments, world_from_fragment, room) = (s.fragments, s.world_from_fragment, s.room);
+        return Ok(Scene {
+            fragments,
+            world_from_fragment,
+            world_from_camera,
+            room,
+            recipe: None,
+            lidar: Some(s.recipe),
+        });
+    }
     if settings.style != Style::Kinect {
         let s = style::generate_styled_scene(seed, settings.style, settings.fragments, &settings.overrides)?;
         return Ok(Scene {
@@ -119,6 +140,7 @@ pub fn generate_scene(seed: u64, settings: &SynthSettings) -> Result<Scene> {
             world_from_camera: s.world_from_camera,
             room: s.room,
             recipe: Some(s.recipe),
+            lidar: None,
         });
     }
     // The kinect generator has one room family and one trajectory: refuse what would silently be ignored.
@@ -160,7 +182,7 @@ pub fn generate_scene(seed: u64, settings: &SynthSettings) -> Result<Scene> {
         fragments.push(fuse::fuse_voxels(&samples, settings.voxel));
         world_from_fragment.push(base);
     }
-    Ok(Scene { fragments, world_from_fragment, world_from_camera: poses, room, recipe: None })
+    Ok(Scene { fragments, world_from_fragment, world_from_camera: poses, room, recipe: None, lidar: None })
 }
 
 /// What [`write_dataset`] produced for one scene.
@@ -260,9 +282,13 @@ pub fn write_scene(dir: &Path, scene: &Scene, gt: &[GtPair], force: bool) -> Res
         poses.push_str(&format!("{k} {}\n", matrix_row_major(m)));
     }
     crate::io::write_atomic(&dir.join("poses.txt"), poses.as_bytes())?;
-    if let Some(recipe) = &scene.recipe {
-        let json = serde_json::to_string_pretty(recipe)
-            .map_err(|e| Error::invalid(format!("synth: cannot serialise the scene recipe: {e}")))?;
+    let recipe = match (&scene.recipe, &scene.lidar) {
+        (Some(r), _) => Some(serde_json::to_string_pretty(r)),
+        (None, Some(l)) => Some(serde_json::to_string_pretty(l)),
+        (None, None) => None,
+    };
+    if let Some(json) = recipe {
+        let json = json.map_err(|e| Error::invalid(format!("synth: cannot serialise the scene recipe: {e}")))?;
         crate::io::write_atomic(&dir.join("style.json"), format!("{json}\n").as_bytes())?;
     }
     Ok(())
@@ -312,7 +338,11 @@ pub fn write_dataset(
             pairs: gt.len(),
             non_consecutive: gt.iter().filter(|p| p.j > p.i + 1).count(),
             overlap_range,
-            kind: scene.recipe.as_ref().map_or_else(|| "room".to_string(), |r| r.kind.clone()),
+            kind: match (&scene.recipe, &scene.lidar) {
+                (Some(r), _) => r.kind.clone(),
+                (None, Some(l)) => l.kind.clone(),
+                (None, None) => "room".to_string(),
+            },
         };
         on_scene(&summary);
         summaries.push(summary);
