@@ -1,6 +1,7 @@
 //! `synth --style`: determinism per seed and thread count for every style, `kinect` unchanged, randomized
 //! parameters that vary across seeds (read back from style.json), gt.log transforms that re-align the fragments,
-//! the --min-overlap rule recomputed independently, and large rotations between object-scale scans.
+//! the --min-overlap rule recomputed independently, and large rotations between object-scale scans; the LiDAR
+//! styles: determinism, pairs 1-10 m apart that the poses re-align, and held-out families.
 //!
 //! Scenes use coarse overrides (few rays, few frames) so the file runs in well under a minute in release mode.
 
@@ -145,10 +146,15 @@ impl Grid {
 /// The 3DMatch overlap of pair (i, j) recomputed from the files: fraction of fragment-i points (1 cm
 /// grid-averaged) within 3 cm of fragment-j points mapped by x_i = T x_j.
 fn overlap(frag_i: &[[f64; 3]], frag_j: &[[f64; 3]], t_ij: &Matrix4<f64>) -> f64 {
+    overlap_at(frag_i, frag_j, t_ij, 0.01, 0.03)
+}
+
+/// [`overlap`] with another grid and distance.
+fn overlap_at(frag_i: &[[f64; 3]], frag_j: &[[f64; 3]], t_ij: &Matrix4<f64>, cell: f64, distance: f64) -> f64 {
     let to_f32 = |v: &[[f64; 3]]| v.iter().map(|p| p.map(|c| c as f32)).collect::<Vec<_>>();
-    let gi = grid_average(&to_f32(frag_i), 0.01);
-    let gj: Vec<[f64; 3]> = grid_average(&to_f32(frag_j), 0.01).iter().map(|p| apply(t_ij, p)).collect();
-    let grid = Grid::new(&gj, 0.03);
+    let gi = grid_average(&to_f32(frag_i), cell);
+    let gj: Vec<[f64; 3]> = grid_average(&to_f32(frag_j), cell).iter().map(|p| apply(t_ij, p)).collect();
+    let grid = Grid::new(&gj, distance);
     gi.iter().filter(|p| grid.nearest(p).is_some()).count() as f64 / gi.len().max(1) as f64
 }
 
@@ -449,4 +455,146 @@ fn bad_overrides_are_rejected_with_a_message() {
     }
     let err = write_dataset(&dir, 0, 1, &repeated(kinect), false, |_| {}).unwrap_err().to_string();
     assert!(err.contains("repeated"), "{err}");
+}
+
+/// A LiDAR style with `sweeps` sweeps of `steps` azimuth steps.
+fn lidar(style: Style, sweeps: usize, steps: usize) -> SynthSettings {
+    SynthSettings {
+        fragments: sweeps,
+        style,
+        overrides: Overrides { width: Some(steps), ..Overrides::default() },
+        ground_truth: dpr_gpu::eval::groundtruth::GroundTruthRule {
+            min_overlap: style.default_min_overlap(),
+            ..Default::default()
+        },
+        ..SynthSettings::default()
+    }
+}
+
+fn read_poses(scene: &Path) -> Vec<Matrix4<f64>> {
+    std::fs::read_to_string(scene.join("poses.txt"))
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| {
+            let v: Vec<f64> = l.split_whitespace().skip(1).map(|x| x.parse().unwrap()).collect();
+            Matrix4::from_row_slice(&v)
+        })
+        .collect()
+}
+
+#[test]
+fn lidar_styles_are_deterministic_per_seed_and_thread_count() {
+    let dir = temp_dir("lidar_determinism");
+    for (name, settings) in
+        [("lidar", lidar(Style::Lidar, 2, 128)), ("heldout_lidar", lidar(Style::HeldoutLidar, 2, 128))]
+    {
+        let (a, b, c) = (dir.join(format!("{name}_a")), dir.join(format!("{name}_b")), dir.join(format!("{name}_c")));
+        write_dataset(&a, 7, 1, &settings, false, |_| {}).unwrap();
+        let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        one_thread.install(|| write_dataset(&b, 7, 1, &settings, false, |_| {}).unwrap());
+        write_dataset(&c, 8, 1, &settings, false, |_| {}).unwrap();
+        let (fa, fb, fc) = (files(&a), files(&b), files(&c));
+        assert_eq!(fa, fb, "{name}: same seed, different output");
+        assert_ne!(fa, fc, "{name}: different seeds, same output");
+        for f in ["cloud_bin_0.ply", "cloud_bin_1.ply", "style.json"] {
+            assert_ne!(fa[&format!("scene_00/{f}")], fc[&format!("scene_00/{f}")], "{name}: {f}");
+        }
+    }
+}
+
+#[test]
+fn lidar_pairs_are_1_to_10_m_apart_and_their_poses_realign_the_sweeps() {
+    let dir = temp_dir("lidar_gt");
+    for (name, style, seed) in [("lidar", Style::Lidar, 2), ("heldout_lidar", Style::HeldoutLidar, 3)] {
+        let sweeps = 7;
+        let summaries = write_dataset(&dir.join(name), seed, 1, &lidar(style, sweeps, 384), false, |_| {}).unwrap();
+        let scene = &summaries[0].dir;
+        let r = recipe(scene);
+        assert_eq!(r["gt_scale"].as_f64(), Some(10.0));
+        let clouds: Vec<Vec<[f64; 3]>> =
+            (0..sweeps).map(|k| load_points(&scene.join(format!("cloud_bin_{k}.ply")))).collect();
+        let log = read_log(&scene.join("gt.log")).unwrap();
+        let poses = read_poses(scene);
+        let recorded: Vec<f64> = std::fs::read_to_string(scene.join("pairs.txt"))
+            .unwrap()
+            .lines()
+            .filter_map(|l| l.strip_prefix("# gt.log ("))
+            .map(|l| l.split("overlap ").nth(1).unwrap().trim().parse().unwrap())
+            .collect();
+        let distance =
+            |i: usize, j: usize| (poses[i].fixed_view::<3, 1>(0, 3) - poses[j].fixed_view::<3, 1>(0, 3)).norm();
+        // The scaled 3DMatch rule: 0.1 m grid, 0.3 m overlap distance.
+        let (cell, reach, min_overlap) = (0.1, 0.3, style.default_min_overlap());
+        assert!(log.len() >= 8, "{name}: {} pairs", log.len());
+        for (rec, &recorded_overlap) in log.iter().zip(&recorded) {
+            let (i, j) = (rec.i, rec.j);
+            let d = distance(i, j);
+            assert!((1.0..=10.0).contains(&d), "{name} pair {i} {j}: sensors {d} m apart");
+            let t = poses[i].try_inverse().unwrap() * poses[j];
+            assert!((t - rec.matrix).norm() < 1e-6, "{name} pair {i} {j}");
+            let o = overlap_at(&clouds[i], &clouds[j], &t, cell, reach);
+            assert!((o - recorded_overlap).abs() < 0.002, "{name} pair {i} {j}: {o} vs {recorded_overlap}");
+            assert!(o >= min_overlap, "{name} pair {i} {j}: {o}");
+            // 0.5 m and 3 degrees off (about a level axis, so the ground no longer matches either), the sweeps
+            // no longer coincide.
+            let axis = nalgebra::Unit::new_normalize(Vector3::new(1.0, 0.5, 0.2));
+            let mut off = nalgebra::Rotation3::from_axis_angle(&axis, 3f64.to_radians()).to_homogeneous();
+            off.fixed_view_mut::<3, 1>(0, 3).copy_from(&Vector3::new(0.3, -0.3, 0.3));
+            let o_off = overlap_at(&clouds[i], &clouds[j], &(off * t), cell, reach);
+            assert!(o_off < 0.75 * o, "{name} pair {i} {j}: overlap {o} at the ground truth, {o_off} off it");
+        }
+        // Every pair left out is too near, too far or overlaps too little.
+        for i in 0..sweeps {
+            for j in i + 1..sweeps {
+                if !log.iter().any(|r| r.i == i && r.j == j) {
+                    let t = poses[i].try_inverse().unwrap() * poses[j];
+                    let d = distance(i, j);
+                    let o = overlap_at(&clouds[i], &clouds[j], &t, cell, reach);
+                    assert!(!(1.0..=10.0).contains(&d) || o < min_overlap + 1e-9, "{name} pair {i} {j}: {d} m, {o}");
+                }
+            }
+        }
+        // Non-consecutive pairs exist for registration recall.
+        assert!(log.iter().any(|r| r.j > r.i + 1), "{name}");
+    }
+}
+
+#[test]
+fn heldout_lidar_builds_none_of_the_lidar_families_with_another_scanner() {
+    let dir = temp_dir("lidar_families");
+    let families = |style: Style, seed: u64| {
+        let summaries =
+            write_dataset(&dir.join(format!("{style:?}")), seed, 4, &lidar(style, 1, 16), false, |_| {}).unwrap();
+        let mut kinds = std::collections::BTreeSet::new();
+        let mut rings = std::collections::BTreeSet::new();
+        let mut fov = Vec::new();
+        for s in &summaries {
+            let r = recipe(&s.dir);
+            kinds.extend(r["families"].as_object().unwrap().keys().cloned());
+            let el: Vec<f64> =
+                r["scanner"]["elevation_deg"].as_array().unwrap().iter().map(|e| e.as_f64().unwrap()).collect();
+            rings.insert(el.len());
+            fov.push([
+                el.iter().copied().fold(f64::INFINITY, f64::min),
+                el.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            ]);
+        }
+        (kinds, rings, fov)
+    };
+    let (street, street_rings, street_fov) = families(Style::Lidar, 1);
+    let (yard, yard_rings, yard_fov) = families(Style::HeldoutLidar, 900);
+    for kind in ["building", "curb", "pole", "car", "tree", "crown"] {
+        assert!(street.contains(kind), "lidar never built {kind}: {street:?}");
+    }
+    assert!(yard.len() >= 5, "{yard:?}");
+    assert!(street.is_disjoint(&yard), "shared families: {:?}", street.intersection(&yard).collect::<Vec<_>>());
+    assert_eq!(street_rings.into_iter().collect::<Vec<_>>(), vec![32]);
+    assert_eq!(yard_rings.into_iter().collect::<Vec<_>>(), vec![64]);
+    // Vertical fields of view: about -30..+10 against -25..+2 degrees, never overlapping in their ends.
+    let (street_low, street_high) =
+        (street_fov.iter().map(|f| f[0]).fold(-90.0, f64::max), street_fov.iter().map(|f| f[1]).fold(90.0, f64::min));
+    let (yard_low, yard_high) =
+        (yard_fov.iter().map(|f| f[0]).fold(90.0, f64::min), yard_fov.iter().map(|f| f[1]).fold(-90.0, f64::max));
+    assert!(street_low < yard_low && street_high > yard_high, "{street_fov:?} {yard_fov:?}");
 }
