@@ -195,6 +195,29 @@ fn rotation_angle_deg(t: &Matrix4<f64>) -> f64 {
     ((tr - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees()
 }
 
+/// world_from_fragment of every fragment, from poses.txt.
+fn read_poses(scene: &Path) -> Vec<Matrix4<f64>> {
+    std::fs::read_to_string(scene.join("poses.txt"))
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| {
+            let v: Vec<f64> = l.split_whitespace().skip(1).map(|x| x.parse().unwrap()).collect();
+            Matrix4::from_row_slice(&v)
+        })
+        .collect()
+}
+
+/// The overlap recorded for each gt.log pair in pairs.txt.
+fn recorded_overlaps(scene: &Path) -> Vec<f64> {
+    std::fs::read_to_string(scene.join("pairs.txt"))
+        .unwrap()
+        .lines()
+        .filter_map(|l| l.strip_prefix("# gt.log ("))
+        .map(|l| l.split("overlap ").nth(1).unwrap().trim().parse().unwrap())
+        .collect()
+}
+
 fn recipe(dir: &Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(dir.join("style.json")).unwrap()).unwrap()
 }
@@ -218,6 +241,8 @@ fn every_style_is_deterministic_per_seed_and_thread_count() {
         ("randomized_orbit", orbiting(styled(Style::Randomized, 2, 48, 3, Some(false)))),
         ("heldout", styled(Style::Heldout, 2, 48, 3, None)),
         ("heldout_tof", styled(Style::HeldoutTof, 2, 48, 3, None)),
+        ("lidar", lidar(Style::Lidar, 2, 128)),
+        ("heldout_lidar", lidar(Style::HeldoutLidar, 2, 128)),
     ] {
         let (a, b, c) = (dir.join(format!("{name}_a")), dir.join(format!("{name}_b")), dir.join(format!("{name}_c")));
         write_dataset(&a, 7, 1, &settings, false, |_| {}).unwrap();
@@ -318,23 +343,10 @@ fn check_ground_truth(scene: &Path, fragments: usize, min_overlap: f64, wrong_sh
         (0..fragments).map(|k| load_with_normals(&scene.join(format!("cloud_bin_{k}.ply")))).collect();
     let clouds: Vec<Vec<[f64; 3]>> = with_normals.iter().map(|c| c.0.clone()).collect();
     let log = read_log(&scene.join("gt.log")).unwrap();
-    let pairs_txt = std::fs::read_to_string(scene.join("pairs.txt")).unwrap();
-    let recorded: Vec<f64> = pairs_txt
-        .lines()
-        .filter_map(|l| l.strip_prefix("# gt.log ("))
-        .map(|l| l.split("overlap ").nth(1).unwrap().trim().parse().unwrap())
-        .collect();
+    let recorded = recorded_overlaps(scene);
     assert_eq!(recorded.len(), log.len());
     // The poses file gives the independent route: T_ij = inv(E_i) E_j.
-    let poses: Vec<Matrix4<f64>> = std::fs::read_to_string(scene.join("poses.txt"))
-        .unwrap()
-        .lines()
-        .filter(|l| !l.starts_with('#'))
-        .map(|l| {
-            let v: Vec<f64> = l.split_whitespace().skip(1).map(|x| x.parse().unwrap()).collect();
-            Matrix4::from_row_slice(&v)
-        })
-        .collect();
+    let poses = read_poses(scene);
     let mut out = Vec::new();
     for (rec, &recorded_overlap) in log.iter().zip(&recorded) {
         let (i, j) = (rec.i, rec.j);
@@ -403,15 +415,7 @@ fn object_scenes_have_large_rotations_between_scans() {
         let size = r["object"]["size"].as_f64().unwrap();
         assert!((1.5..=2.5).contains(&size), "{size}");
         // The scans, mapped to the world, span the object's size.
-        let poses: Vec<Matrix4<f64>> = std::fs::read_to_string(s.dir.join("poses.txt"))
-            .unwrap()
-            .lines()
-            .filter(|l| !l.starts_with('#'))
-            .map(|l| {
-                let v: Vec<f64> = l.split_whitespace().skip(1).map(|x| x.parse().unwrap()).collect();
-                Matrix4::from_row_slice(&v)
-            })
-            .collect();
+        let poses = read_poses(&s.dir);
         let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
         for (k, pose) in poses.iter().enumerate() {
             for p in load_points(&s.dir.join(format!("cloud_bin_{k}.ply"))) {
@@ -471,38 +475,6 @@ fn lidar(style: Style, sweeps: usize, steps: usize) -> SynthSettings {
     }
 }
 
-fn read_poses(scene: &Path) -> Vec<Matrix4<f64>> {
-    std::fs::read_to_string(scene.join("poses.txt"))
-        .unwrap()
-        .lines()
-        .filter(|l| !l.starts_with('#'))
-        .map(|l| {
-            let v: Vec<f64> = l.split_whitespace().skip(1).map(|x| x.parse().unwrap()).collect();
-            Matrix4::from_row_slice(&v)
-        })
-        .collect()
-}
-
-#[test]
-fn lidar_styles_are_deterministic_per_seed_and_thread_count() {
-    let dir = temp_dir("lidar_determinism");
-    for (name, settings) in
-        [("lidar", lidar(Style::Lidar, 2, 128)), ("heldout_lidar", lidar(Style::HeldoutLidar, 2, 128))]
-    {
-        let (a, b, c) = (dir.join(format!("{name}_a")), dir.join(format!("{name}_b")), dir.join(format!("{name}_c")));
-        write_dataset(&a, 7, 1, &settings, false, |_| {}).unwrap();
-        let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
-        one_thread.install(|| write_dataset(&b, 7, 1, &settings, false, |_| {}).unwrap());
-        write_dataset(&c, 8, 1, &settings, false, |_| {}).unwrap();
-        let (fa, fb, fc) = (files(&a), files(&b), files(&c));
-        assert_eq!(fa, fb, "{name}: same seed, different output");
-        assert_ne!(fa, fc, "{name}: different seeds, same output");
-        for f in ["cloud_bin_0.ply", "cloud_bin_1.ply", "style.json"] {
-            assert_ne!(fa[&format!("scene_00/{f}")], fc[&format!("scene_00/{f}")], "{name}: {f}");
-        }
-    }
-}
-
 #[test]
 fn lidar_pairs_are_1_to_10_m_apart_and_their_poses_realign_the_sweeps() {
     let dir = temp_dir("lidar_gt");
@@ -516,12 +488,7 @@ fn lidar_pairs_are_1_to_10_m_apart_and_their_poses_realign_the_sweeps() {
             (0..sweeps).map(|k| load_points(&scene.join(format!("cloud_bin_{k}.ply")))).collect();
         let log = read_log(&scene.join("gt.log")).unwrap();
         let poses = read_poses(scene);
-        let recorded: Vec<f64> = std::fs::read_to_string(scene.join("pairs.txt"))
-            .unwrap()
-            .lines()
-            .filter_map(|l| l.strip_prefix("# gt.log ("))
-            .map(|l| l.split("overlap ").nth(1).unwrap().trim().parse().unwrap())
-            .collect();
+        let recorded = recorded_overlaps(scene);
         let distance =
             |i: usize, j: usize| (poses[i].fixed_view::<3, 1>(0, 3) - poses[j].fixed_view::<3, 1>(0, 3)).norm();
         // The scaled 3DMatch rule: 0.1 m grid, 0.3 m overlap distance.

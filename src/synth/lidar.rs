@@ -284,20 +284,10 @@ impl Sectors {
         for (k, o) in objects.iter().enumerate() {
             let (lo, hi) = (o.aabb.min - origin, o.aabb.max - origin);
             // Nearest point of the box in the horizontal plane: out of range, skip.
-            let dx = if lo.x > 0.0 {
-                lo.x
-            } else if hi.x < 0.0 {
-                -hi.x
-            } else {
-                0.0
+            let gap = |a: f64, b: f64| {
+                if a > 0.0 { a } else { (-b).max(0.0) }
             };
-            let dy = if lo.y > 0.0 {
-                lo.y
-            } else if hi.y < 0.0 {
-                -hi.y
-            } else {
-                0.0
-            };
+            let (dx, dy) = (gap(lo.x, hi.x), gap(lo.y, hi.y));
             if dx.hypot(dy) > max_range {
                 continue;
             }

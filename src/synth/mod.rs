@@ -100,7 +100,9 @@ impl Scene {
     /// The gt.log / gt.info pairs of this scene (spec 3.3); `seed` drives the subsampling of step 5.
     pub fn ground_truth(&self, rule: &GroundTruthRule, seed: u64) -> Vec<GtPair> {
         if self.lidar.is_some() {
-            return outdoor::lidar_ground_truth(&self.fragments, &self.world_from_fragment, rule, seed);
+            let pairs =
+                ground_truth_pairs(&self.fragments, &self.world_from_fragment, &outdoor::lidar_rule(rule), seed);
+            return outdoor::within_pair_distance(pairs, &self.world_from_fragment);
         }
         ground_truth_pairs(&self.fragments, &self.world_from_fragment, rule, seed)
     }

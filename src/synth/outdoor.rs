@@ -22,7 +22,7 @@ use super::room::Room;
 use super::style::{Overrides, Style};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::eval::groundtruth::{GroundTruthRule, GtPair, PreparedFragment, overlap_fraction, pair_information};
+use crate::eval::groundtruth::{GroundTruthRule, GtPair};
 use crate::rng::Rng;
 use nalgebra::{Matrix4, Vector3};
 use rayon::prelude::*;
@@ -235,6 +235,30 @@ impl Site<'_> {
         local.iter().map(|p| p.placed(&r, &Vector3::new(x, y, z))).collect()
     }
 
+    /// Adds a solid `kind` of `local` primitives (standing on local z 0) at (s, w), moved away from the road
+    /// (`side` 1: to the left) in 0.5 m steps, up to 6 m, until it keeps `clearance` from the centre line; its
+    /// boxes reach down to the lowest ground under it. Returns the offset it stands at.
+    fn add_standing(
+        &mut self,
+        kind: &'static str,
+        local: &[Primitive],
+        s: f64,
+        w: f64,
+        side: f64,
+        clearance: f64,
+    ) -> f64 {
+        let mut extra = 0.0;
+        while extra < 6.0 && !self.clear(local, s, w + side * extra, 0.0, clearance) {
+            extra += 0.5;
+        }
+        let w = w + side * extra;
+        let sink = self.sink(local, s, w, 0.0);
+        let grounded: Vec<Primitive> = local.iter().map(|p| sunk(p, sink)).collect();
+        let placed = self.place(&grounded, s, w, 0.0, sink);
+        self.add(kind, placed, Material::SOLID);
+        w
+    }
+
     /// True when the footprint of `local` primitives placed at (s, w, yaw) keeps `clearance` from the centre
     /// line.
     fn clear(&self, local: &[Primitive], s: f64, w: f64, yaw: f64, clearance: f64) -> bool {
@@ -406,16 +430,8 @@ fn build_street(rng: &mut Rng, site: &mut Site, s0: f64, s1: f64) {
             let setback = if rng.below(3) == 0 { rng.uniform(1.0, 5.0) } else { 0.0 };
             let local = building(rng, side, frontage, depth, floors);
             let mid = s + frontage / 2.0;
-            let w = side * (outer + setback + 0.3);
-            // Push back from the inside of a bend until the whole building is off the road and the sidewalk.
-            let mut extra = 0.0;
-            while extra < 6.0 && !site.clear(&local, mid, w + side * extra, 0.0, outer + 0.1) {
-                extra += 0.5;
-            }
-            let w = w + side * extra;
-            let sink = site.sink(&local, mid, w, 0.0);
-            let grounded: Vec<Primitive> = local.iter().map(|p| sunk(p, sink)).collect();
-            site.add("building", site.place(&grounded, mid, w, 0.0, sink), Material::SOLID);
+            // Off the road and the sidewalk, also on the inside of a bend.
+            let w = site.add_standing("building", &local, mid, side * (outer + setback + 0.3), side, outer + 0.1);
             // A hedge or bushes in front of some buildings set back from the walk.
             if setback > 1.5 {
                 let n = 3 + rng.below(6);
@@ -547,10 +563,7 @@ fn build_yard(rng: &mut Rng, site: &mut Site, s0: f64, s1: f64) {
                                 )
                             }));
                         }
-                        let w = w0 + side * 1.3;
-                        let sink = site.sink(&stack, mid, w, 0.0);
-                        let grounded: Vec<Primitive> = stack.iter().map(|p| sunk(p, sink)).collect();
-                        site.add("container", site.place(&grounded, mid, w, 0.0, sink), Material::SOLID);
+                        site.add_standing("container", &stack, mid, w0 + side * 1.3, side, 0.0);
                     }
                     s += count as f64 * (length + 0.3) + rng.uniform(2.0, 8.0);
                 }
@@ -597,15 +610,7 @@ fn build_yard(rng: &mut Rng, site: &mut Site, s0: f64, s1: f64) {
                         local.push(cuboid(x - 2.2, x - 1.9, 0.0, -side * 0.3, 0.0, eave * 0.7));
                         local.push(cuboid(x + 1.9, x + 2.2, 0.0, -side * 0.3, 0.0, eave * 0.7));
                     }
-                    let mid = s + hx;
-                    let mut extra = 0.0;
-                    while extra < 6.0 && !site.clear(&local, mid, w0 + side * extra, 0.0, corridor + 0.2) {
-                        extra += 0.5;
-                    }
-                    let w = w0 + side * extra;
-                    let sink = site.sink(&local, mid, w, 0.0);
-                    let grounded: Vec<Primitive> = local.iter().map(|p| sunk(p, sink)).collect();
-                    site.add("shed", site.place(&grounded, mid, w, 0.0, sink), Material::SOLID);
+                    site.add_standing("shed", &local, s + hx, w0, side, corridor + 0.2);
                     s += length + rng.uniform(3.0, 10.0);
                 }
                 4 => {
@@ -795,46 +800,23 @@ pub fn generate_lidar_scene(seed: u64, style: Style, sweeps: usize, overrides: &
     Ok(LidarScene { fragments, world_from_fragment: poses.into_iter().map(|(p, _)| p).collect(), room, recipe })
 }
 
-/// The gt.log pairs of a LiDAR scene: sensors [`MIN_PAIR_DISTANCE`]-[`MAX_PAIR_DISTANCE`] m apart and overlap
-/// at least `rule.min_overlap` under `rule` with its distances times [`GT_SCALE`]. Pair k (in i-major order over
-/// all i < j) subsamples with `Rng::derived(seed, k)`, as [`crate::eval::groundtruth::ground_truth_pairs`].
-pub fn lidar_ground_truth(
-    fragments: &[PointCloud],
-    world_from_fragment: &[Matrix4<f64>],
-    rule: &GroundTruthRule,
-    seed: u64,
-) -> Vec<GtPair> {
-    let rule = GroundTruthRule {
+/// The ground-truth rule for LiDAR sweeps: `rule` with its distances times [`GT_SCALE`].
+pub fn lidar_rule(rule: &GroundTruthRule) -> GroundTruthRule {
+    GroundTruthRule {
         grid: rule.grid * GT_SCALE,
         overlap_distance: rule.overlap_distance * GT_SCALE,
         info_distance: rule.info_distance * GT_SCALE,
         ..rule.clone()
-    };
-    let n = fragments.len().min(world_from_fragment.len());
+    }
+}
+
+/// The gt.log pairs of a LiDAR scene from the pairs of [`crate::eval::groundtruth::ground_truth_pairs`] under
+/// [`lidar_rule`]: those whose sensors are [`MIN_PAIR_DISTANCE`]-[`MAX_PAIR_DISTANCE`] m apart.
+pub fn within_pair_distance(pairs: Vec<GtPair>, world_from_fragment: &[Matrix4<f64>]) -> Vec<GtPair> {
     let position = |k: usize| world_from_fragment[k].fixed_view::<3, 1>(0, 3).into_owned();
-    let pairs: Vec<(usize, usize, usize)> = (0..n)
-        .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
-        .enumerate()
-        .filter(|&(_, (i, j))| {
-            let d = (position(i) - position(j)).norm();
-            (MIN_PAIR_DISTANCE..=MAX_PAIR_DISTANCE).contains(&d)
-        })
-        .map(|(k, (i, j))| (k, i, j))
-        .collect();
-    let prepared: Vec<PreparedFragment> =
-        fragments.par_iter().map(|c| PreparedFragment::new(c, rule.grid, rule.overlap_distance)).collect();
     pairs
-        .par_iter()
-        .filter_map(|&(k, i, j)| {
-            let transform = crate::eval::metrics::inverse(&world_from_fragment[i]) * world_from_fragment[j];
-            let overlap = overlap_fraction(&prepared[i], &prepared[j], &transform, rule.overlap_distance);
-            if overlap < rule.min_overlap {
-                return None;
-            }
-            let information =
-                pair_information(&prepared[i], &prepared[j], &transform, &rule, &mut Rng::derived(seed, k as u64));
-            Some(GtPair { i, j, transform, overlap, information })
-        })
+        .into_iter()
+        .filter(|p| (MIN_PAIR_DISTANCE..=MAX_PAIR_DISTANCE).contains(&(position(p.i) - position(p.j)).norm()))
         .collect()
 }
 
