@@ -82,7 +82,8 @@ fn a_trusted_early_round_is_the_direct_result_at_its_keypoints() {
     let d = registrar(&direct, &weights).register(&source, &target).unwrap();
     assert_eq!(d.estimate.target_from_source, staged.result.estimate.target_from_source);
     // And the same schedule over scans described in full (what `eval` does) stops at the same round.
-    let full = registrar(&base, &weights);
+    // At the radius `register` chose from the two clouds, as `eval` describes a scene's scans.
+    let full = registrar(&base, &weights).at_scale_of(&[(&source, "source"), (&target, "target")]).unwrap();
     let (s, t) = (full.describe(&source, 0).unwrap(), full.describe(&target, 1).unwrap());
     let round = full.register_described(&s, &t, Estimator::Ransac).unwrap();
     assert_eq!(round.keypoints, k);
@@ -156,7 +157,7 @@ fn context_radii_only_when_untrusted_add_one_round_on_every_radius() {
         assert_eq!(a.result.timings.iter().filter(|t| t.stage == "matching").count(), 4);
         assert_eq!(a.result.timings.iter().filter(|t| t.stage.ends_with("context_encoder")).count(), 2);
         // Scans described in full (`eval`) give the same rounds.
-        let r = registrar(&lazy, &weights);
+        let r = registrar(&lazy, &weights).at_scale_of(&[(&source, "source"), (&target, "target")]).unwrap();
         let (s, t) = (r.describe(&source, 0).unwrap(), r.describe(&target, 1).unwrap());
         let round = r.register_described(&s, &t, estimator).unwrap();
         assert_eq!(round.estimate.target_from_source, a.result.estimate.target_from_source);

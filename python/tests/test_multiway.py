@@ -64,10 +64,15 @@ def test_multiway_refuses_bad_input(three_scans):
 # The stages of multiway as separate calls (what dpr_gpu.distributed schedules): the same result, bit for bit.
 
 
-def stages(scans, registrar, **options):
+def stages(scans, settings, **options):
     """dpr_gpu.multiway rebuilt from its stages in this process, with every described scan and pair result sent
-    through pickle on the way, as Ray sends them between processes."""
+    through pickle on the way, as Ray sends them between processes. With no radius in ``settings``, the radius is
+    chosen from every scan first, as multiway chooses it (``scan_size``, ``choose_radius``)."""
     origin = dpr_gpu.multiway_origin(scans[0])
+    if settings.get("radius") is None:
+        radius = dpr_gpu.choose_radius([dpr_gpu.scan_size(s, origin=origin) for s in scans])
+        settings = {**settings, "radius": radius}
+    registrar = dpr_gpu.Registrar(**settings)
     described = [
         pickle.loads(pickle.dumps(registrar.describe_scan(s, index=k, origin=origin))) for k, s in enumerate(scans)
     ]
@@ -101,7 +106,7 @@ def test_multiway_stages_reproduce_multiway(three_scans, pairs):
     scans, _ = three_scans
     registrar = dpr_gpu.Registrar(**RECOVER)
     whole = registrar.multiway(scans, pairs=pairs, retrieval_k=1)
-    graph, described, results = stages(scans, registrar, pairs=pairs, retrieval_k=1)
+    graph, described, results = stages(scans, RECOVER, pairs=pairs, retrieval_k=1)
     assert_same_multiway(graph.to_dict(), whole)
     assert [(r.i, r.j) for r in results] == [(e["i"], e["j"]) for e in whole["edges"]]
     assert [d.index for d in described] == [0, 1, 2] and all(len(d) > 0 for d in described)
@@ -200,8 +205,7 @@ def test_multiway_origin_and_result_files(three_scans, tmp_path):
     assert dpr_gpu.multiway_origin(scans[0]) == (0, 0, 0)
     far = scans[0].astype(np.float64) + [512_000.4, -7_000_000.6, 12.0]
     assert dpr_gpu.multiway_origin(far) == tuple(int(round(c)) for c in far[0])
-    registrar = dpr_gpu.Registrar(**RECOVER)
-    graph, _, _ = stages(scans[:2], registrar, pairs="all")
+    graph, _, _ = stages(scans[:2], RECOVER, pairs="all")
     graph.write(tmp_path / "run", ["a.ply", "b.ply"])
     log = (tmp_path / "run" / "trajectory.log").read_text().split("\n")
     # The .log format: a "k k n" line, then world_from_scan's four rows, per scan.
