@@ -17,9 +17,11 @@ from ._dpr_gpu import Registrar as Registrar
 from ._dpr_gpu import RegistrationResult as RegistrationResult
 from ._dpr_gpu import __version__ as __version__
 from ._dpr_gpu import _Settings
+from ._dpr_gpu import choose_radius as choose_radius
 from ._dpr_gpu import multiway_origin as multiway_origin
 from ._dpr_gpu import optimize_pairs as optimize_pairs
 from ._dpr_gpu import read_cloud as read_cloud
+from ._dpr_gpu import scan_size as scan_size
 from ._dpr_gpu import select_pairs as select_pairs
 
 __all__ = [
@@ -32,10 +34,12 @@ __all__ = [
     "RegistrationResult",
     "__version__",
     "multiway",
+    "choose_radius",
     "multiway_origin",
     "optimize_pairs",
     "read_cloud",
     "register",
+    "scan_size",
     "select_pairs",
 ]
 

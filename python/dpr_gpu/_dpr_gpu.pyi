@@ -342,7 +342,7 @@ def read_cloud(
 def multiway_origin(points: _Points) -> Tuple[int, int, int]:
     """The whole-unit origin ``multiway`` subtracts from every scan of a collection whose first scan is ``points``."""
 
-def scan_size(points: _Points, *, origin: Tuple[int, int, int] = (0, 0, 0), drop_zero_points: bool = False) -> float:
+def scan_size(points: _Points, *, origin: Tuple[int, int, int] = ..., drop_zero_points: bool = False) -> float:
     """Median distance of the scan's points from its centre (coordinate-wise median), as ``multiway`` measures it."""
 
 def choose_radius(sizes: Sequence[float]) -> float:
