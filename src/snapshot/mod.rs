@@ -4,8 +4,9 @@
 //! (source and target as given, each in its own frame), the bottom row **after** (the source moved by
 //! `target_from_source`). Each column is one orthographic [`View`] (default: top, front, side) taken along the
 //! target's principal axes (see [`ViewAxes`]); each panel frames the points it shows (uniform scale, the
-//! extreme 0.2% of points along each panel axis ignored). There are no text labels (tiny-skia draws no text
-//! and no font files are shipped): rows and columns are always in this order.
+//! extreme 0.2% of points along each panel axis ignored). A line of text over each panel names its row and
+//! view (`before: top`), and a legend line under the panels names the colours (an 8 x 8 bitmap
+//! font compiled in, [`text`]); [`Snapshot::labels`] lists every word drawn and where.
 //!
 //! Colours (colour-blind safe, Okabe-Ito): target points [`TARGET_RGB`] (blue), source points [`SOURCE_RGB`]
 //! (orange), pixels hit by both their even mix [`OVERLAP_RGB`] (olive), background [`BACKGROUND_RGB`]
@@ -19,8 +20,10 @@
 //! point), so a snapshot of millions of points stays fast.
 
 mod raster;
+pub mod text;
 mod views;
 
+pub use text::Label;
 pub use views::{View, ViewAxes};
 
 use crate::cloud::PointCloud;
@@ -58,6 +61,16 @@ pub enum Row {
     Before,
     /// Bottom row: the source moved by `target_from_source`.
     After,
+}
+
+impl Row {
+    /// The row's name as labelled in the picture: `before` or `after`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Row::Before => "before",
+            Row::After => "after",
+        }
+    }
 }
 
 /// How a snapshot is drawn.
@@ -122,11 +135,28 @@ impl SnapshotOptions {
         Ok(())
     }
 
-    /// (width, height) in pixels of the image these options give:
-    /// `views * panel_px + (views + 1) * gap_px` by `2 * panel_px + 3 * gap_px`.
+    /// (width, height) in pixels of the image these options give: `views * panel_px + (views + 1) * gap_px`
+    /// by `2 * panel_px + 3 * gap_px` plus three text bands ([`SnapshotOptions::text_band_px`]: one over each
+    /// row of panels, the legend under them).
     pub fn image_size(&self) -> (u32, u32) {
         let columns = self.views.len() as u32;
-        (columns * self.panel_px + (columns + 1) * self.gap_px, 2 * self.panel_px + 3 * self.gap_px)
+        let height = 2 * self.panel_px + 3 * self.gap_px + 3 * self.text_band_px();
+        (columns * self.panel_px + (columns + 1) * self.gap_px, height)
+    }
+
+    /// Image pixels per font pixel of the labels: 2 for panels of 160 px or more, else 1.
+    pub fn label_scale(&self) -> u32 {
+        if self.panel_px >= 160 { 2 } else { 1 }
+    }
+
+    /// Height of a band of text: one line of glyphs and a gap under it.
+    pub fn text_band_px(&self) -> u32 {
+        text::GLYPH_PX * self.label_scale() + self.gap_px
+    }
+
+    /// Top edge of the panels of row `r` (0: before, 1: after) in the image.
+    fn row_top(&self, r: u32) -> u32 {
+        self.gap_px + r * (self.text_band_px() + self.panel_px + self.gap_px) + self.text_band_px()
     }
 }
 
@@ -156,6 +186,8 @@ pub struct Snapshot {
     image: Pixmap,
     /// One entry per panel, row by row, left to right.
     pub panels: Vec<PanelCoverage>,
+    /// Every piece of text drawn: the panels' labels (row by row, left to right), then the legend's.
+    pub labels: Vec<Label>,
 }
 
 impl Snapshot {
@@ -237,6 +269,7 @@ pub fn render_snapshot(
     let mut image = Pixmap::new(width, height).expect("image size checked by the options");
     image.fill(Color::from_rgba8(GAP_RGB[0], GAP_RGB[1], GAP_RGB[2], 255));
     let mut panels = Vec::new();
+    let mut labels = Vec::new();
     let (side, gap) = (options.panel_px, options.gap_px);
     for (r, row) in [Row::Before, Row::After].into_iter().enumerate() {
         let (shown, row_lines): (&[Vector3<f64>], &[_]) = match row {
@@ -246,7 +279,7 @@ pub fn render_snapshot(
         for (c, &view) in options.views.iter().enumerate() {
             let frame = views::PanelFrame::fit(view, &axes, &[shown, &target_points], side);
             let (pixels, counts) = raster::panel(shown, &target_points, row_lines, &frame, side, options.dot_px);
-            let (x, y) = (gap + c as u32 * (side + gap), gap + r as u32 * (side + gap));
+            let (x, y) = (gap + c as u32 * (side + gap), options.row_top(r as u32));
             image.draw_pixmap(
                 x as i32,
                 y as i32,
@@ -255,6 +288,7 @@ pub fn render_snapshot(
                 Transform::identity(),
                 None,
             );
+            labels.extend(panel_label(&mut image, options, row, view, (x, y)));
             panels.push(PanelCoverage {
                 row,
                 view,
@@ -266,7 +300,58 @@ pub fn render_snapshot(
             });
         }
     }
-    Ok(Snapshot { image, panels })
+    labels.extend(legend(&mut image, options, !lines.is_empty()));
+    Ok(Snapshot { image, panels, labels })
+}
+
+/// Labels the panel whose top-left corner is `corner` with its row and view (`before: top`), in the text band
+/// over it; the row's name alone where the whole does not fit the panel's width, nothing where that does not.
+fn panel_label(
+    image: &mut Pixmap,
+    options: &SnapshotOptions,
+    row: Row,
+    view: View,
+    corner: (u32, u32),
+) -> Option<Label> {
+    let scale = options.label_scale();
+    let fits = |words: &str| text::text_width(words, scale) <= options.panel_px;
+    let words = [format!("{}: {}", row.name(), view.name()), row.name().to_string()].into_iter().find(|w| fits(w))?;
+    Some(text::draw(image, &words, corner.0, corner.1 - options.text_band_px(), scale, GAP_RGB))
+}
+
+/// Draws the legend band under the panels: a colour swatch and its meaning for the source, the target, their
+/// overlap and (when drawn) the inlier lines, left to right, as many as fit the width.
+fn legend(image: &mut Pixmap, options: &SnapshotOptions, with_lines: bool) -> Vec<Label> {
+    let scale = options.label_scale();
+    let cell = text::GLYPH_PX * scale;
+    let y = options.row_top(2) - options.text_band_px();
+    let line_rgb = [LINE_RGBA[0], LINE_RGBA[1], LINE_RGBA[2]];
+    let mut items = vec![(SOURCE_RGB, "source"), (TARGET_RGB, "target"), (OVERLAP_RGB, "both")];
+    if with_lines {
+        items.push((line_rgb, "inlier matches"));
+    }
+    let mut x = options.gap_px;
+    let mut labels = Vec::new();
+    for (rgb, words) in items {
+        let end = x + 2 * cell + text::text_width(words, scale);
+        if end > image.width() {
+            break;
+        }
+        text::fill(image, x, y, cell, cell, rgb);
+        labels.push(text::draw(image, words, x + 2 * cell, y, scale, GAP_RGB));
+        x = end + 2 * cell;
+    }
+    labels
+}
+
+/// One line saying how the picture is laid out, for the commands that write one.
+pub fn describe_layout(options: &SnapshotOptions) -> String {
+    let views: Vec<&str> = options.views.iter().map(|v| v.name()).collect();
+    format!(
+        "top row before, bottom row after registration; columns: {} views; source orange, target blue, both olive{}",
+        views.join(", "),
+        if options.lines.is_empty() { "" } else { ", inlier matches purple" }
+    )
 }
 
 /// Checks, before any work is done, that `path` can take a snapshot: a `.png` name (or an existing device
