@@ -119,8 +119,9 @@ pub struct RegistrationSettings {
     /// Point-to-plane ICP after the estimator, against a voxel-downsampled copy of the target (on by default:
     /// it turns the keypoint-level pose into a surface-level one for about 0.2 s); `None` skips it.
     pub icp: Option<IcpSettings>,
-    /// Drop exact (0, 0, 0) points (invalid LiDAR returns) when loading.
-    pub drop_zero_points: bool,
+    /// What loading does with points exactly at (0, 0, 0) (sensor no-returns): by default they are dropped when
+    /// there are several (used where the library loads the clouds, e.g. the bindings' arrays).
+    pub zero_points: crate::io::ZeroPoints,
     /// Seed for every random choice.
     pub seed: u64,
     /// Compute backend.
@@ -322,7 +323,7 @@ impl Default for RegistrationSettings {
             inlier_threshold: None,
             ransac: RansacSettings::default(),
             icp: Some(IcpSettings::default()),
-            drop_zero_points: false,
+            zero_points: crate::io::ZeroPoints::Auto,
             seed: 0,
             backend: BackendKind::Auto,
             verdict: crate::verdict::VerdictSettings::default(),

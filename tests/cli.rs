@@ -181,6 +181,49 @@ fn a_copied_binary_registers_the_example_pair_with_its_built_in_weights() {
     assert!((scale["inlier_threshold"].as_f64().unwrap() - radius / 6.0).abs() < 1e-6, "{scale}");
 }
 
+/// A scan with sensor no-returns (points written at exactly (0,0,0)) registers with no flags exactly as the same
+/// scan without them: the points are dropped by default and `register` says how many; a scan with none says
+/// nothing about them.
+#[test]
+fn no_return_points_are_dropped_by_default_and_counted() {
+    let dir = temp_dir("cli-no-returns");
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/pair");
+    let (mut with_zeros, _) = read_cloud(&example.join("cloud_bin_1.ply"), &LoadOptions::default()).unwrap();
+    // Interleaved, as a spinning sensor writes them: every 7th point is followed by a no-return.
+    let mut points = Vec::new();
+    let mut normals = Vec::new();
+    let given_normals = with_zeros.normals.clone().unwrap();
+    for (i, (p, n)) in with_zeros.points.iter().zip(&given_normals).enumerate() {
+        points.push(*p);
+        normals.push(*n);
+        if i % 7 == 0 {
+            points.push([0.0; 3]);
+            normals.push([0.0, 0.0, 1.0]);
+        }
+    }
+    let zeros = points.len() - with_zeros.len();
+    with_zeros.points = points;
+    with_zeros.normals = Some(normals);
+    let sweep = dir.join("with_no_returns.ply");
+    write_ply(&sweep, &with_zeros).unwrap();
+    let target = example.join("cloud_bin_0.ply");
+    let run = |source: &Path| {
+        let o = dpr(&["register", source.to_str().unwrap(), target.to_str().unwrap(), "--backend", "cpu"]);
+        let (stdout, stderr) = text(&o);
+        assert!(o.status.success(), "{stderr}");
+        stdout
+    };
+    let plain = run(&example.join("cloud_bin_1.ply"));
+    let swept = run(&sweep);
+    assert!(!plain.contains("no-return"), "{plain}");
+    let said = format!("{zeros} no-return points at (0,0,0) dropped, --keep-zero keeps them");
+    assert!(swept.lines().next().unwrap().contains(&said), "'{said}' not in: {swept}");
+    let matrix = |out: &str| -> Vec<String> {
+        out.lines().skip_while(|l| !l.starts_with("target_from_source")).skip(1).take(4).map(String::from).collect()
+    };
+    assert_eq!(matrix(&plain), matrix(&swept), "the same pose with and without the no-returns");
+}
+
 #[test]
 fn bench_without_a_gpu_times_the_cpu_and_says_what_it_did_not_measure() {
     // WGPU_BACKEND=dx12 on a machine without DX12 leaves no adapter: the default `--backend both` still times

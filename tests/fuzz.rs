@@ -9,7 +9,7 @@
 
 mod common;
 
-use dpr_gpu::io::{LoadOptions, read_cloud};
+use dpr_gpu::io::{LoadOptions, ZeroPoints, read_cloud};
 use dpr_gpu::model::{ModelConfig, Weights};
 use dpr_gpu::{PointCloud, Registrar, RegistrationSettings};
 use proptest::prelude::*;
@@ -174,7 +174,7 @@ fn case_path(ext: &str) -> PathBuf {
 fn read_must_not_panic(ext: &str, bytes: &[u8]) {
     let path = case_path(ext);
     std::fs::write(&path, bytes).unwrap();
-    for opts in [LoadOptions::default(), LoadOptions { drop_zero_points: true, ..LoadOptions::default() }] {
+    for opts in [LoadOptions::default(), LoadOptions { zero_points: ZeroPoints::Drop, ..LoadOptions::default() }] {
         if let Ok((cloud, _)) = read_cloud(&path, &opts) {
             cloud.validate("fuzzed").unwrap();
         }

@@ -353,29 +353,41 @@ fn non_finite_points_are_dropped_and_counted() {
     assert_eq!(report, LoadReport { dropped_non_finite: 2, dropped_zero: 0, origin: [0; 3] });
 }
 
+/// Points exactly at the origin (-0.0 counts) are sensor no-returns when there are two or more: dropped by
+/// default and counted; `Keep` keeps them, `Drop` drops even a lone one.
 #[test]
-fn zero_points_are_dropped_only_with_the_option() {
+fn zero_points_are_dropped_as_a_pattern_or_on_request() {
+    use dpr_gpu::io::ZeroPoints;
     let dir = TempDir::new("zero");
     let cloud =
         PointCloud::from_points(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [-0.0, 0.0, -0.0], [f32::NAN, 0.0, 0.0]]);
     let path = dir.0.join("zero.ply");
     write_ply(&path, &cloud).unwrap();
+    let with = |zero_points| read_cloud(&path, &LoadOptions { zero_points, ..LoadOptions::default() }).unwrap();
 
-    let (kept, report) = read(&path).unwrap();
+    let (filtered, report) = read(&path).unwrap();
+    assert_eq!(filtered.points, vec![[1.0, 0.0, 0.0]]);
+    assert_eq!(report, LoadReport { dropped_non_finite: 1, dropped_zero: 2, origin: [0; 3] });
+    let (kept, report) = with(ZeroPoints::Keep);
     assert_eq!(kept.len(), 3);
     assert_eq!(report, LoadReport { dropped_non_finite: 1, dropped_zero: 0, origin: [0; 3] });
 
-    let (filtered, report) =
-        read_cloud(&path, &LoadOptions { drop_zero_points: true, ..LoadOptions::default() }).unwrap();
-    assert_eq!(filtered.points, vec![[1.0, 0.0, 0.0]]);
-    assert_eq!(report, LoadReport { dropped_non_finite: 1, dropped_zero: 2, origin: [0; 3] });
+    let lone = dir.0.join("lone.ply");
+    write_ply(&lone, &PointCloud::from_points(vec![[0.0; 3], [1.0, 2.0, 3.0]])).unwrap();
+    let (cloud, report) = read(&lone).unwrap();
+    assert_eq!((cloud.len(), report.dropped_zero), (2, 0), "one point at the origin can be a real sample");
+    let (cloud, _) =
+        read_cloud(&lone, &LoadOptions { zero_points: ZeroPoints::Drop, ..LoadOptions::default() }).unwrap();
+    assert_eq!(cloud.points, vec![[1.0, 2.0, 3.0]]);
 }
 
 #[test]
 fn zero_points_with_normals_drop_their_normals() {
     let dir = TempDir::new("zero-normals");
     let path = dir.file("z.xyz", b"0 0 0 1 0 0\n1 1 1 0 1 0\n");
-    let (cloud, report) = read_cloud(&path, &LoadOptions { drop_zero_points: true, ..LoadOptions::default() }).unwrap();
+    let (cloud, report) =
+        read_cloud(&path, &LoadOptions { zero_points: dpr_gpu::io::ZeroPoints::Drop, ..LoadOptions::default() })
+            .unwrap();
     assert_eq!(cloud.points, vec![[1.0, 1.0, 1.0]]);
     assert_eq!(cloud.normals, Some(vec![[0.0, 1.0, 0.0]]));
     assert_eq!(report.dropped_zero, 1);

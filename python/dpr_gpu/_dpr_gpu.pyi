@@ -52,7 +52,7 @@ class _Settings(TypedDict, total=False):
     icp: bool
     icp_max_correspondence_distance: Optional[float]
     icp_max_iterations: int
-    drop_zero_points: bool
+    drop_zero_points: Optional[bool]
     seed: int
     backend: Literal["auto", "cpu", "gpu"]
     min_inliers: int
@@ -216,7 +216,8 @@ class RegistrationResult:
         """Keypoints dropped (both scans) because their patch was empty."""
     @property
     def dropped_points(self) -> int:
-        """Input rows dropped (both scans): non-finite values, or zeros with ``drop_zero_points``."""
+        """Input rows dropped (both scans): non-finite values, or points exactly at (0, 0, 0) as ``drop_zero_points``
+        says (by default when a scan has two or more)."""
     @property
     def timings(self) -> dict[str, float]:
         """Wall time per pipeline stage in seconds, in pipeline order; stages repeated by the progressive
@@ -257,7 +258,7 @@ class Registrar:
         icp: bool = True,
         icp_max_correspondence_distance: Optional[float] = None,
         icp_max_iterations: int = 30,
-        drop_zero_points: bool = False,
+        drop_zero_points: Optional[bool] = None,
         seed: int = 0,
         backend: Literal["auto", "cpu", "gpu"] = "auto",
         min_inliers: int = 12,
@@ -334,7 +335,7 @@ class Registrar:
 def read_cloud(
     path: _PathLike,
     *,
-    drop_zero_points: bool = False,
+    drop_zero_points: Optional[bool] = None,
     xyz_columns: Optional[str] = None,
 ) -> Tuple[npt.NDArray[np.float64], Optional[npt.NDArray[np.float64]]]:
     """Reads a .ply, .pcd or .xyz/.txt/.pts file: (points, normals or None) as (N, 3) float64 arrays."""
@@ -342,7 +343,7 @@ def read_cloud(
 def multiway_origin(points: _Points) -> Tuple[int, int, int]:
     """The whole-unit origin ``multiway`` subtracts from every scan of a collection whose first scan is ``points``."""
 
-def scan_size(points: _Points, *, origin: Tuple[int, int, int] = ..., drop_zero_points: bool = False) -> float:
+def scan_size(points: _Points, *, origin: Tuple[int, int, int] = ..., drop_zero_points: Optional[bool] = None) -> float:
     """Median distance of the scan's points from its centre (coordinate-wise median), as ``multiway`` measures it."""
 
 def choose_radius(sizes: Sequence[float]) -> float:

@@ -114,7 +114,7 @@ class _Worker:
             "gpu_ids": [str(g) for g in ray.get_gpu_ids()],
         }
 
-    def size(self, scan: Any, origin: Tuple[int, int, int], drop_zero_points: bool) -> float:
+    def size(self, scan: Any, origin: Tuple[int, int, int], drop_zero_points: Optional[bool]) -> float:
         """The size of one scan (an array, or a file read here) as ``Registrar.multiway`` measures it to choose
         the patch radius (``scan_size``)."""
         if isinstance(scan, (str, os.PathLike)):
@@ -135,7 +135,7 @@ class _Worker:
             self._cache.popitem(last=False)
 
     def describe(
-        self, scan: Any, normals: Any, index: int, origin: Tuple[int, int, int], drop_zero_points: bool
+        self, scan: Any, normals: Any, index: int, origin: Tuple[int, int, int], drop_zero_points: Optional[bool]
     ) -> Tuple[DescribedScan, Tuple[Any, str, float]]:
         """Describes scan ``index`` (an array, or a file read here); returns the described scan (kept in the
         object store for the pair tasks) and (pooled codeword, worker id, seconds) for the driver."""
@@ -287,7 +287,7 @@ def run(
     if not loop_preference > 0:
         raise ValueError(f"loop closure preference must be positive, got {loop_preference}")
     settings_check = Registrar(**{**settings, "backend": "cpu"})  # bad settings fail here, not on a worker
-    drop_zero_points = bool(settings_check.settings["drop_zero_points"])
+    drop_zero_points = cast(Optional[bool], settings_check.settings["drop_zero_points"])
     del settings_check
 
     ray = _import_ray()
@@ -483,7 +483,9 @@ def _arguments() -> argparse.ArgumentParser:
     reg.add_argument("--icp", action="store_true", help="ICP refinement (the default)")
     reg.add_argument("--icp-distance", type=float, default=None)
     reg.add_argument("--icp-iterations", type=int, default=None)
-    reg.add_argument("--drop-zero", action="store_true")
+    zero = reg.add_mutually_exclusive_group()
+    zero.add_argument("--drop-zero", action="store_true")
+    zero.add_argument("--keep-zero", action="store_true")
     reg.add_argument("--backend", default="auto", choices=("auto", "cpu", "gpu"))
     reg.add_argument("--min-inliers", type=int, default=12)
     reg.add_argument("--min-inlier-ratio", type=float, default=0.055)
@@ -544,7 +546,7 @@ def _settings_of(a: argparse.Namespace) -> Dict[str, Any]:
         "icp": icp,
         "icp_max_correspondence_distance": a.icp_distance,
         "icp_max_iterations": 30 if a.icp_iterations is None else a.icp_iterations,
-        "drop_zero_points": a.drop_zero,
+        "drop_zero_points": True if a.drop_zero else False if a.keep_zero else None,
         "backend": a.backend,
         "min_inliers": a.min_inliers,
         "min_inlier_ratio": a.min_inlier_ratio,
@@ -571,7 +573,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if a.read_on_workers:
             scans = [str(p) for p in paths]
         else:
-            loaded = [read_cloud(p, drop_zero_points=a.drop_zero) for p in paths]
+            loaded = [read_cloud(p, drop_zero_points=settings["drop_zero_points"]) for p in paths]
             scans = [points for points, _ in loaded]
             normals = [n for _, n in loaded] if all(n is not None for _, n in loaded) else None
         ray = _import_ray()

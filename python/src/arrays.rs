@@ -53,7 +53,7 @@ fn xyz_rows(object: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<[f64; 3]>> {
 
 /// A point cloud from a points array and an optional normals array of the same shape, filtered exactly as the
 /// file readers filter a file's points ([`cloud_from_rows`]): rows with a NaN or infinite coordinate (or normal)
-/// are dropped, exact zeros too with `options.drop_zero_points`, and `options.origin` is subtracted in `f64`.
+/// are dropped, exact zeros as `options.zero_points` says, and `options.origin` is subtracted in `f64`.
 pub(crate) fn cloud_from_arrays(
     points: &Bound<'_, PyAny>,
     normals: Option<&Bound<'_, PyAny>>,

@@ -12,7 +12,7 @@ mod settings;
 mod state;
 
 use arrays::{positions, vectors};
-use dpr_gpu::io::{LoadOptions, OriginShift, XyzColumns};
+use dpr_gpu::io::{LoadOptions, OriginShift, XyzColumns, ZeroPoints};
 use errors::to_py_err;
 use numpy::PyArray2;
 use pyo3::prelude::*;
@@ -25,7 +25,8 @@ type Points<'py> = Bound<'py, PyArray2<f64>>;
 ///
 /// Returns ``(points, normals)``: an (N, 3) float64 array of positions and an (N, 3) float64 array of the
 /// file's normals, or None when the file has none. Points with a NaN or infinite coordinate (or normal) are
-/// dropped, exact zeros too with ``drop_zero_points``. ``xyz_columns`` names the columns of text files (e.g.
+/// dropped; points exactly at (0, 0, 0) are dropped when there are two or more (sensor no-returns; one
+/// alone is kept), every one with ``drop_zero_points=True``, none with ``False``. ``xyz_columns`` names the columns of text files (e.g.
 /// ``"x,y,z,nx,ny,nz"``); by default columns 4-6 are normals when every row has unit length there. Values pass
 /// through float32 as in the library; large (georeferenced) coordinates are read relative to a whole-unit
 /// origin and returned with it added back in float64.
@@ -33,18 +34,19 @@ type Points<'py> = Bound<'py, PyArray2<f64>>;
 /// Raises ``OSError`` (``FileNotFoundError``...) when the file cannot be read and ``ValueError`` when its
 /// contents or extension are not understood.
 #[pyfunction]
-#[pyo3(signature = (path, *, drop_zero_points = false, xyz_columns = None))]
+#[pyo3(signature = (path, *, drop_zero_points = None, xyz_columns = None))]
 fn read_cloud<'py>(
     py: Python<'py>,
     path: PathBuf,
-    drop_zero_points: bool,
+    drop_zero_points: Option<bool>,
     xyz_columns: Option<String>,
 ) -> PyResult<(Points<'py>, Option<Points<'py>>)> {
     if path.is_dir() {
         return Err(pyo3::exceptions::PyIsADirectoryError::new_err(format!("{}: is a directory", path.display())));
     }
     let xyz_columns = xyz_columns.as_deref().map(XyzColumns::parse).transpose().map_err(to_py_err)?;
-    let options = LoadOptions { drop_zero_points, xyz_columns, origin: OriginShift::Auto };
+    let options =
+        LoadOptions { zero_points: ZeroPoints::from_flag(drop_zero_points), xyz_columns, origin: OriginShift::Auto };
     let (cloud, report) = py.detach(|| dpr_gpu::io::read_cloud(&path, &options)).map_err(to_py_err)?;
     let normals = cloud.normals.as_deref().map(|n| vectors(py, n));
     Ok((positions(py, &cloud.points, report.origin), normals))

@@ -4,7 +4,7 @@
 
 use crate::arrays::{cloud_from_arrays, matrix};
 use crate::errors::{to_py_err, value_error};
-use dpr_gpu::io::{LoadOptions, OriginShift, write_atomic};
+use dpr_gpu::io::{LoadOptions, OriginShift, ZeroPoints, write_atomic};
 use dpr_gpu::multiway::pairs::select_pairs as library_select_pairs;
 use dpr_gpu::multiway::{
     EdgeKind, EdgeRecord, GlobalOptimizationOption, MultiwayResult as RustMultiwayResult, MultiwaySettings, NoStore,
@@ -105,15 +105,19 @@ pub(crate) fn run<'py>(
 }
 
 /// The size of one scan of a collection (the median distance of its points from its centre, the coordinate-wise median, after the
-/// collection's ``origin`` is subtracted and, with ``drop_zero_points``, exact zeros dropped), as
+/// collection's ``origin`` is subtracted and, points exactly at (0, 0, 0) dropped as ``read_cloud`` drops them), as
 /// ``Registrar.multiway`` measures it to choose the patch radius: ``choose_radius`` of every scan's size gives
 /// the radius ``Registrar.multiway`` uses when none is set.
 #[pyfunction]
-#[pyo3(signature = (points, *, origin = (0, 0, 0), drop_zero_points = false))]
-pub(crate) fn scan_size(points: &Bound<'_, PyAny>, origin: (i64, i64, i64), drop_zero_points: bool) -> PyResult<f64> {
+#[pyo3(signature = (points, *, origin = (0, 0, 0), drop_zero_points = None))]
+pub(crate) fn scan_size(
+    points: &Bound<'_, PyAny>,
+    origin: (i64, i64, i64),
+    drop_zero_points: Option<bool>,
+) -> PyResult<f64> {
     let options = LoadOptions {
         origin: OriginShift::At([origin.0, origin.1, origin.2]),
-        drop_zero_points,
+        zero_points: ZeroPoints::from_flag(drop_zero_points),
         ..LoadOptions::default()
     };
     let (cloud, _) = cloud_from_arrays(points, None, "points", &options)?;

@@ -102,7 +102,8 @@ impl Features {
 /// - ``inlier_threshold``: None uses radius / 6. ``ransac_iterations``, ``ransac_confidence``: RANSAC criteria.
 /// - ``icp``: refine with point-to-plane ICP (on by default; about 0.2 s a pair);
 ///   ``icp_max_correspondence_distance`` (None: radius / 12) and ``icp_max_iterations``.
-/// - ``drop_zero_points``: drop exact (0, 0, 0) rows (invalid LiDAR returns).
+/// - ``drop_zero_points``: rows exactly at (0, 0, 0) (sensor no-returns): None (the default) drops them when
+///   there are two or more and keeps one alone, True drops every one, False keeps them.
 /// - ``seed``: seed for every random choice (same inputs and seed, same result).
 /// - ``backend``: ``"auto"`` (a GPU when one exists, else the CPU with a warning), ``"cpu"`` or ``"gpu"``.
 /// - ``min_inliers``, ``min_inlier_ratio``, ``min_spread_over_threshold``: thresholds of the success verdict.
@@ -138,7 +139,7 @@ impl Registrar {
 
     /// The load options for arrays given to this registrar.
     fn load_options(&self, origin: OriginShift) -> LoadOptions {
-        LoadOptions { drop_zero_points: self.inner.settings.drop_zero_points, origin, ..LoadOptions::default() }
+        LoadOptions { zero_points: self.inner.settings.zero_points, origin, ..LoadOptions::default() }
     }
 }
 
@@ -164,7 +165,7 @@ impl Registrar {
         icp = true,
         icp_max_correspondence_distance = None,
         icp_max_iterations = 30,
-        drop_zero_points = false,
+        drop_zero_points = None,
         seed = 0,
         backend = "auto".to_string(),
         min_inliers = 12,
@@ -178,7 +179,7 @@ impl Registrar {
         keypoint_mode='random', \
         normal_neighbors=30, viewpoint=(0.0, 0.0, 0.0), matching='mutual', mutual_k=1, estimator='relativenet', \
         inlier_threshold=None, ransac_iterations=100000, ransac_confidence=0.999, icp=True, \
-        icp_max_correspondence_distance=None, icp_max_iterations=30, drop_zero_points=False, seed=0, \
+        icp_max_correspondence_distance=None, icp_max_iterations=30, drop_zero_points=None, seed=0, \
         backend='auto', min_inliers=12, min_inlier_ratio=0.055, min_spread_over_threshold=2.0, \
         context_radii=[(2.0, 1.0)], context_when='untrusted', pose_candidates=16)")]
     #[expect(clippy::too_many_arguments, reason = "one keyword argument per setting, as Python callers expect")]
@@ -201,7 +202,7 @@ impl Registrar {
         icp: bool,
         icp_max_correspondence_distance: Option<f32>,
         icp_max_iterations: i64,
-        drop_zero_points: bool,
+        drop_zero_points: Option<bool>,
         seed: i128,
         backend: String,
         min_inliers: i64,

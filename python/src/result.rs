@@ -53,7 +53,8 @@ pub struct RegistrationResult {
     pub(crate) target_keypoints: Vec<[f32; 3]>,
     /// The origin subtracted from both scans before the computation (zero unless coordinates were large).
     pub(crate) origin: [i64; 3],
-    /// Input rows dropped (non-finite values, or zeros with `drop_zero_points`), both scans together.
+    /// Input rows dropped (non-finite values, or points exactly at (0, 0, 0) as `drop_zero_points` says), both
+    /// scans together.
     pub(crate) dropped_points: usize,
     /// Kept for `snapshot(path)`.
     pub(crate) snapshot: SnapshotInputs,
@@ -124,8 +125,8 @@ impl RegistrationResult {
         self.result.empty_patches
     }
 
-    /// Input rows dropped (source and target together): rows with a NaN or infinite value, and exact zeros when
-    /// ``drop_zero_points`` is set.
+    /// Input rows dropped (source and target together): rows with a NaN or infinite value, and points exactly at
+    /// (0, 0, 0) as ``drop_zero_points`` says (by default when there are two or more in a scan).
     #[getter]
     fn dropped_points(&self) -> usize {
         self.dropped_points

@@ -3,6 +3,7 @@
 //! verdict thresholds are top-level, ICP is `icp=True` plus its two parameters).
 
 use crate::errors::value_error;
+use dpr_gpu::io::ZeroPoints;
 use dpr_gpu::settings::{ContextRadius, ContextWhen};
 use dpr_gpu::verdict::VerdictSettings;
 use dpr_gpu::{BackendKind, Estimator, IcpSettings, KeypointMode, MatchMode, RansacSettings, RegistrationSettings};
@@ -34,7 +35,7 @@ pub(crate) struct SettingsArgs {
     pub icp: bool,
     pub icp_max_correspondence_distance: Option<f32>,
     pub icp_max_iterations: i64,
-    pub drop_zero_points: bool,
+    pub drop_zero_points: Option<bool>,
     pub seed: i128,
     pub backend: String,
     pub min_inliers: i64,
@@ -107,7 +108,7 @@ impl SettingsArgs {
                 confidence: self.ransac_confidence,
             },
             icp: icp.transpose()?,
-            drop_zero_points: self.drop_zero_points,
+            zero_points: ZeroPoints::from_flag(self.drop_zero_points),
             seed: u64::try_from(self.seed)
                 .map_err(|_| value_error(format!("seed must be in 0..=2**64-1, got {}", self.seed)))?,
             backend: choose("backend", &self.backend, BACKENDS)?,
@@ -152,7 +153,12 @@ pub(crate) fn settings_dict<'py>(py: Python<'py>, s: &RegistrationSettings) -> P
     d.set_item("icp", s.icp.is_some())?;
     d.set_item("icp_max_correspondence_distance", s.icp.and_then(|i| i.max_correspondence_distance))?;
     d.set_item("icp_max_iterations", s.icp.map(|i| i.max_iterations))?;
-    d.set_item("drop_zero_points", s.drop_zero_points)?;
+    let drop_zero_points = match s.zero_points {
+        ZeroPoints::Auto => None,
+        ZeroPoints::Drop => Some(true),
+        ZeroPoints::Keep => Some(false),
+    };
+    d.set_item("drop_zero_points", drop_zero_points)?;
     d.set_item("seed", s.seed)?;
     d.set_item("backend", name_of(s.backend, BACKENDS))?;
     d.set_item("min_inliers", s.verdict.min_inliers)?;

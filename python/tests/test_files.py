@@ -144,3 +144,30 @@ def test_register_equals_the_command_line_on_the_same_files_and_seed(tmp_path, r
     assert from_arrays.dropped_points == cli["dropped_points"] == 3
     assert cli["source_points"] == len(source) - 2 and cli["target_points"] == len(target) - 1
     assert (np.array(cli["origin"]) != 0).any() == offset.any()
+
+
+def _readme_python_blocks() -> list[str]:
+    """The ```python blocks of the top-level README, in order."""
+    text = (REPO / "README.md").read_text()
+    return [part.split("```", 1)[0] for part in text.split("```python\n")[1:]]
+
+
+def test_the_readme_snippet_gives_the_command_lines_pose_and_writes_outside_the_checkout(tmp_path, monkeypatch):
+    """The README's Python snippet, run as written from the repository root, registers the example pair to the
+    pose `dpr-gpu register` gives on the same files, and writes its picture to the temporary folder."""
+    binary = cli_binary()
+    if binary is None:
+        pytest.skip("no dpr-gpu binary: build it (cargo build) or set DPR_GPU_CLI")
+    import tempfile
+
+    monkeypatch.chdir(REPO)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    before = set(REPO.iterdir())
+    namespace: dict = {}
+    exec(compile(_readme_python_blocks()[0], "README.md", "exec"), namespace)
+    result = namespace["result"]
+    assert result.backend == "cpu", "the comparison below is with the CPU backend"
+    cli = _cli_json(binary, EXAMPLE / "cloud_bin_1.ply", EXAMPLE / "cloud_bin_0.ply", ["--seed", "0"])
+    _assert_same_as_cli(result, cli)
+    assert result.success
+    assert (tmp_path / "pair.png").is_file() and set(REPO.iterdir()) == before

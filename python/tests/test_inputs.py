@@ -85,12 +85,19 @@ def test_rows_with_non_finite_normals_are_dropped(room_pair):
     np.testing.assert_array_equal(dirty.keypoint_normals, clean.keypoint_normals)
 
 
-def test_drop_zero_points_drops_exact_zeros(room_pair, baseline):
+def test_zero_rows_are_dropped_as_sensor_no_returns_by_default(room_pair, baseline):
     source, target, _ = room_pair
     zeros = np.insert(source, [5, 6], 0.0, axis=0)
-    result = dpr_gpu.register(zeros, target, drop_zero_points=True, **QUICK)
-    _same(result, baseline)
-    assert result.dropped_points == 2
+    # Two or more rows exactly at the origin are no-returns: dropped by default, as with drop_zero_points=True.
+    for drop in (None, True):
+        result = dpr_gpu.register(zeros, target, drop_zero_points=drop, **QUICK)
+        _same(result, baseline)
+        assert result.dropped_points == 2
+    assert dpr_gpu.register(zeros, target, drop_zero_points=False, **QUICK).dropped_points == 0
+    # One alone can be a real sample: kept by default, dropped on request.
+    lone = np.insert(source, [5], 0.0, axis=0)
+    assert dpr_gpu.register(lone, target, **QUICK).dropped_points == 0
+    assert dpr_gpu.register(lone, target, drop_zero_points=True, **QUICK).dropped_points == 1
 
 
 @pytest.mark.parametrize(

@@ -2,12 +2,13 @@
 
 use crate::cloud::PointCloud;
 use crate::io::{
-    LoadOptions, OriginShift, XyzColumns, check_outputs, check_writable_cloud_path, read_cloud, write_atomic,
-    write_cloud, write_ply_with_colors,
+    LoadOptions, LoadReport, OriginShift, XyzColumns, ZeroPoints, check_outputs, check_writable_cloud_path, read_cloud,
+    write_atomic, write_cloud, write_ply_with_colors,
 };
 use crate::pipeline::{Registrar, weights_file};
 use crate::settings::*;
 use anyhow::bail;
+use nalgebra::Matrix4;
 use std::path::{Path, PathBuf};
 
 /// Registration options (shared by `register` and `eval`).
@@ -66,9 +67,13 @@ pub struct RegisterOptions {
     /// ICP's iteration limit.
     #[arg(long, default_value_t = DEFAULT_ICP_ITERATIONS)]
     pub icp_iterations: usize,
-    /// Drop exact (0,0,0) points when loading.
-    #[arg(long)]
+    /// Drop every point exactly at (0,0,0) when loading [default: dropped when there are two or more, the
+    /// no-return pattern of LiDAR and depth sensors; one alone is kept].
+    #[arg(long, conflicts_with = "keep_zero")]
     pub drop_zero: bool,
+    /// Keep points exactly at (0,0,0) (see --drop-zero).
+    #[arg(long)]
+    pub keep_zero: bool,
     /// Compute backend: auto (a hardware GPU when there is one, else the CPU; never a software rasteriser
     /// unless DPR_GPU_ALLOW_SOFTWARE=1), gpu (any adapter, software ones included) or cpu.
     #[arg(long, default_value = "auto")]
@@ -146,7 +151,7 @@ impl RegisterOptions {
             normal_neighbors: self.normal_k,
             inlier_threshold: self.inlier_threshold,
             seed: self.seed,
-            drop_zero_points: self.drop_zero,
+            zero_points: self.zero_points(),
             pose_candidates: self.pose_candidates,
             ..RegistrationSettings::default()
         };
@@ -193,7 +198,12 @@ impl RegisterOptions {
     /// The load options these options describe (no origin shift).
     pub fn load_options(&self) -> anyhow::Result<LoadOptions> {
         let xyz_columns = self.xyz_columns.as_deref().map(XyzColumns::parse).transpose()?;
-        Ok(LoadOptions { drop_zero_points: self.drop_zero, xyz_columns, ..LoadOptions::default() })
+        Ok(LoadOptions { zero_points: self.zero_points(), xyz_columns, ..LoadOptions::default() })
+    }
+
+    /// What `--drop-zero` / `--keep-zero` ask for (neither: the default rule).
+    fn zero_points(&self) -> ZeroPoints {
+        ZeroPoints::from_flag((self.drop_zero || self.keep_zero).then_some(self.drop_zero))
     }
 
     /// The weights file these options load, if not the built-in weights (for comparing outputs with it).
@@ -282,11 +292,52 @@ fn stage_bar() -> indicatif::ProgressBar {
 /// Exit status of `register` when the result is not trusted (the pose is still printed).
 pub const EXIT_UNTRUSTED: u8 = 3;
 
-/// Runs `dpr-gpu register`; returns whether the result is trusted (see [`RegistrationResult::success`]).
-pub fn run(args: Args) -> anyhow::Result<bool> {
-    let settings = args.options.to_settings()?;
-    parse_estimator(&args.options.estimator)?;
-    let weights = args.options.weights_path()?;
+/// The two scans as loaded: both in the frame shifted by `-origin` (georeferenced clouds), with what loading
+/// dropped.
+struct LoadedPair {
+    source: PointCloud,
+    target: PointCloud,
+    source_report: LoadReport,
+    target_report: LoadReport,
+    /// The origin subtracted from both (from the source; zero unless coordinates are large).
+    origin: [i64; 3],
+}
+
+impl LoadedPair {
+    /// Reads both scans; both are shifted by one origin (from the source) in f64 before the f32 conversion.
+    fn read(args: &Args, load: LoadOptions) -> anyhow::Result<Self> {
+        let (source, source_report) = read_cloud(&args.source, &LoadOptions { origin: OriginShift::Auto, ..load })?;
+        let origin = source_report.origin;
+        let (target, target_report) =
+            read_cloud(&args.target, &LoadOptions { origin: OriginShift::At(origin), ..load })?;
+        Ok(LoadedPair { source, target, source_report, target_report, origin })
+    }
+
+    /// Points dropped while loading, both scans together.
+    fn dropped_points(&self) -> usize {
+        [&self.source_report, &self.target_report].iter().map(|r| r.dropped_non_finite + r.dropped_zero).sum()
+    }
+}
+
+/// The line `register` prints for one loaded scan: its points and what was dropped, and why.
+fn load_line(name: &str, cloud: &PointCloud, report: &LoadReport) -> String {
+    let mut line = format!("{name}: {} points", cloud.len());
+    let mut dropped = Vec::new();
+    if report.dropped_zero > 0 {
+        dropped.push(format!("{} no-return points at (0,0,0) dropped, --keep-zero keeps them", report.dropped_zero));
+    }
+    if report.dropped_non_finite > 0 {
+        dropped.push(format!("{} non-finite points dropped", report.dropped_non_finite));
+    }
+    if !dropped.is_empty() {
+        line += &format!(" ({})", dropped.join("; "));
+    }
+    line
+}
+
+/// Checks every output path before any work (the inputs and weights protected from being overwritten) and
+/// returns them with their flags.
+fn checked_outputs<'a>(args: &'a Args, weights: Option<&'a Path>) -> anyhow::Result<Vec<(&'static str, &'a Path)>> {
     let mut outputs: Vec<(&str, &Path)> = Vec::new();
     if let Some(p) = &args.out {
         outputs.push(("--out", p));
@@ -303,17 +354,19 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
         outputs.push(("--snapshot", p));
     }
     let mut inputs = vec![args.source.as_path(), args.target.as_path()];
-    inputs.extend(weights.as_deref());
+    inputs.extend(weights);
     check_outputs(&inputs, &outputs)?;
-    let load = args.options.load_options()?;
-    let started = std::time::Instant::now();
-    // Georeferenced clouds: both are shifted by one origin (from the source) in f64 before the f32 conversion.
-    let (source, source_report) = read_cloud(&args.source, &LoadOptions { origin: OriginShift::Auto, ..load })?;
-    let origin = source_report.origin;
-    let (target, target_report) = read_cloud(&args.target, &LoadOptions { origin: OriginShift::At(origin), ..load })?;
-    let load_seconds = started.elapsed().as_secs_f64();
+    Ok(outputs)
+}
+
+/// Runs the pipeline with a progress bar on a terminal.
+fn register_pair(
+    settings: &RegistrationSettings,
+    args: &Args,
+    pair: &LoadedPair,
+) -> anyhow::Result<(Registrar, crate::pipeline::Registration)> {
     let bar = stage_bar();
-    let registrar = Registrar::new(&settings)?.with_progress({
+    let registrar = Registrar::new(settings)?.with_progress({
         let bar = bar.clone();
         Box::new(move |stage, seconds| {
             if bar.position() + 1 > bar.length().unwrap_or(0) {
@@ -323,77 +376,126 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
             bar.set_message(format!("{stage} took {seconds:.2} s"));
         })
     });
-    let outcome = registrar.register_detailed(&source, &target).map_err(|e| name_files(e, &args.source, &args.target));
+    let outcome =
+        registrar.register_detailed(&pair.source, &pair.target).map_err(|e| name_files(e, &args.source, &args.target));
     bar.finish_and_clear();
-    let registration = outcome?;
-    let mut result = registration.result;
-    result.timings.insert(0, StageTime { stage: "load".into(), seconds: load_seconds });
-    let shifted = result.estimate.target_from_source;
-    let t = crate::pose::unshift_pose(&shifted, origin);
-    result.estimate.target_from_source = t;
+    Ok((registrar, outcome?))
+}
+
+/// Writes `--out`, `--aligned` and `--snapshot`; `shifted` is the pose in the shifted frames. Returns the lines
+/// saying what was written.
+fn write_outputs(
+    args: &Args,
+    pair: &LoadedPair,
+    registration: &crate::pipeline::Registration,
+    shifted: &Matrix4<f64>,
+) -> anyhow::Result<Vec<String>> {
+    let mut written = Vec::new();
+    let result = &registration.result;
     if let Some(path) = &args.out {
-        write_atomic(path, crate::pose::matrix_text(&t).as_bytes())?;
+        write_atomic(path, crate::pose::matrix_text(&result.estimate.target_from_source).as_bytes())?;
+        written.push(format!("target_from_source written to {}", path.display()));
     }
     if let Some(path) = &args.aligned {
-        let aligned = unshifted(source.transformed(&shifted), origin);
+        let aligned = unshifted(pair.source.transformed(shifted), pair.origin);
         if args.merged {
-            let (merged, colors) = crate::snapshot::merged_pair(&aligned, &unshifted(target.clone(), origin));
+            let (merged, colors) = crate::snapshot::merged_pair(&aligned, &unshifted(pair.target.clone(), pair.origin));
             write_ply_with_colors(path, &merged, &colors)?;
+            written.push(format!("moved source and target (orange, blue) written to {}", path.display()));
         } else {
             write_cloud(path, &aligned)?;
+            written.push(format!("moved source written to {}", path.display()));
         }
     }
     if let Some(path) = &args.snapshot {
         // Drawn in the shifted frames: a picture does not change with a common shift, and f32 stays precise.
         let lines =
-            crate::snapshot::inlier_lines(&registration.correspondences, &shifted, result.scale.inlier_threshold);
+            crate::snapshot::inlier_lines(&registration.correspondences, shifted, result.scale.inlier_threshold);
         let options = crate::snapshot::SnapshotOptions { lines, ..Default::default() };
-        crate::snapshot::write_snapshot(path, &source, &target, &shifted, &options)?;
+        crate::snapshot::write_snapshot(path, &pair.source, &pair.target, shifted, &options)?;
+        written.push(format!(
+            "snapshot written to {} ({})",
+            path.display(),
+            crate::snapshot::describe_layout(&options)
+        ));
     }
+    Ok(written)
+}
+
+/// The `--json` object: the result plus the run's own facts.
+fn json_report(
+    result: &RegistrationResult,
+    registrar: &Registrar,
+    pair: &LoadedPair,
+    written: &[String],
+    total_seconds: f64,
+) -> anyhow::Result<serde_json::Value> {
+    let mut value = serde_json::to_value(result)?;
+    value["total_seconds"] = total_seconds.into();
+    value["backend_reason"] = registrar.backend_reason().into();
+    value["source_points"] = pair.source.len().into();
+    value["target_points"] = pair.target.len().into();
+    value["dropped_points"] = pair.dropped_points().into();
+    value["dropped_zero_points"] = (pair.source_report.dropped_zero + pair.target_report.dropped_zero).into();
+    value["origin"] = serde_json::to_value(pair.origin)?;
+    value["written"] = serde_json::to_value(written)?;
+    Ok(value)
+}
+
+/// The text report.
+fn print_text(result: &RegistrationResult, registrar: &Registrar, pair: &LoadedPair, written: &[String], total: f64) {
+    println!("{}", load_line("source", &pair.source, &pair.source_report));
+    println!("{}", load_line("target", &pair.target, &pair.target_report));
+    if pair.origin != [0; 3] {
+        println!("large coordinates: both clouds shifted by -{:?} for the computation", pair.origin);
+    }
+    println!("backend: {} ({})", result.backend, registrar.backend_reason());
+    println!("scale: {}", result.scale);
+    println!("target_from_source (p_target = T p_source):");
+    print!("{}", crate::pose::matrix_text(&result.estimate.target_from_source));
+    let e = &result.estimate;
+    if result.empty_patches > 0 {
+        println!("keypoints without neighbours within the radius (dropped): {}", result.empty_patches);
+    }
+    println!("correspondences: {} (from {} keypoints per scan)", result.correspondences, result.keypoints);
+    println!("hypotheses scored: {}", e.hypotheses_scored);
+    println!("inliers: {} (fitness {:.4}, inlier RMSE {:.5})", e.inliers, e.fitness, e.inlier_rmse);
+    println!("stage times (s):");
+    for st in &result.timings {
+        println!("  {:<24} {:>9.3}", st.stage, st.seconds);
+    }
+    println!("  {:<24} {:>9.3}", "total", total);
+    for line in written {
+        println!("{line}");
+    }
+    match &result.reason {
+        None => println!("verdict: success"),
+        Some(reason) => println!("verdict: NOT TRUSTED: {reason}"),
+    }
+}
+
+/// Runs `dpr-gpu register`; returns whether the result is trusted (see [`RegistrationResult::success`]).
+pub fn run(args: Args) -> anyhow::Result<bool> {
+    let settings = args.options.to_settings()?;
+    parse_estimator(&args.options.estimator)?;
+    let weights = args.options.weights_path()?;
+    checked_outputs(&args, weights.as_deref())?;
+    let load = args.options.load_options()?;
+    let started = std::time::Instant::now();
+    let pair = LoadedPair::read(&args, load)?;
+    let load_seconds = started.elapsed().as_secs_f64();
+    let (registrar, mut registration) = register_pair(&settings, &args, &pair)?;
+    registration.result.timings.insert(0, StageTime { stage: "load".into(), seconds: load_seconds });
+    let shifted = registration.result.estimate.target_from_source;
+    registration.result.estimate.target_from_source = crate::pose::unshift_pose(&shifted, pair.origin);
+    let written = write_outputs(&args, &pair, &registration, &shifted)?;
+    let result = &registration.result;
+    let total_seconds = started.elapsed().as_secs_f64();
     if args.json {
-        let mut value = serde_json::to_value(&result)?;
-        value["total_seconds"] = started.elapsed().as_secs_f64().into();
-        value["backend_reason"] = registrar.backend_reason().into();
-        value["source_points"] = source.len().into();
-        value["target_points"] = target.len().into();
-        value["dropped_points"] = (source_report.dropped_non_finite
-            + source_report.dropped_zero
-            + target_report.dropped_non_finite
-            + target_report.dropped_zero)
-            .into();
-        value["origin"] = serde_json::to_value(origin)?;
+        let value = json_report(result, &registrar, &pair, &written, total_seconds)?;
         println!("{}", serde_json::to_string(&value)?);
     } else {
-        for (name, r, cloud) in [("source", &source_report, &source), ("target", &target_report, &target)] {
-            print!("{name}: {} points", cloud.len());
-            if r.dropped_non_finite + r.dropped_zero > 0 {
-                print!(" ({} non-finite and {} zero points dropped)", r.dropped_non_finite, r.dropped_zero);
-            }
-            println!();
-        }
-        if origin != [0; 3] {
-            println!("large coordinates: both clouds shifted by -{origin:?} for the computation");
-        }
-        println!("backend: {} ({})", result.backend, registrar.backend_reason());
-        println!("scale: {}", result.scale);
-        println!("target_from_source (p_target = T p_source):");
-        print!("{}", crate::pose::matrix_text(&t));
-        let e = &result.estimate;
-        if result.empty_patches > 0 {
-            println!("keypoints without neighbours within the radius (dropped): {}", result.empty_patches);
-        }
-        println!("correspondences: {} (from {} keypoints per scan)", result.correspondences, result.keypoints);
-        println!("hypotheses scored: {}", e.hypotheses_scored);
-        println!("inliers: {} (fitness {:.4}, inlier RMSE {:.5})", e.inliers, e.fitness, e.inlier_rmse);
-        println!("stage times (s):");
-        for st in &result.timings {
-            println!("  {:<24} {:>9.3}", st.stage, st.seconds);
-        }
-        println!("  {:<24} {:>9.3}", "total", started.elapsed().as_secs_f64());
-        match &result.reason {
-            None => println!("verdict: success"),
-            Some(reason) => println!("verdict: NOT TRUSTED: {reason}"),
-        }
+        print_text(result, &registrar, &pair, &written, total_seconds);
     }
     if !result.success {
         eprintln!(

@@ -24,11 +24,50 @@ pub use xyz::{UNIT_NORMAL_TOLERANCE, XyzColumns};
 /// File extensions [`read_cloud`] understands (lower case, without the dot).
 pub const SUPPORTED_EXTENSIONS: &[&str] = &["ply", "pcd", "xyz", "txt", "pts"];
 
+/// What loading does with points exactly at (0, 0, 0), where many LiDAR and depth sensors write a beam or
+/// pixel that returned nothing.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ZeroPoints {
+    /// Drop them when there are at least [`MIN_NO_RETURN_POINTS`] (a sensor's no-return pattern: a surface is
+    /// never sampled twice at exactly the origin), keep a lone one.
+    #[default]
+    Auto,
+    /// Keep every point.
+    Keep,
+    /// Drop every point exactly at (0, 0, 0).
+    Drop,
+}
+
+/// With [`ZeroPoints::Auto`], this many points exactly at (0, 0, 0) or more are taken for sensor no-returns and
+/// dropped: one point there can be a real sample, two identical ones at exactly the origin cannot.
+pub const MIN_NO_RETURN_POINTS: usize = 2;
+
+impl ZeroPoints {
+    /// `Drop` for true, `Keep` for false, `Auto` for none (the bindings' `drop_zero_points` keyword).
+    pub fn from_flag(drop: Option<bool>) -> Self {
+        match drop {
+            None => ZeroPoints::Auto,
+            Some(true) => ZeroPoints::Drop,
+            Some(false) => ZeroPoints::Keep,
+        }
+    }
+
+    /// Whether `count` points exactly at (0, 0, 0) are dropped.
+    pub fn drops(self, count: usize) -> bool {
+        match self {
+            ZeroPoints::Auto => count >= MIN_NO_RETURN_POINTS,
+            ZeroPoints::Keep => false,
+            ZeroPoints::Drop => true,
+        }
+    }
+}
+
 /// Options applied while loading.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct LoadOptions {
-    /// Drop points that are exactly (0, 0, 0) (invalid returns in many LiDAR files).
-    pub drop_zero_points: bool,
+    /// Points exactly at (0, 0, 0): by default dropped when there are several (sensor no-returns).
+    pub zero_points: ZeroPoints,
     /// What the columns of XYZ/TXT/PTS files hold; `None` decides by content (see [`XyzColumns`]).
     pub xyz_columns: Option<XyzColumns>,
     /// A shift subtracted from every point in `f64` before the conversion to `f32`, for georeferenced clouds
@@ -58,7 +97,7 @@ pub struct LoadReport {
     /// Points dropped because a coordinate was NaN or infinite, or because the file gave them a normal with a
     /// NaN or infinite component.
     pub dropped_non_finite: usize,
-    /// Points dropped because they were exactly (0, 0, 0) and `drop_zero_points` was set.
+    /// Points dropped because they were exactly (0, 0, 0) (see [`LoadOptions::zero_points`]).
     pub dropped_zero: usize,
     /// The origin subtracted from every point (see [`LoadOptions::origin`]); zero without a shift.
     pub origin: [i64; 3],
@@ -71,8 +110,9 @@ pub struct LoadReport {
 ///   count too) is dropped and counted in [`LoadReport::dropped_non_finite`];
 /// - a point with finite coordinates but a NaN or infinite normal component is dropped as well and also
 ///   counted as non-finite, so the returned cloud always passes [`PointCloud::validate`];
-/// - with [`LoadOptions::drop_zero_points`], a point exactly at (0, 0, 0) is dropped and counted in
-///   [`LoadReport::dropped_zero`].
+/// - points exactly at (0, 0, 0) in the file (before any origin shift) are dropped and counted in
+///   [`LoadReport::dropped_zero`] when [`LoadOptions::zero_points`] says so: by default when there are at least
+///   [`MIN_NO_RETURN_POINTS`] of them.
 ///
 /// Normals are taken from the file when it has all three components (PLY `nx ny nz`, PCD
 /// `normal_x normal_y normal_z`, XYZ columns 4 to 6) and are returned as stored: not normalised, and zero-length
@@ -100,7 +140,7 @@ pub fn read_cloud(path: &Path, options: &LoadOptions) -> Result<(PointCloud, Loa
 /// Builds a cloud from in-memory rows `x y z nx ny nz` (the normal part is ignored unless `with_normals`),
 /// applying exactly the filtering and origin shift [`read_cloud`] applies to a file's points: rows with a NaN
 /// or infinite coordinate (after conversion to `f32`), or with a non-finite normal when normals are given, are
-/// dropped and counted; `options.drop_zero_points` drops exact zeros. Bindings (the Python package) use it so
+/// dropped and counted; exact zeros are dropped as `options.zero_points` says. Bindings (the Python package) use it so
 /// that arrays and files are treated alike.
 pub fn cloud_from_rows(
     rows: impl IntoIterator<Item = [f64; 6]>,
@@ -394,8 +434,10 @@ struct CloudBuilder {
     normals: Option<Vec<[f32; 3]>>,
     /// Drop counts.
     report: LoadReport,
-    /// [`LoadOptions::drop_zero_points`].
-    drop_zero: bool,
+    /// [`LoadOptions::zero_points`].
+    zero_points: ZeroPoints,
+    /// Indices in `points` of the kept points that were exactly (0, 0, 0) in the input (decided on at the end).
+    zero_indices: Vec<usize>,
     /// [`LoadOptions::origin`]; `Auto` turns into `At` at the first finite point.
     origin: OriginShift,
 }
@@ -407,7 +449,8 @@ impl CloudBuilder {
             points: Vec::with_capacity(capacity),
             normals: with_normals.then(|| Vec::with_capacity(capacity)),
             report: LoadReport::default(),
-            drop_zero: options.drop_zero_points,
+            zero_points: options.zero_points,
+            zero_indices: Vec::new(),
             origin: options.origin,
         }
     }
@@ -430,9 +473,12 @@ impl CloudBuilder {
             self.report.dropped_non_finite += 1;
             return;
         }
-        if self.drop_zero && values[..3].iter().all(|&c| c == 0.0) {
-            self.report.dropped_zero += 1;
-            return;
+        if values[..3].iter().all(|&c| c == 0.0) {
+            if self.zero_points == ZeroPoints::Drop {
+                self.report.dropped_zero += 1;
+                return;
+            }
+            self.zero_indices.push(self.points.len());
         }
         self.points.push(p);
         if let Some(normals) = &mut self.normals {
@@ -444,6 +490,19 @@ impl CloudBuilder {
     fn finish(mut self) -> (PointCloud, LoadReport) {
         if let OriginShift::At(o) = self.origin {
             self.report.origin = o;
+        }
+        if !self.zero_indices.is_empty() && self.zero_points.drops(self.zero_indices.len()) {
+            self.report.dropped_zero += self.zero_indices.len();
+            let mut keep = vec![true; self.points.len()];
+            for &i in &self.zero_indices {
+                keep[i] = false;
+            }
+            let mut kept = keep.iter();
+            self.points.retain(|_| *kept.next().unwrap_or(&true));
+            if let Some(normals) = &mut self.normals {
+                let mut kept = keep.iter();
+                normals.retain(|_| *kept.next().unwrap_or(&true));
+            }
         }
         (PointCloud { points: self.points, normals: self.normals }, self.report)
     }
@@ -484,7 +543,7 @@ mod tests {
 
     #[test]
     fn builder_drops_and_counts() {
-        let options = LoadOptions { drop_zero_points: true, ..LoadOptions::default() };
+        let options = LoadOptions { zero_points: ZeroPoints::Drop, ..LoadOptions::default() };
         let mut b = CloudBuilder::new(&options, true, 4);
         b.push(&[1.0, 2.0, 3.0, 0.0, 0.0, 1.0]);
         b.push(&[f64::NAN, 2.0, 3.0, 0.0, 0.0, 1.0]);
@@ -496,6 +555,32 @@ mod tests {
         assert_eq!(cloud.points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
         assert_eq!(cloud.normals, Some(vec![[0.0, 0.0, 1.0], [0.0, 0.0, 0.0]]));
         assert_eq!(report, LoadReport { dropped_non_finite: 3, dropped_zero: 1, origin: [0; 3] });
+    }
+
+    /// The default drops points exactly at the origin only when several are there (a sensor's no-returns); a lone
+    /// one is kept, and `Keep` keeps them all. Checked against the expected clouds written out by hand.
+    #[test]
+    fn no_return_points_are_dropped_only_as_a_pattern() {
+        let load = |zero_points, rows: &[[f64; 3]]| {
+            let options = LoadOptions { zero_points, ..LoadOptions::default() };
+            let mut b = CloudBuilder::new(&options, true, 0);
+            for (i, r) in rows.iter().enumerate() {
+                b.push(&[r[0], r[1], r[2], 0.0, 0.0, i as f64]);
+            }
+            b.finish()
+        };
+        let sweep = [[1.0, 2.0, 3.0], [0.0; 3], [4.0, 5.0, 6.0], [0.0; 3], [0.0, 0.0, 7.0], [0.0; 3]];
+        let (cloud, report) = load(ZeroPoints::Auto, &sweep);
+        assert_eq!(cloud.points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [0.0, 0.0, 7.0]]);
+        assert_eq!(cloud.normals, Some(vec![[0.0, 0.0, 0.0], [0.0, 0.0, 2.0], [0.0, 0.0, 4.0]]));
+        assert_eq!(report.dropped_zero, 3);
+        let (cloud, report) = load(ZeroPoints::Keep, &sweep);
+        assert_eq!((cloud.len(), report.dropped_zero), (6, 0));
+        let object = [[1.0, 2.0, 3.0], [0.0; 3], [4.0, 5.0, 6.0]];
+        let (cloud, report) = load(ZeroPoints::Auto, &object);
+        assert_eq!((cloud.points[1], report.dropped_zero), ([0.0; 3], 0));
+        let (cloud, report) = load(ZeroPoints::Drop, &object);
+        assert_eq!((cloud.len(), report.dropped_zero), (2, 1));
     }
 
     #[test]
@@ -511,7 +596,8 @@ mod tests {
     #[test]
     fn rows_are_filtered_and_shifted_as_files_are() {
         let text = "1e5 2 3\nnan 1 1\n100001 5 inf\n1e300 0 0\n0 0 0\n100000.5 2.25 -3\n";
-        let options = LoadOptions { drop_zero_points: true, origin: OriginShift::Auto, ..LoadOptions::default() };
+        let options =
+            LoadOptions { zero_points: ZeroPoints::Drop, origin: OriginShift::Auto, ..LoadOptions::default() };
         let from_file = xyz::parse(Path::new("rows.xyz"), text.as_bytes(), &options, true).unwrap();
         let rows = text.lines().map(|l| {
             let v: Vec<f64> = l.split_whitespace().map(|t| t.parse().unwrap()).collect();
