@@ -12,7 +12,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let (source, _) = read_cloud(Path::new(source_path), &LoadOptions::default())?;
     let (target, _) = read_cloud(Path::new(target_path), &LoadOptions::default())?;
-    // The CLI's defaults: built-in weights, CPU backend, 2500 keypoints, RelativeNet.
+    // The CLI's defaults: built-in weights, backend auto (a GPU if there is one), progressive keypoints, RelativeNet.
     let settings = RegistrationSettings::default();
     let result = register(&source, &target, &settings)?;
     let target_from_source: Matrix4<f64> = result.estimate.target_from_source;

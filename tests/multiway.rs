@@ -257,6 +257,10 @@ fn multiway_cli_recovers_a_small_scene_and_resumes_to_the_same_trajectory() {
     let edges: serde_json::Value = serde_json::from_slice(&edges_text).unwrap();
     assert_eq!(edges["edges"].as_array().unwrap().len(), 6);
     assert!(out.join("fused.ply").is_file());
+    let wrote = first.lines().find(|l| l.starts_with("wrote ")).unwrap_or_default();
+    for name in ["trajectory.log", "edges.json", "scans.txt", "fused.ply"] {
+        assert!(wrote.contains(&out.join(name).display().to_string()), "{name} not in: {wrote}");
+    }
 
     // Resume after losing two pair files: only their scans are described again, and the result is identical.
     let log = std::fs::read(out.join("trajectory.log")).unwrap();
@@ -276,6 +280,11 @@ fn multiway_cli_recovers_a_small_scene_and_resumes_to_the_same_trajectory() {
     let report: serde_json::Value = serde_json::from_str(report.trim()).unwrap();
     assert!(report["trajectory"]["ate_rmse"].as_f64().unwrap() < 0.02, "{report}");
     assert!(report["loop_closures"]["false_kept"].as_u64() == Some(0), "{report}");
+    // The text report gives its distances with their unit.
+    let text = dpr(&["eval-trajectory", out.join("trajectory.log").to_str().unwrap(), scene_s]);
+    let ate = text.lines().find(|l| l.starts_with("ATE RMSE: ")).unwrap_or_default();
+    let rmse = format!("{:.4} m (max ", report["trajectory"]["ate_rmse"].as_f64().unwrap());
+    assert!(ate.contains(&rmse) && ate.contains(" m) after "), "{ate}");
 }
 
 #[test]

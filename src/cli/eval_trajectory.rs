@@ -155,7 +155,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("trajectory: {} ({n} scans)", args.trajectory.display());
     if let Some(t) = report.get("trajectory") {
         let f = |k: &str| t[k].as_f64().unwrap_or(f64::NAN);
-        println!("ATE RMSE: {:.4} (max {:.4}) after {} alignment", f("ate_rmse"), f("ate_max"), t["alignment"]);
+        // Distances are in the scans' unit: metres unless the scans say otherwise.
+        println!("ATE RMSE: {:.4} m (max {:.4} m) after {} alignment", f("ate_rmse"), f("ate_max"), t["alignment"]);
         println!("rotation error: mean {:.3} deg, max {:.3} deg", f("rotation_mean_deg"), f("rotation_max_deg"));
     }
     if let Truth::Pairs(records) = &truth {
@@ -168,7 +169,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
         for p in &pairs {
             println!(
-                "  ({:>3}, {:>3})  rotation {:>8.3} deg  translation {:>8.4}  {}",
+                "  ({:>3}, {:>3})  rotation {:>8.3} deg  translation {:>8.4} m  {}",
                 p.i,
                 p.j,
                 p.rotation_deg,

@@ -327,7 +327,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     println!("time: {:.1} s", started.elapsed().as_secs_f64());
-    println!("wrote {}, {}, {}", trajectory_path.display(), edges_path.display(), scans_path.display());
+    let mut written = vec![trajectory_path.display(), edges_path.display(), scans_path.display()];
+    if args.fused.is_some() {
+        written.push(fused_path.display());
+    }
+    println!("wrote {}", written.iter().map(|p| p.to_string()).collect::<Vec<_>>().join(", "));
     Ok(())
 }
 
