@@ -131,11 +131,11 @@ impl Criterion {
                 let info = gt
                     .information
                     .ok_or_else(|| Error::invalid(format!("pair ({}, {}) has no information matrix", gt.i, gt.j)))?;
-                Ok(information_error(&gt.transform, estimate, &info))
+                Ok(information_error(&gt.i_from_j, estimate, &info))
             }
             Criterion::Rmse(points) => {
                 let p = points.get(&gt.j).map(Vec::as_slice).unwrap_or(&[]);
-                Ok(rmse_between(p, estimate, &gt.transform))
+                Ok(rmse_between(p, estimate, &gt.i_from_j))
             }
         }
     }
@@ -162,7 +162,7 @@ pub fn prepare_criterion(scene: &mut SceneData, opts: &EvalOptions) -> Result<Cr
             let rule = GroundTruthRule::default();
             let mut prepared: HashMap<usize, PreparedFragment> = HashMap::new();
             for &k in &missing {
-                let (i, j, t) = (scene.gt[k].i, scene.gt[k].j, scene.gt[k].transform);
+                let (i, j, t) = (scene.gt[k].i, scene.gt[k].j, scene.gt[k].i_from_j);
                 for f in [i, j] {
                     if let std::collections::hash_map::Entry::Vacant(v) = prepared.entry(f) {
                         let path = scene.files.get(f).ok_or_else(|| {
@@ -406,7 +406,7 @@ fn run_views(
             if let (Some(g), Ok(c)) = (scene.lookup(i, j), &correspondences) {
                 let inliers = count_feature_inliers(
                     c.iter().map(|c| (c.target_point, c.source_point)),
-                    &rotated_ground_truth(&g.transform, &m),
+                    &rotated_ground_truth(&g.i_from_j, &m),
                     opts.thresholds.tau1,
                 );
                 matches[v].insert((i, j), FeatureMatch { correspondences: c.len(), inliers });
@@ -415,7 +415,7 @@ fn run_views(
                 (Some(g), Some(ti), Some(si)) => Some(estimated_overlap(
                     ti,
                     si,
-                    &rotated_ground_truth(&g.transform, &m),
+                    &rotated_ground_truth(&g.i_from_j, &m),
                     opts.thresholds.overlap_distance,
                 )),
                 _ => None,
@@ -466,7 +466,7 @@ fn run_views(
                             _ => true,
                         };
                         if report {
-                            logs[v][e].push(LogRecord { i, j, n, matrix: p.target_from_source });
+                            logs[v][e].push(LogRecord { i, j, n, i_from_j: p.target_from_source });
                         }
                     }
                     Err(err) => run.error = Some(err.to_string()),
@@ -486,7 +486,7 @@ fn run_views(
             let original: Vec<LogRecord> = log
                 .iter()
                 .map(|r| LogRecord {
-                    matrix: original_frame_estimate(&r.matrix, &motion(&rotations, sweep, r.j, v)),
+                    i_from_j: original_frame_estimate(&r.i_from_j, &motion(&rotations, sweep, r.j, v)),
                     ..r.clone()
                 })
                 .collect();
@@ -550,7 +550,7 @@ pub fn score_log_sweep(
         let original: Vec<LogRecord> = log
             .iter()
             .map(|r| LogRecord {
-                matrix: original_frame_estimate(&r.matrix, &motion(&rotations, Some(sweep), r.j, v)),
+                i_from_j: original_frame_estimate(&r.i_from_j, &motion(&rotations, Some(sweep), r.j, v)),
                 ..r.clone()
             })
             .collect();

@@ -260,8 +260,9 @@ pub fn write_scene(dir: &Path, scene: &Scene, gt: &[GtPair], force: bool) -> Res
     for (k, cloud) in scene.fragments.iter().enumerate() {
         crate::io::write_ply(&dir.join(format!("cloud_bin_{k}.ply")), cloud)?;
     }
-    let log: Vec<LogRecord> = gt.iter().map(|p| LogRecord { i: p.i, j: p.j, n, matrix: p.transform }).collect();
-    let info: Vec<InfoRecord> = gt.iter().map(|p| InfoRecord { i: p.i, j: p.j, n, matrix: p.information }).collect();
+    let log: Vec<LogRecord> = gt.iter().map(|p| LogRecord { i: p.i, j: p.j, n, i_from_j: p.i_from_j }).collect();
+    let info: Vec<InfoRecord> =
+        gt.iter().map(|p| InfoRecord { i: p.i, j: p.j, n, information: p.information }).collect();
     crate::io::write_atomic(&dir.join("gt.log"), format_log(&log).as_bytes())?;
     crate::io::write_atomic(&dir.join("gt.info"), format_info(&info).as_bytes())?;
     let mut pairs = String::from(
@@ -273,7 +274,7 @@ pub fn write_scene(dir: &Path, scene: &Scene, gt: &[GtPair], force: bool) -> Res
     );
     for p in gt {
         pairs.push_str(&format!("# gt.log ({}, {}) overlap {:.3}\n", p.i, p.j, p.overlap));
-        pairs.push_str(&format!("cloud_bin_{}.ply cloud_bin_{}.ply {}\n", p.j, p.i, matrix_row_major(&p.transform)));
+        pairs.push_str(&format!("cloud_bin_{}.ply cloud_bin_{}.ply {}\n", p.j, p.i, matrix_row_major(&p.i_from_j)));
     }
     crate::io::write_atomic(&dir.join("pairs.txt"), pairs.as_bytes())?;
     let mut poses = String::from(
@@ -393,7 +394,7 @@ mod tests {
         );
         for p in &gt {
             assert!(p.overlap >= 0.3 && p.information[(0, 0)] > 100.0);
-            assert!((p.transform - scene.relative_pose(p.i, p.j)).norm() < 1e-12);
+            assert!((p.i_from_j - scene.relative_pose(p.i, p.j)).norm() < 1e-12);
         }
     }
 

@@ -158,7 +158,7 @@ pub fn discover_pairs(paths: &[PathBuf]) -> Result<Vec<FragmentPair>> {
                         ))
                     })
                 };
-                out.push(FragmentPair { source: file(e.j)?, target: file(e.i)?, target_from_source: e.transform });
+                out.push(FragmentPair { source: file(e.j)?, target: file(e.i)?, target_from_source: e.i_from_j });
             }
         }
     }
