@@ -168,7 +168,7 @@ pub fn overlap_fraction(
     if frag_i.points.is_empty() {
         return 0.0;
     }
-    let j_from_i = super::metrics::inverse(i_from_j);
+    let j_from_i = crate::pose::inverse(i_from_j);
     let hits = frag_i.points.iter().filter(|p| frag_j.is_within(&apply(&j_from_i, p), distance)).count();
     hits as f64 / frag_i.points.len() as f64
 }
@@ -219,7 +219,7 @@ pub fn ground_truth_pairs(
         .par_iter()
         .enumerate()
         .filter_map(|(k, &(i, j))| {
-            let i_from_j = super::metrics::inverse(&world_from_fragment[i]) * world_from_fragment[j];
+            let i_from_j = crate::pose::inverse(&world_from_fragment[i]) * world_from_fragment[j];
             let overlap = overlap_fraction(&prepared[i], &prepared[j], &i_from_j, rule.overlap_distance);
             if overlap < rule.min_overlap || overlap > rule.max_overlap {
                 return None;

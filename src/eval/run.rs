@@ -10,9 +10,7 @@ use super::groundtruth::{GroundTruthRule, PreparedFragment, pair_information};
 use super::gtlog::LogRecord;
 use super::metrics::{count_feature_inliers, information_error, rmse_between};
 use super::report::FragmentReport;
-use super::rotate::{
-    FragmentRotation, RotationSweep, is_identity_angle, original_frame_estimate, rotated_ground_truth,
-};
+use super::rotate::{FragmentRotation, RotationSweep, original_frame_estimate, rotated_ground_truth};
 use super::score::{
     FeatureMatch, PairReport, PairRun, SceneScore, Thresholds, add_feature_matches, score_registration,
 };
@@ -20,6 +18,7 @@ use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::io::LoadOptions;
 use crate::pipeline::{Registrar, ScanFeatures};
+use crate::pose::is_identity_angle;
 use crate::rng::Rng;
 use crate::settings::{Estimator, StageTime};
 use nalgebra::Matrix4;

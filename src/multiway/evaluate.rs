@@ -3,7 +3,8 @@
 
 use crate::error::{Error, Result};
 use crate::eval::gtlog::LogRecord;
-use crate::eval::metrics::{information_error, inverse};
+use crate::eval::metrics::information_error;
+use crate::pose::inverse;
 use crate::pose::{nearest_rotation, rigid_fit_f64, rotation_error_deg, translation_error};
 use nalgebra::{Matrix3, Matrix4, Matrix6, Vector3};
 use serde::Serialize;

@@ -4,7 +4,7 @@
 
 use crate::error::{Error, Result};
 use crate::eval::gtlog::{LogRecord, format_log, parse_log};
-use crate::eval::metrics::inverse;
+use crate::pose::inverse;
 use nalgebra::Matrix4;
 use std::path::Path;
 

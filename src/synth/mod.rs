@@ -107,9 +107,9 @@ impl Scene {
         ground_truth_pairs(&self.fragments, &self.world_from_fragment, rule, seed)
     }
 
-    /// x_i = T x_j for fragments i and j.
-    pub fn relative_pose(&self, i: usize, j: usize) -> Matrix4<f64> {
-        crate::eval::metrics::inverse(&self.world_from_fragment[i]) * self.world_from_fragment[j]
+    /// The pose of fragment j in fragment i's frame: x_i = i_from_j x_j.
+    pub fn i_from_j(&self, i: usize, j: usize) -> Matrix4<f64> {
+        crate::pose::inverse(&self.world_from_fragment[i]) * self.world_from_fragment[j]
     }
 }
 
@@ -172,7 +172,7 @@ pub fn generate_scene(seed: u64, settings: &SynthSettings) -> Result<Scene> {
     let mut world_from_fragment = Vec::with_capacity(settings.fragments);
     for k in 0..settings.fragments {
         let base = poses[k * m];
-        let fragment_from_world = crate::eval::metrics::inverse(&base);
+        let fragment_from_world = crate::pose::inverse(&base);
         let frames: Vec<Vec<([f64; 3], [f64; 3])>> = (k * m..(k + 1) * m)
             .into_par_iter()
             .map(|n| {
@@ -394,7 +394,7 @@ mod tests {
         );
         for p in &gt {
             assert!(p.overlap >= 0.3 && p.information[(0, 0)] > 100.0);
-            assert!((p.i_from_j - scene.relative_pose(p.i, p.j)).norm() < 1e-12);
+            assert!((p.i_from_j - scene.i_from_j(p.i, p.j)).norm() < 1e-12);
         }
     }
 

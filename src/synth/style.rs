@@ -500,7 +500,7 @@ pub fn generate_styled_scene(
     let mut records = Vec::with_capacity(fragments);
     for (k, (frag_sensor, noise_scale, dropout)) in per_fragment.into_iter().enumerate() {
         let base = poses[k * frames];
-        let fragment_from_world = crate::eval::metrics::inverse(&base);
+        let fragment_from_world = crate::pose::inverse(&base);
         let samples: Vec<_> = (k * frames..(k + 1) * frames)
             .into_par_iter()
             .map(|n| {
