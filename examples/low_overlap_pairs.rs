@@ -64,10 +64,10 @@ fn main() -> Result<()> {
         }
         let target_index = PreparedFragment::new(&target, GRID, distance);
         let overlap_of = |cloud: &PointCloud| {
-            estimated_overlap(&target_index, &PreparedFragment::new(cloud, GRID, distance), &g.transform, distance)
+            estimated_overlap(&target_index, &PreparedFragment::new(cloud, GRID, distance), &g.i_from_j, distance)
         };
         let full = overlap_of(&source);
-        let direction = away_from_shared(&source, &target, &g.transform, distance);
+        let direction = away_from_shared(&source, &target, &g.i_from_j, distance);
         for &goal in &overlaps {
             let Some(cut) = cut_to(&source, direction, goal, full, &overlap_of) else {
                 println!(
@@ -85,7 +85,7 @@ fn main() -> Result<()> {
                 source.len(),
                 cut.1
             );
-            let t: Vec<String> = g.transform.transpose().iter().map(|v| format!("{v}")).collect();
+            let t: Vec<String> = g.i_from_j.transpose().iter().map(|v| format!("{v}")).collect();
             lines.push(format!("{name} {target_name} {}", t.join(" ")));
         }
     }

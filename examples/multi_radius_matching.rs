@@ -155,7 +155,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let (source, target) = (&scans[gt.j], &scans[gt.i]);
             let (source_ranks, target_ranks) = (common_ranks(source), common_ranks(target));
             let position = |scan: &[Described], rank: u32| scan[0].points[scan[0].ranks.binary_search(&rank).unwrap()];
-            let angle = median_view_angle(&source[0].points, &target[0].points, &gt.transform, protocol.tau1);
+            let angle = median_view_angle(&source[0].points, &target[0].points, &gt.i_from_j, protocol.tau1);
             let group = angle.map(|a| VIEW_GROUPS.iter().position(|&end| a < end).unwrap_or(VIEW_GROUPS.len() - 1));
             if let Some(g) = group {
                 group_pairs[g] += 1;
@@ -171,7 +171,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                             position(source, source_ranks[m.source as usize]),
                         )
                     }),
-                    &gt.transform,
+                    &gt.i_from_j,
                     protocol.tau1,
                 );
                 let ratio = inliers as f64 / matches.len().max(1) as f64;

@@ -1,10 +1,14 @@
 //! Rotations and rigid transforms, the one module every part of dpr-gpu uses for them: least-squares rigid fit
 //! (Kabsch/Umeyama without scale), conversions between 4x4 matrices, hypotheses, quaternions and rotation
-//! matrices, projection onto SO(3), and the rotation / translation error measures. Matrices are `target_from_source`
-//! (p_target = T p_source) unless a name says otherwise.
+//! matrices, inverses, the skew matrix, projection onto SO(3), random rotations, rotations about a point, the
+//! rotation / translation error measures, and ([`so3`]) the exponential, logarithm and Jacobians of SO(3).
+//! Matrices are `target_from_source` (p_target = T p_source) unless a name says otherwise.
+
+pub mod so3;
 
 use crate::cpu::hypotheses::Hypothesis;
-use nalgebra::{Matrix3, Matrix4, UnitQuaternion, Vector3};
+use crate::rng::Rng;
+use nalgebra::{Matrix3, Matrix4, Rotation3, Unit, UnitQuaternion, Vector3};
 
 /// f32 point to f64 vector.
 pub fn v3(p: [f32; 3]) -> Vector3<f64> {
@@ -29,6 +33,52 @@ pub fn matrix_from_parts(r: &Matrix3<f64>, t: &Vector3<f64>) -> Matrix4<f64> {
 pub fn rigid_inverse(t: &Matrix4<f64>) -> Matrix4<f64> {
     let r = t.fixed_view::<3, 3>(0, 0).transpose();
     matrix_from_parts(&r, &(-(r * t.fixed_view::<3, 1>(0, 3))))
+}
+
+/// The inverse of a 4x4 transform as the 3DMatch evaluation (MATLAB `inv`) computes it: the general inverse,
+/// or [`rigid_inverse`] when the matrix is singular. For matrices read from files (gt.log, trajectories),
+/// which are rigid only to the digits written, and everything derived from them; [`rigid_inverse`] is for
+/// transforms built as rigid. (Both give the same matrix up to rounding for a rigid transform.)
+pub fn inverse(t: &Matrix4<f64>) -> Matrix4<f64> {
+    t.try_inverse().unwrap_or_else(|| rigid_inverse(t))
+}
+
+/// The skew matrix [q]x with [q]x v = q × v.
+pub fn skew(q: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -q.z, q.y, q.z, 0.0, -q.x, -q.y, q.x, 0.0)
+}
+
+/// A unit quaternion `[w, x, y, z]` drawn uniformly from SO(3) restricted to angles up to `max_deg` (by
+/// rejection on [`Rng::unit_quaternion`]; at most a few hundred draws for angles down to 20 degrees, and the
+/// identity when `max_deg` is tiny and every draw fails). From 180 degrees up it is one draw, unrestricted.
+pub fn random_rotation(rng: &mut Rng, max_deg: f64) -> [f64; 4] {
+    if max_deg >= 180.0 {
+        return rng.unit_quaternion();
+    }
+    let max_w = (max_deg.to_radians() / 2.0).cos();
+    for _ in 0..100_000 {
+        let q = rng.unit_quaternion();
+        // angle = 2 acos(|w|) <= max  <=>  |w| >= cos(max / 2)
+        if q[0].abs() >= max_w {
+            return q;
+        }
+    }
+    [1.0, 0.0, 0.0, 0.0]
+}
+
+/// True when rotating by `degrees` leaves every point in place (a multiple of 360).
+pub fn is_identity_angle(degrees: f64) -> bool {
+    degrees.rem_euclid(360.0) == 0.0
+}
+
+/// The rigid motion rotating by `degrees` about the unit `axis` through `center`: x ↦ R (x − c) + c.
+/// Exactly the identity for multiples of 360 degrees.
+pub fn rotation_about(axis: &Unit<Vector3<f64>>, center: &Vector3<f64>, degrees: f64) -> Matrix4<f64> {
+    if is_identity_angle(degrees) {
+        return Matrix4::identity();
+    }
+    let r = Rotation3::from_axis_angle(axis, degrees.to_radians()).into_inner();
+    matrix_from_parts(&r, &(center - r * center))
 }
 
 /// 4x4 matrix of a hypothesis.

@@ -91,11 +91,11 @@ fn ground_truth_as_result_log_has_full_recall_at_every_angle_and_unrotated_truth
                     i: g.i,
                     j: g.j,
                     n: scene.fragment_count(),
-                    matrix: g.transform * rigid_inverse(&rot[&g.j].rotated_from_original(d)),
+                    i_from_j: g.i_from_j * rigid_inverse(&rot[&g.j].rotated_from_original(d)),
                 })
                 .collect();
             let plain: Vec<LogRecord> =
-                rotated.iter().zip(&scene.gt).map(|(r, g)| LogRecord { matrix: g.transform, ..r.clone() }).collect();
+                rotated.iter().zip(&scene.gt).map(|(r, g)| LogRecord { i_from_j: g.i_from_j, ..r.clone() }).collect();
             for (kind, log) in [("rotated", &rotated), ("plain", &plain)] {
                 let path = dir.join(kind).join(format!("rot{}", angle_label(d))).join(format!("{}.log", scene.name));
                 std::fs::create_dir_all(path.parent().unwrap()).unwrap();
@@ -194,15 +194,15 @@ fn perturbed_estimates_score_identically_in_the_original_and_the_rotated_frame()
         .map(|(k, g)| {
             let s = (k % 4) as f64;
             let p = small_motion([0.3, 1.0, -0.2 + s], 2.0 + 6.0 * s, [0.02 * s, -0.05 * s, 0.1 * s]);
-            LogRecord { i: g.i, j: g.j, n: scene.fragment_count(), matrix: g.transform * p }
+            LogRecord { i: g.i, j: g.j, n: scene.fragment_count(), i_from_j: g.i_from_j * p }
         })
         .collect();
     let original = score_log(&mut scene, &perturbed, &opts).unwrap();
     // Oracle: the protocol error computed here, in the original frame.
     for p in &original.pairs {
         let g = scene.lookup(p.i, p.j).unwrap();
-        let est = &perturbed.iter().find(|r| (r.i, r.j) == (p.i, p.j)).unwrap().matrix;
-        let e = information_error(&g.transform, est, g.information.as_ref().unwrap());
+        let est = &perturbed.iter().find(|r| (r.i, r.j) == (p.i, p.j)).unwrap().i_from_j;
+        let e = information_error(&g.i_from_j, est, g.information.as_ref().unwrap());
         assert!((p.error.unwrap() - e).abs() < 1e-12);
     }
     let outcomes: Vec<bool> = original.pairs.iter().map(|p| p.success.unwrap()).collect();
@@ -217,7 +217,7 @@ fn perturbed_estimates_score_identically_in_the_original_and_the_rotated_frame()
             perturbed
                 .iter()
                 .map(|r| LogRecord {
-                    matrix: r.matrix * rigid_inverse(&rot[&r.j].rotated_from_original(d)),
+                    i_from_j: r.i_from_j * rigid_inverse(&rot[&r.j].rotated_from_original(d)),
                     ..r.clone()
                 })
                 .collect()
@@ -240,7 +240,7 @@ fn perturbed_estimates_score_identically_in_the_original_and_the_rotated_frame()
     let naive = score_log(&mut scene, &logs[2], &opts).unwrap();
     for p in &naive.pairs {
         let (g, r) = (scene.lookup(p.i, p.j).unwrap(), logs[2].iter().find(|r| (r.i, r.j) == (p.i, p.j)).unwrap());
-        assert!((rotation_error_deg(&g.transform, &r.matrix) - 90.0).abs() <= 20.0 + 1e-9, "{p:?}");
+        assert!((rotation_error_deg(&g.i_from_j, &r.i_from_j) - 90.0).abs() <= 20.0 + 1e-9, "{p:?}");
         assert!(p.rotation_error_deg.unwrap() >= 70.0 - 1e-9 && p.success == Some(false), "{p:?}");
     }
     std::fs::remove_dir_all(&dir).unwrap();

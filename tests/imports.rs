@@ -7,6 +7,9 @@
 //! import back up), and `#[cfg(test)]` items (a test may reach anywhere). src/bin/ is its own crate and not read.
 //! On failure the test prints every circle it finds, one file per step.
 
+#[path = "common/source_text.rs"]
+mod source_text;
+
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
@@ -22,67 +25,18 @@ enum Tok {
 
 /// Tokens of `source` with comments, string and char literals dropped (lifetimes kept as punctuation + ident).
 fn tokens(source: &str) -> Vec<Tok> {
-    let c: Vec<char> = source.chars().collect();
+    let c = source_text::blank_literals(source);
     let mut out = Vec::new();
     let mut i = 0;
     while i < c.len() {
         let ch = c[i];
-        let next = c.get(i + 1).copied();
-        if ch == '/' && next == Some('/') {
-            while i < c.len() && c[i] != '\n' {
-                i += 1;
-            }
-        } else if ch == '/' && next == Some('*') {
-            let mut depth = 0;
-            while i < c.len() {
-                if c[i] == '/' && c.get(i + 1) == Some(&'*') {
-                    depth += 1;
-                    i += 2;
-                } else if c[i] == '*' && c.get(i + 1) == Some(&'/') {
-                    depth -= 1;
-                    i += 2;
-                    if depth == 0 {
-                        break;
-                    }
-                } else {
-                    i += 1;
-                }
-            }
-        } else if ch == '"' {
-            i += 1;
-            while i < c.len() && c[i] != '"' {
-                i += if c[i] == '\\' { 2 } else { 1 };
-            }
-            i += 1;
-        } else if (ch == 'r' || ch == 'b') && raw_string_start(&c, i).is_some() {
-            let (hashes, body) = raw_string_start(&c, i).unwrap();
-            i = body;
-            let close: Vec<char> = std::iter::once('"').chain(std::iter::repeat_n('#', hashes)).collect();
-            while i < c.len() && c[i..].iter().take(close.len()).ne(close.iter()) {
-                i += 1;
-            }
-            i += close.len();
-        } else if ch == '\'' {
-            // A char literal ('x', '\n', '\u{..}') or a lifetime ('a).
-            if next == Some('\\') {
-                i += 2;
-                while i < c.len() && c[i] != '\'' {
-                    i += 1;
-                }
-                i += 1;
-            } else if c.get(i + 2) == Some(&'\'') {
-                i += 3;
-            } else {
-                out.push(Tok::Punct('\''));
-                i += 1;
-            }
-        } else if ch.is_alphanumeric() || ch == '_' {
+        if ch.is_alphanumeric() || ch == '_' {
             let start = i;
             while i < c.len() && (c[i].is_alphanumeric() || c[i] == '_') {
                 i += 1;
             }
             out.push(Tok::Ident(c[start..i].iter().collect()));
-        } else if ch == ':' && next == Some(':') {
+        } else if ch == ':' && c.get(i + 1) == Some(&':') {
             out.push(Tok::Path);
             i += 2;
         } else {
@@ -93,27 +47,6 @@ fn tokens(source: &str) -> Vec<Tok> {
         }
     }
     out
-}
-
-/// For a raw (byte) string starting at `i` (`r"`, `r#"`, `br"`...): its `#` count and where its body starts.
-fn raw_string_start(c: &[char], i: usize) -> Option<(usize, usize)> {
-    if i > 0 && (c[i - 1].is_alphanumeric() || c[i - 1] == '_') {
-        return None;
-    }
-    let mut j = i;
-    if c[j] == 'b' {
-        j += 1;
-    }
-    if c.get(j) != Some(&'r') {
-        return None;
-    }
-    j += 1;
-    let mut hashes = 0;
-    while c.get(j) == Some(&'#') {
-        hashes += 1;
-        j += 1;
-    }
-    (c.get(j) == Some(&'"')).then_some((hashes, j + 1))
 }
 
 fn ident(t: Option<&Tok>) -> Option<&str> {

@@ -9,7 +9,7 @@ use dpr_gpu::multiway::Trajectory;
 use dpr_gpu::multiway::evaluate::{Alignment, trajectory_errors};
 use dpr_gpu::multiway::graph::{GraphEdge, PoseGraph};
 use dpr_gpu::multiway::optimize::{GlobalOptimizationOption, optimize};
-use dpr_gpu::multiway::so3;
+use dpr_gpu::pose::so3;
 use dpr_gpu::pose::{matrix_from_parts, rotation_error_deg, translation_error};
 use dpr_gpu::rng::Rng;
 use dpr_gpu::synth::camera::CameraModel;

@@ -8,9 +8,10 @@ mod common;
 use common::temp_dir;
 use dpr_gpu::eval::dataset::{GtEntry, Protocol, SceneData, load_dataset};
 use dpr_gpu::eval::gtlog::{LogRecord, format_log, parse_log, read_log};
-use dpr_gpu::eval::metrics::{error_vector, information_error, information_matrix, inverse};
+use dpr_gpu::eval::metrics::{error_vector, information_error, information_matrix};
 use dpr_gpu::eval::run::{EvalOptions, score_log};
 use dpr_gpu::eval::score::score_registration;
+use dpr_gpu::pose::inverse;
 use dpr_gpu::synth::camera::CameraModel;
 use dpr_gpu::synth::{SynthSettings, generate_scene, write_dataset};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -73,12 +74,12 @@ fn near_half_turn_errors_use_the_w_non_negative_quaternion() {
 /// A one-pair-per-record 3DMatch scene with information matrices built from `points`.
 fn scene_with(pairs: &[(usize, usize, Matrix4<f64>)], points: &[[f64; 3]]) -> SceneData {
     let info = information_matrix(points);
-    let gt = pairs.iter().map(|&(i, j, t)| GtEntry { i, j, transform: t, information: Some(info) }).collect();
+    let gt = pairs.iter().map(|&(i, j, t)| GtEntry { i, j, i_from_j: t, information: Some(info) }).collect();
     SceneData::new("hand".into(), PathBuf::new(), vec![PathBuf::new(); 8], gt, Protocol::ThreeDMatch)
 }
 
 fn info_error(g: &GtEntry, t: &Matrix4<f64>) -> dpr_gpu::Result<f64> {
-    Ok(information_error(&g.transform, t, g.information.as_ref().unwrap()))
+    Ok(information_error(&g.i_from_j, t, g.information.as_ref().unwrap()))
 }
 
 #[test]
@@ -92,12 +93,12 @@ fn transform_direction_consecutive_pairs_missing_pairs_and_false_positives() {
     let scene = scene_with(&[(0, 1, t01), (0, 2, t02), (1, 3, t13), (3, 5, t35)], &points);
     // The estimate equal to the ground truth succeeds; its inverse (the wrong direction) fails.
     let results = [
-        LogRecord { i: 0, j: 2, n: 8, matrix: t02 },
-        LogRecord { i: 1, j: 3, n: 8, matrix: inverse(&t13) },
+        LogRecord { i: 0, j: 2, n: 8, i_from_j: t02 },
+        LogRecord { i: 1, j: 3, n: 8, i_from_j: inverse(&t13) },
         // Consecutive and wrong: listed, but neither recall nor precision counts it.
-        LogRecord { i: 0, j: 1, n: 8, matrix: Matrix4::identity() },
+        LogRecord { i: 0, j: 1, n: 8, i_from_j: Matrix4::identity() },
         // Not in gt.log: a false positive against precision.
-        LogRecord { i: 2, j: 6, n: 8, matrix: Matrix4::identity() },
+        LogRecord { i: 2, j: 6, n: 8, i_from_j: Matrix4::identity() },
     ];
     let s = score_registration(&scene, &results, &info_error, 0.04).unwrap();
     // Recall set: (0,2), (1,3), (3,5); (3,5) is missing.
@@ -114,9 +115,9 @@ fn transform_direction_consecutive_pairs_missing_pairs_and_false_positives() {
 #[test]
 fn gt_log_round_trip_keeps_unsorted_records_and_keys_them_by_pair() {
     let records = vec![
-        LogRecord { i: 3, j: 7, n: 9, matrix: transform([1.0, 2.0, 3.0], 50.0, [0.5, -1.25, 2.0]) },
-        LogRecord { i: 0, j: 1, n: 9, matrix: transform([0.0, 0.0, 1.0], -5.0, [1e-5, 0.0, 3.0]) },
-        LogRecord { i: 1, j: 8, n: 9, matrix: Matrix4::identity() },
+        LogRecord { i: 3, j: 7, n: 9, i_from_j: transform([1.0, 2.0, 3.0], 50.0, [0.5, -1.25, 2.0]) },
+        LogRecord { i: 0, j: 1, n: 9, i_from_j: transform([0.0, 0.0, 1.0], -5.0, [1e-5, 0.0, 3.0]) },
+        LogRecord { i: 1, j: 8, n: 9, i_from_j: Matrix4::identity() },
     ];
     let text = format_log(&records);
     let back = parse_log(&text, Path::new("mem.log")).unwrap();
@@ -124,7 +125,7 @@ fn gt_log_round_trip_keeps_unsorted_records_and_keys_them_by_pair() {
     for (a, b) in records.iter().zip(&back) {
         assert_eq!((a.i, a.j, a.n), (b.i, b.j, b.n));
         // %15.8e keeps 9 significant digits.
-        assert!((a.matrix - b.matrix).abs().max() < 1e-8, "{}", a.matrix - b.matrix);
+        assert!((a.i_from_j - b.i_from_j).abs().max() < 1e-8, "{}", a.i_from_j - b.i_from_j);
     }
     let dir = temp_dir("roundtrip");
     std::fs::write(dir.join("gt.log"), &text).unwrap();
@@ -159,8 +160,8 @@ fn generated_ground_truth_realigns_fragments_at_noise_level() {
                 .map(|q| tree.query(&q.map(f64::from)).nearest_one::<SquaredEuclidean<f64>>().execute().distance.sqrt())
                 .collect()
         };
-        let mut good: Vec<f64> = nn(&p.transform).into_iter().filter(|&d| d < 0.03).collect();
-        let mut wrong: Vec<f64> = nn(&inverse(&p.transform)).into_iter().filter(|&d| d < 0.03).collect();
+        let mut good: Vec<f64> = nn(&p.i_from_j).into_iter().filter(|&d| d < 0.03).collect();
+        let mut wrong: Vec<f64> = nn(&inverse(&p.i_from_j)).into_iter().filter(|&d| d < 0.03).collect();
         let n = scene.fragments[p.j].len() as f64;
         let (overlap_good, overlap_wrong) = (good.len() as f64 / n, wrong.len() as f64 / n);
         let med = median(&mut good);
@@ -258,7 +259,7 @@ fn eval_log_equal_to_ground_truth_has_full_recall_and_a_perturbed_one_less() {
             .unwrap()
             .iter()
             .map(|r| LogRecord {
-                matrix: Matrix4::new_translation(&Vector3::new(0.3, 0.0, 0.0)) * r.matrix,
+                i_from_j: Matrix4::new_translation(&Vector3::new(0.3, 0.0, 0.0)) * r.i_from_j,
                 ..r.clone()
             })
             .collect();
@@ -303,7 +304,7 @@ fn eval_log_equal_to_ground_truth_has_full_recall_and_a_perturbed_one_less() {
         let log = read_log(&scene.dir.join("gt.log")).unwrap();
         let perturbed: Vec<LogRecord> = log
             .iter()
-            .map(|r| LogRecord { matrix: r.matrix * transform([0.3, 1.0, 0.2], 20.0, [0.0; 3]), ..r.clone() })
+            .map(|r| LogRecord { i_from_j: r.i_from_j * transform([0.3, 1.0, 0.2], 20.0, [0.0; 3]), ..r.clone() })
             .collect();
         let exact = score_log(&mut scene, &log, &EvalOptions::default()).unwrap();
         let off = score_log(&mut scene, &perturbed, &EvalOptions::default()).unwrap();

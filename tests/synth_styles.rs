@@ -351,21 +351,21 @@ fn check_ground_truth(scene: &Path, fragments: usize, min_overlap: f64, wrong_sh
     for (rec, &recorded_overlap) in log.iter().zip(&recorded) {
         let (i, j) = (rec.i, rec.j);
         let from_poses = poses[i].try_inverse().unwrap() * poses[j];
-        assert!((from_poses - rec.matrix).norm() < 1e-6, "pair {i} {j}");
-        let o = overlap(&clouds[i], &clouds[j], &rec.matrix);
+        assert!((from_poses - rec.i_from_j).norm() < 1e-6, "pair {i} {j}");
+        let o = overlap(&clouds[i], &clouds[j], &rec.i_from_j);
         assert!((o - recorded_overlap).abs() < 0.002, "pair {i} {j}: {o} vs {recorded_overlap}");
         assert!(o >= min_overlap - 1e-9, "pair {i} {j}: {o} < {min_overlap}");
-        let off_by = misalignment(&with_normals[i], &with_normals[j], &rec.matrix);
+        let off_by = misalignment(&with_normals[i], &with_normals[j], &rec.i_from_j);
         assert!(off_by < 0.003, "pair {i} {j}: ground truth off by {off_by}");
         let axis = nalgebra::Unit::new_normalize(Vector3::new(1.0, 1.0, 1.0));
         let mut off = nalgebra::Rotation3::from_axis_angle(&axis, 2f64.to_radians()).to_homogeneous();
         off.fixed_view_mut::<3, 1>(0, 3).copy_from(&(axis.into_inner() * 0.03));
-        let t_off = misalignment(&with_normals[i], &with_normals[j], &(off * rec.matrix));
+        let t_off = misalignment(&with_normals[i], &with_normals[j], &(off * rec.i_from_j));
         assert!(
             t_off > wrong_shows && t_off > 2.0 * off_by,
             "pair {i} {j}: a 3 cm, 2 degree error was measured as {t_off} (ground truth {off_by})"
         );
-        out.push((rotation_angle_deg(&rec.matrix), o));
+        out.push((rotation_angle_deg(&rec.i_from_j), o));
     }
     // Pairs missing from gt.log fail the threshold.
     for i in 0..fragments {
@@ -499,7 +499,7 @@ fn lidar_pairs_are_1_to_10_m_apart_and_their_poses_realign_the_sweeps() {
             let d = distance(i, j);
             assert!((1.0..=10.0).contains(&d), "{name} pair {i} {j}: sensors {d} m apart");
             let t = poses[i].try_inverse().unwrap() * poses[j];
-            assert!((t - rec.matrix).norm() < 1e-6, "{name} pair {i} {j}");
+            assert!((t - rec.i_from_j).norm() < 1e-6, "{name} pair {i} {j}");
             let o = overlap_at(&clouds[i], &clouds[j], &t, cell, reach);
             assert!((o - recorded_overlap).abs() < 0.002, "{name} pair {i} {j}: {o} vs {recorded_overlap}");
             assert!(o >= min_overlap, "{name} pair {i} {j}: {o}");

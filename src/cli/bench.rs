@@ -14,6 +14,7 @@
 use crate::backend::{Backend, CpuBackend, RotationInputs};
 use crate::cpu::dense::{DenseShape, dense as dense_twin};
 use crate::cpu::gemm::{GemmPath, Precision, dense_on};
+use crate::cpu::hypotheses::Hypothesis;
 use crate::gpu::context::Transfers;
 use crate::gpu::{Gpu, GpuBackend, buffer::GpuBuffer, dense as gpu_dense, gemm::GemmVariant, recorder::Recorder};
 use crate::model::{Model, ModelConfig, Net, Weights};
@@ -480,12 +481,7 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
             eprintln!("{text}");
         }
     };
-    let (use_cpu, use_gpu) = match args.backend.as_str() {
-        "cpu" => (true, false),
-        "gpu" => (false, true),
-        "both" => (true, true),
-        other => bail!("--backend must be cpu, gpu or both, got '{other}'"),
-    };
+    let (use_cpu, use_gpu) = requested_backends(args)?;
     check_bounds(args)?;
     if args.points == Some(0) {
         bail!("--points must be at least 1");
@@ -494,7 +490,6 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
     let model = model_of(&weights, args)?;
     let (k, p) = (args.keypoints, model.config.points_per_patch);
     let cw = model.config.codeword();
-    let radius = model.config.radius;
     let peak = args.peak_tflops;
     note(format!(
         "dpr-gpu bench: {k} keypoints x {p} points per patch, codeword {cw}, best of {} runs",
@@ -503,6 +498,72 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
 
     let (precision, _) = Precision::from_env()?;
     let cpu = use_cpu.then(|| CpuBackend::with_precision(model.clone(), precision)).transpose()?;
+    let (gpu, info) = open_gpu(&model, (use_cpu, use_gpu), &note)?;
+    let cpu_info = cpu.as_ref().map(|_| CpuInfo {
+        threads: rayon::current_num_threads(),
+        gemm_path: GemmPath::selected().name(),
+        precision: precision.name(),
+    });
+
+    let reference: &dyn Backend = match (&gpu, &cpu) {
+        (Some(g), _) => g,
+        (None, Some(c)) => c,
+        (None, None) => unreachable!("at least one backend"),
+    };
+    let inputs = BenchInputs::new(args.seed, reference, &model, k)?;
+    let (ppf, pc) = (&inputs.ppf, &inputs.pc);
+    let mut stages = measure_stages(args, &model, &inputs, cpu.as_ref(), gpu.as_ref())?;
+    let backward_patches = k.min(BACKWARD_PATCHES);
+    stages.push(measure_encode_backward(args, &weights, &model, ppf, backward_patches, cpu.is_some(), gpu.as_ref())?);
+    let train_pairs = (k / 2).clamp(1, TRAIN_PAIRS);
+    let batch = train_batch(args.seed, &model, [ppf, pc], k, train_pairs);
+    // The weights as the model runs them (`--points` changes no tensor).
+    let train_weights = Weights { config: model.config.clone(), ..weights.clone() };
+    stages.push(measure_train_step(args, &train_weights, &batch, cpu.is_some(), gpu.as_ref())?);
+    let (gemm, gemm_unavailable) =
+        gemm_variants(args, gpu.as_ref().map(GpuBackend::gpu), use_cpu.then_some(precision), k * p)?;
+    let pair = if args.pair_points == 0 {
+        None
+    } else {
+        let backend: Box<dyn Backend> = match &gpu {
+            Some(g) => Box::new(GpuBackend::with_gpu(Arc::clone(g.gpu_arc()), model.clone())?),
+            None => Box::new(CpuBackend::with_precision(model.clone(), precision)?),
+        };
+        Some(measure_pair(args, backend, gpu.as_ref().map(GpuBackend::gpu))?)
+    };
+    let config = Config {
+        keypoints: k,
+        points_per_patch: p,
+        codeword: cw,
+        candidates: inputs.candidates,
+        repeat: args.repeat.max(1),
+        seed: args.seed,
+        weights: args.weights.as_ref().map(|w| w.display().to_string()),
+        peak_tflops: peak,
+        pair_points: args.pair_points,
+        backward_patches,
+        train_pairs,
+    };
+    Ok(Report { schema: SCHEMA, config, cpu: cpu_info, gpu: info, stages, gemm, gemm_unavailable, pair })
+}
+
+/// Which backends `--backend` asks for: (cpu, gpu).
+fn requested_backends(args: &Args) -> anyhow::Result<(bool, bool)> {
+    Ok(match args.backend.as_str() {
+        "cpu" => (true, false),
+        "gpu" => (false, true),
+        "both" => (true, true),
+        other => bail!("--backend must be cpu, gpu or both, got '{other}'"),
+    })
+}
+
+/// The GPU backend when `(use_cpu, use_gpu)` asks for it (with both, its absence is a note, not an error), and
+/// what the report says about the device.
+fn open_gpu(
+    model: &Model,
+    (use_cpu, use_gpu): (bool, bool),
+    note: &dyn Fn(String),
+) -> anyhow::Result<(Option<GpuBackend>, GpuInfo)> {
     let device = match (use_gpu, use_cpu) {
         (false, _) => Err("not requested (--backend cpu)".to_string()),
         (true, false) => Ok(Arc::new(Gpu::new().context("creating the GPU backend")?)),
@@ -539,38 +600,88 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
             None
         }
     };
-    let cpu_info = cpu.as_ref().map(|_| CpuInfo {
-        threads: rayon::current_num_threads(),
-        gemm_path: GemmPath::selected().name(),
-        precision: precision.name(),
-    });
+    Ok((gpu, info))
+}
 
-    let mut rng = Rng::new(args.seed);
-    let patches = synthetic_patches(&mut rng, k, p, radius);
-    let (ppf, pc) = patches.features(p, radius, model.config.pose_frame);
-    let reference: &dyn Backend = match (&gpu, &cpu) {
-        (Some(g), _) => g,
-        (None, Some(c)) => c,
-        (None, None) => unreachable!("at least one backend"),
-    };
-    let source_cw = reference.encode(Net::Ppf, &ppf, k)?;
-    let target_cw: Vec<f32> = source_cw.iter().map(|v| v + 0.01 * rng.normal() as f32).collect();
-    let pose: Vec<f32> = crate::model::pose_feature(&reference.encode(Net::Pc, &pc, k)?, &source_cw);
-    let normals = patches.center_normals.clone();
+/// The synthetic inputs of the stages: K patches, their features and codewords (PPF codewords as the source,
+/// perturbed copies as the target), pose features, the predicted rotations and one hypothesis per rotation.
+struct BenchInputs {
+    patches: GatheredPatches,
+    ppf: Vec<f32>,
+    pc: Vec<f32>,
+    source_cw: Vec<f32>,
+    target_cw: Vec<f32>,
+    pose: Vec<f32>,
+    normals: Vec<[f32; 3]>,
+    rotations: Vec<[f32; 9]>,
+    /// Candidate rotations per correspondence.
+    candidates: usize,
+    src_pts: Vec<[f32; 3]>,
+    tgt_pts: Vec<[f32; 3]>,
+    hyps: Vec<Hypothesis>,
+}
+
+impl BenchInputs {
+    /// The inputs for `k` keypoints from `seed`, encoded by `reference`.
+    fn new(seed: u64, reference: &dyn Backend, model: &Model, k: usize) -> anyhow::Result<BenchInputs> {
+        let (p, radius) = (model.config.points_per_patch, model.config.radius);
+        let mut rng = Rng::new(seed);
+        let patches = synthetic_patches(&mut rng, k, p, radius);
+        let (ppf, pc) = patches.features(p, radius, model.config.pose_frame);
+        let source_cw = reference.encode(Net::Ppf, &ppf, k)?;
+        let target_cw: Vec<f32> = source_cw.iter().map(|v| v + 0.01 * rng.normal() as f32).collect();
+        let pose: Vec<f32> = crate::model::pose_feature(&reference.encode(Net::Pc, &pc, k)?, &source_cw);
+        let normals = patches.center_normals.clone();
+        let rotation_inputs = RotationInputs {
+            source: &pose,
+            target: &pose,
+            source_normals: &normals,
+            target_normals: &normals,
+            rows: k,
+        };
+        let rotations = reference.predict_rotations(rotation_inputs)?;
+        // One hypothesis per predicted rotation: each correspondence's points repeat once per candidate rotation.
+        let candidates = rotations.len() / k.max(1);
+        let centers = patches.centers.iter().flat_map(|&c| std::iter::repeat_n(c, candidates));
+        let src_pts: Vec<[f32; 3]> = centers.collect();
+        let tgt_pts: Vec<[f32; 3]> = src_pts.iter().map(|q| q.map(|c| c + 0.05 * rng.normal() as f32)).collect();
+        let hyps = reference.hypotheses(&rotations, &src_pts, &tgt_pts)?;
+        Ok(BenchInputs {
+            patches,
+            ppf,
+            pc,
+            source_cw,
+            target_cw,
+            pose,
+            normals,
+            rotations,
+            candidates,
+            src_pts,
+            tgt_pts,
+            hyps,
+        })
+    }
+}
+
+/// The per-stage timings on each backend present (the stages `Backend` runs for a pair).
+fn measure_stages(
+    args: &Args,
+    model: &Model,
+    inputs: &BenchInputs,
+    cpu: Option<&CpuBackend>,
+    gpu: Option<&GpuBackend>,
+) -> anyhow::Result<Vec<StageReport>> {
+    let (k, p, cw) = (args.keypoints, model.config.points_per_patch, model.config.codeword());
+    let (radius, peak) = (model.config.radius, args.peak_tflops);
+    let BenchInputs {
+        patches, ppf, pc, source_cw, target_cw, normals, pose, rotations, src_pts, tgt_pts, hyps, ..
+    } = inputs;
     let rotation_inputs =
-        RotationInputs { source: &pose, target: &pose, source_normals: &normals, target_normals: &normals, rows: k };
-    let rotations = reference.predict_rotations(rotation_inputs)?;
-    // One hypothesis per predicted rotation: each correspondence's points repeat once per candidate rotation.
-    let candidates = rotations.len() / k.max(1);
-    let centers = patches.centers.iter().flat_map(|&c| std::iter::repeat_n(c, candidates));
-    let src_pts: Vec<[f32; 3]> = centers.collect();
-    let tgt_pts: Vec<[f32; 3]> = src_pts.iter().map(|q| q.map(|c| c + 0.05 * rng.normal() as f32)).collect();
-    let hyps = reference.hypotheses(&rotations, &src_pts, &tgt_pts)?;
-
+        RotationInputs { source: pose, target: pose, source_normals: normals, target_normals: normals, rows: k };
     let stage_list: Vec<(&str, Option<f64>)> = vec![
         ("patch_features", None),
-        ("encode ppf", Some(encode_flops(&model, k, p))),
-        ("encode pc", Some(encode_flops(&model, k, p))),
+        ("encode ppf", Some(encode_flops(model, k, p))),
+        ("encode pc", Some(encode_flops(model, k, p))),
         ("match_codewords", Some(3.0 * (k * k * cw) as f64)),
         ("predict_rotations", None),
         ("hypotheses", None),
@@ -579,21 +690,19 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
     let mut stages = Vec::new();
     for (stage, flops) in stage_list {
         let mut row = StageReport { stage: stage.to_string(), flops, cpu: None, gpu: None };
-        let backends: [(Option<&dyn Backend>, Option<&Gpu>); 2] = [
-            (cpu.as_ref().map(|c| c as &dyn Backend), None),
-            (gpu.as_ref().map(|g| g as &dyn Backend), gpu.as_ref().map(GpuBackend::gpu)),
-        ];
+        let backends: [(Option<&dyn Backend>, Option<&Gpu>); 2] =
+            [(cpu.map(|c| c as &dyn Backend), None), (gpu.map(|g| g as &dyn Backend), gpu.map(GpuBackend::gpu))];
         for (backend, device) in backends {
             let Some(b) = backend else { continue };
             let m = measure(args.repeat, device, || -> anyhow::Result<()> {
                 match stage {
-                    "patch_features" => drop(b.patch_features(&patches, radius)?),
-                    "encode ppf" => drop(b.encode(Net::Ppf, &ppf, k)?),
-                    "encode pc" => drop(b.encode(Net::Pc, &pc, k)?),
-                    "match_codewords" => drop(b.match_codewords(&source_cw, &target_cw, cw, MatchMode::Mutual(1))?),
+                    "patch_features" => drop(b.patch_features(patches, radius)?),
+                    "encode ppf" => drop(b.encode(Net::Ppf, ppf, k)?),
+                    "encode pc" => drop(b.encode(Net::Pc, pc, k)?),
+                    "match_codewords" => drop(b.match_codewords(source_cw, target_cw, cw, MatchMode::Mutual(1))?),
                     "predict_rotations" => drop(b.predict_rotations(rotation_inputs)?),
-                    "hypotheses" => drop(b.hypotheses(&rotations, &src_pts, &tgt_pts)?),
-                    _ => drop(b.score_hypotheses(&hyps, &src_pts, &tgt_pts, radius / 3.0)?),
+                    "hypotheses" => drop(b.hypotheses(rotations, src_pts, tgt_pts)?),
+                    _ => drop(b.score_hypotheses(hyps, src_pts, tgt_pts, radius / 3.0)?),
                 }
                 Ok(())
             })
@@ -605,38 +714,7 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
         }
         stages.push(row);
     }
-    let backward_patches = k.min(BACKWARD_PATCHES);
-    stages.push(measure_encode_backward(args, &weights, &model, &ppf, backward_patches, cpu.is_some(), gpu.as_ref())?);
-    let train_pairs = (k / 2).clamp(1, TRAIN_PAIRS);
-    let batch = train_batch(args.seed, &model, [&ppf, &pc], k, train_pairs);
-    // The weights as the model runs them (`--points` changes no tensor).
-    let train_weights = Weights { config: model.config.clone(), ..weights.clone() };
-    stages.push(measure_train_step(args, &train_weights, &batch, cpu.is_some(), gpu.as_ref())?);
-    let (gemm, gemm_unavailable) =
-        gemm_variants(args, gpu.as_ref().map(GpuBackend::gpu), use_cpu.then_some(precision), k * p)?;
-    let pair = if args.pair_points == 0 {
-        None
-    } else {
-        let backend: Box<dyn Backend> = match &gpu {
-            Some(g) => Box::new(GpuBackend::with_gpu(Arc::clone(g.gpu_arc()), model.clone())?),
-            None => Box::new(CpuBackend::with_precision(model.clone(), precision)?),
-        };
-        Some(measure_pair(args, backend, gpu.as_ref().map(GpuBackend::gpu))?)
-    };
-    let config = Config {
-        keypoints: k,
-        points_per_patch: p,
-        codeword: cw,
-        candidates,
-        repeat: args.repeat.max(1),
-        seed: args.seed,
-        weights: args.weights.as_ref().map(|w| w.display().to_string()),
-        peak_tflops: peak,
-        pair_points: args.pair_points,
-        backward_patches,
-        train_pairs,
-    };
-    Ok(Report { schema: SCHEMA, config, cpu: cpu_info, gpu: info, stages, gemm, gemm_unavailable, pair })
+    Ok(stages)
 }
 
 /// Patches of the training stage at most: a training batch (32 pairs x 2 scans x 2 samples) rather than K, so the

@@ -91,7 +91,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let (truth, info_path) = load_truth(&args.ground_truth)?;
     let infos: HashMap<(usize, usize), Matrix6<f64>> = match &info_path {
-        Some(p) => read_info(p)?.into_iter().map(|r| ((r.i, r.j), r.matrix)).collect(),
+        Some(p) => read_info(p)?.into_iter().map(|r| ((r.i, r.j), r.information)).collect(),
         None => HashMap::new(),
     };
     let info_of = |i: usize, j: usize| infos.get(&(i, j)).copied();
@@ -128,7 +128,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let pairs = pairwise_errors(&trajectory, records, &ids, &info_of);
             report.insert("pairs".into(), serde_json::to_value(&pairs)?);
             let by_pair: HashMap<(usize, usize), Matrix4<f64>> =
-                records.iter().map(|r| ((r.i, r.j), r.matrix)).collect();
+                records.iter().map(|r| ((r.i, r.j), r.i_from_j)).collect();
             let ids = ids.clone();
             Box::new(move |a, b| by_pair.get(&(ids[a], ids[b])).copied())
         }

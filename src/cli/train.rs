@@ -361,41 +361,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     {
         bail!("--batch must be 1..={MAX_BATCH}, got {b}");
     }
-    let mut trainer = if let Some(resume) = &args.resume {
-        let (meta, weights, adam) = read_checkpoint(resume)?;
-        check_resume_args(&args, &meta.settings, &meta.config)?;
-        let mut settings = meta.settings;
-        if !args.data.is_empty() {
-            settings.data = args.data.clone();
-        }
-        let pairs = discover_pairs(&settings.data)?;
-        Trainer::from_checkpoint_parts(weights, settings, pairs, adam, meta.step)?
-    } else {
-        let settings = fresh_settings(&args);
-        if args.init.is_some() && (args.config.is_some() || args.points.is_some() || args.grid.is_some()) {
-            bail!("--init takes the model size from the weights file: drop --config, --points and --grid");
-        }
-        let weights = match &args.init {
-            Some(p) => {
-                let mut w = Weights::load(p)?;
-                if let Some(r) = args.radius {
-                    w.config.radius = r;
-                    w.config.validate().with_context(|| format!("--radius {r}"))?;
-                }
-                let frame = args.pose_frame.unwrap_or(w.config.pose_frame);
-                let output = args.rotation_output.unwrap_or(w.config.rotation_output);
-                if (frame, output) == (w.config.pose_frame, w.config.rotation_output) {
-                    w
-                } else {
-                    eprintln!("--init: new pose head ({frame:?}, {output:?}): RelativeNet starts from random weights");
-                    w.with_pose_head(frame, output, settings.seed)?
-                }
-            }
-            None => Weights::init(&model_config(&args)?, settings.seed)?,
-        };
-        let pairs = discover_pairs(&settings.data)?;
-        Trainer::with_pairs(weights, settings, pairs)?
-    };
+    let mut trainer = build_trainer(&args)?;
     let start = trainer.step_count();
     if start > args.steps {
         bail!("the checkpoint is already at step {start}, past --steps {}", args.steps);
@@ -421,6 +387,67 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bail!("no fragment pair has corresponding patches (check the data, --voxel and --match-distance)");
     }
     eprintln!("{usable} pairs with corresponding patches; {} parameters", trainer.weights().parameter_count());
+    let recent = train_steps(&args, &mut trainer, device.as_mut(), (&ckpt, started))?;
+    if let Some(d) = &device {
+        d.sync(&mut trainer)?;
+    }
+    trainer.save_checkpoint(&ckpt)?;
+    write_trained(&args, &trainer, &recent, &ckpt)
+}
+
+/// The trainer `args` ask for: resumed from a checkpoint, or fresh (from `--init` weights or new ones).
+fn build_trainer(args: &Args) -> anyhow::Result<Trainer> {
+    Ok(if let Some(resume) = &args.resume {
+        let (meta, weights, adam) = read_checkpoint(resume)?;
+        check_resume_args(args, &meta.settings, &meta.config)?;
+        let mut settings = meta.settings;
+        if !args.data.is_empty() {
+            settings.data = args.data.clone();
+        }
+        let pairs = discover_pairs(&settings.data)?;
+        Trainer::from_checkpoint_parts(weights, settings, pairs, adam, meta.step)?
+    } else {
+        let settings = fresh_settings(args);
+        if args.init.is_some() && (args.config.is_some() || args.points.is_some() || args.grid.is_some()) {
+            bail!("--init takes the model size from the weights file: drop --config, --points and --grid");
+        }
+        let weights = initial_weights(args, &settings)?;
+        let pairs = discover_pairs(&settings.data)?;
+        Trainer::with_pairs(weights, settings, pairs)?
+    })
+}
+
+/// The weights a fresh run starts from: `--init` (with `--radius` and a new pose head applied) or new ones.
+fn initial_weights(args: &Args, settings: &TrainSettings) -> anyhow::Result<Weights> {
+    Ok(match &args.init {
+        Some(p) => {
+            let mut w = Weights::load(p)?;
+            if let Some(r) = args.radius {
+                w.config.radius = r;
+                w.config.validate().with_context(|| format!("--radius {r}"))?;
+            }
+            let frame = args.pose_frame.unwrap_or(w.config.pose_frame);
+            let output = args.rotation_output.unwrap_or(w.config.rotation_output);
+            if (frame, output) == (w.config.pose_frame, w.config.rotation_output) {
+                w
+            } else {
+                eprintln!("--init: new pose head ({frame:?}, {output:?}): RelativeNet starts from random weights");
+                w.with_pose_head(frame, output, settings.seed)?
+            }
+        }
+        None => Weights::init(&model_config(args)?, settings.seed)?,
+    })
+}
+
+/// Trains up to `--steps` (or `--max-seconds` after `started`), with the progress bar, the loss log and the
+/// periodic checkpoints at `ckpt`; returns the last (up to 50) steps' losses.
+fn train_steps(
+    args: &Args,
+    trainer: &mut Trainer,
+    mut device: Option<&mut DeviceRun>,
+    (ckpt, started): (&Path, std::time::Instant),
+) -> anyhow::Result<Vec<Losses>> {
+    let start = trainer.step_count();
     let mut log = match &args.log {
         Some(p) => Some(open_log(p, args.resume.as_ref().map(|_| start))?),
         None => None,
@@ -436,7 +463,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut recent: Vec<Losses> = Vec::new();
     while trainer.step_count() < args.steps {
         let lr = trainer.learning_rate();
-        let losses = match device.as_mut() {
+        let losses = match device.as_deref_mut() {
             Some(d) => trainer.step_with(|batch| d.trainer.step(&d.gpu, batch))?,
             None => trainer.step()?,
         };
@@ -462,20 +489,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             eprintln!("--max-seconds {}: stopping at step {step}", args.max_seconds);
             break;
         }
-        if args.checkpoint_every > 0 && step % args.checkpoint_every == 0 {
+        if args.checkpoint_every > 0 && step.is_multiple_of(args.checkpoint_every) {
             if let Some(d) = &device {
-                d.sync(&mut trainer)?;
+                d.sync(trainer)?;
             }
-            trainer.save_checkpoint(&ckpt)?;
+            trainer.save_checkpoint(ckpt)?;
         }
     }
     bar.finish();
-    if let Some(d) = &device {
-        d.sync(&mut trainer)?;
-    }
-    trainer.save_checkpoint(&ckpt)?;
+    Ok(recent)
+}
+
+/// Writes the trained weights to `--out` with the run's notes (command, steps, the mean of `recent` losses,
+/// settings), and says so.
+fn write_trained(args: &Args, trainer: &Trainer, recent: &[Losses], ckpt: &Path) -> anyhow::Result<()> {
     let mut weights = trainer.weights().clone();
-    let m = mean(&recent);
+    let m = mean(recent);
     let final_losses = serde_json::json!({
         "steps_averaged": recent.len(),
         "total": m.total, "rec": m.rec, "pose": m.pose, "feat": m.feat, "contrast": m.contrast,

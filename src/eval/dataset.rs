@@ -33,8 +33,8 @@ pub struct GtEntry {
     pub i: usize,
     /// Source fragment.
     pub j: usize,
-    /// x_i = transform x_j.
-    pub transform: Matrix4<f64>,
+    /// The pose of fragment j in fragment i's frame: x_i = i_from_j x_j.
+    pub i_from_j: Matrix4<f64>,
     /// The gt.info information matrix, when known.
     pub information: Option<Matrix6<f64>>,
 }
@@ -131,11 +131,12 @@ pub fn load_scene(dir: &Path, log_path: &Path) -> Result<SceneData> {
         n += 1;
     }
     let mut gt: Vec<GtEntry> =
-        log.iter().map(|r| GtEntry { i: r.i, j: r.j, transform: r.matrix, information: None }).collect();
+        log.iter().map(|r| GtEntry { i: r.i, j: r.j, i_from_j: r.i_from_j, information: None }).collect();
     let info_path = log_path.with_file_name("gt.info");
     if info_path.is_file() {
         let info = read_info(&info_path)?;
-        let by_pair: HashMap<(usize, usize), Matrix6<f64>> = info.into_iter().map(|r| ((r.i, r.j), r.matrix)).collect();
+        let by_pair: HashMap<(usize, usize), Matrix6<f64>> =
+            info.into_iter().map(|r| ((r.i, r.j), r.information)).collect();
         for e in &mut gt {
             e.information = by_pair.get(&(e.i, e.j)).copied();
             if let Some(m) = e.information
@@ -197,7 +198,7 @@ pub fn load_pairs_file(path: &Path) -> Result<SceneData> {
                 format!("duplicate pair {} -> {} (first at line {first})", fields[0], fields[1]),
             ));
         }
-        gt.push(GtEntry { i, j, transform: m, information: None });
+        gt.push(GtEntry { i, j, i_from_j: m, information: None });
     }
     if gt.is_empty() {
         return Err(Error::parse(path, "end of file", "no pairs"));

@@ -56,8 +56,8 @@ pub struct GtPair {
     pub i: usize,
     /// Fragment j > i (the source).
     pub j: usize,
-    /// x_i = transform x_j.
-    pub transform: Matrix4<f64>,
+    /// The pose of fragment j in fragment i's frame: x_i = i_from_j x_j.
+    pub i_from_j: Matrix4<f64>,
     /// Fraction of (downsampled) fragment-i points within `overlap_distance` of transformed fragment j.
     pub overlap: f64,
     /// Σ Gᵀ G over the (subsampled) correspondence set, in fragment i's frame.
@@ -157,19 +157,19 @@ fn apply(t: &Matrix4<f64>, p: &[f64; 3]) -> [f64; 3] {
     [q.x, q.y, q.z]
 }
 
-/// Fraction of fragment-i points whose nearest point of fragment j mapped by `transform` (x_i = T x_j) is
-/// closer than `distance` (strict). Distances are computed in fragment j's frame via T⁻¹, which is equivalent.
+/// Fraction of fragment-i points whose nearest point of fragment j mapped by `i_from_j` (x_i = i_from_j x_j) is
+/// closer than `distance` (strict). Distances are computed in fragment j's frame via j_from_i = i_from_j⁻¹, which is equivalent.
 pub fn overlap_fraction(
     frag_i: &PreparedFragment,
     frag_j: &PreparedFragment,
-    transform: &Matrix4<f64>,
+    i_from_j: &Matrix4<f64>,
     distance: f64,
 ) -> f64 {
     if frag_i.points.is_empty() {
         return 0.0;
     }
-    let inv = super::metrics::inverse(transform);
-    let hits = frag_i.points.iter().filter(|p| frag_j.is_within(&apply(&inv, p), distance)).count();
+    let j_from_i = crate::pose::inverse(i_from_j);
+    let hits = frag_i.points.iter().filter(|p| frag_j.is_within(&apply(&j_from_i, p), distance)).count();
     hits as f64 / frag_i.points.len() as f64
 }
 
@@ -178,28 +178,28 @@ pub fn overlap_fraction(
 pub fn correspondence_points(
     frag_i: &PreparedFragment,
     frag_j: &PreparedFragment,
-    transform: &Matrix4<f64>,
+    i_from_j: &Matrix4<f64>,
     distance: f64,
     max_points: usize,
     rng: &mut Rng,
 ) -> Vec<[f64; 3]> {
     let q: Vec<[f64; 3]> =
-        frag_j.points.iter().map(|p| apply(transform, p)).filter(|q| frag_i.is_within(q, distance)).collect();
+        frag_j.points.iter().map(|p| apply(i_from_j, p)).filter(|q| frag_i.is_within(q, distance)).collect();
     if q.len() <= max_points {
         return q;
     }
     rng.sample_without_replacement(q.len(), max_points).into_iter().map(|k| q[k]).collect()
 }
 
-/// The information matrix of one pair (steps 5-6), given the transform x_i = T x_j.
+/// The information matrix of one pair (steps 5-6), given x_i = i_from_j x_j.
 pub fn pair_information(
     frag_i: &PreparedFragment,
     frag_j: &PreparedFragment,
-    transform: &Matrix4<f64>,
+    i_from_j: &Matrix4<f64>,
     rule: &GroundTruthRule,
     rng: &mut Rng,
 ) -> Matrix6<f64> {
-    information_matrix(&correspondence_points(frag_i, frag_j, transform, rule.info_distance, rule.max_info_points, rng))
+    information_matrix(&correspondence_points(frag_i, frag_j, i_from_j, rule.info_distance, rule.max_info_points, rng))
 }
 
 /// Every pair i < j whose overlap passes the rule, with T_ij = E_i⁻¹ E_j (E = `world_from_fragment`) and its
@@ -219,14 +219,14 @@ pub fn ground_truth_pairs(
         .par_iter()
         .enumerate()
         .filter_map(|(k, &(i, j))| {
-            let transform = super::metrics::inverse(&world_from_fragment[i]) * world_from_fragment[j];
-            let overlap = overlap_fraction(&prepared[i], &prepared[j], &transform, rule.overlap_distance);
+            let i_from_j = crate::pose::inverse(&world_from_fragment[i]) * world_from_fragment[j];
+            let overlap = overlap_fraction(&prepared[i], &prepared[j], &i_from_j, rule.overlap_distance);
             if overlap < rule.min_overlap || overlap > rule.max_overlap {
                 return None;
             }
             let mut rng = Rng::derived(seed, k as u64);
-            let information = pair_information(&prepared[i], &prepared[j], &transform, rule, &mut rng);
-            Some(GtPair { i, j, transform, overlap, information })
+            let information = pair_information(&prepared[i], &prepared[j], &i_from_j, rule, &mut rng);
+            Some(GtPair { i, j, i_from_j, overlap, information })
         })
         .collect()
 }
@@ -254,7 +254,7 @@ mod tests {
         assert!((overlap - 26.0 / 50.0).abs() < 1e-9, "{overlap}");
         let pairs = ground_truth_pairs(&[i.clone(), j.clone()], &[Matrix4::identity(), t], &rule, 1);
         assert_eq!(pairs.len(), 1);
-        assert!((pairs[0].overlap - 0.52).abs() < 1e-9 && pairs[0].transform == t);
+        assert!((pairs[0].overlap - 0.52).abs() < 1e-9 && pairs[0].i_from_j == t);
         // Q: the 25 x 50 coincident points, all within 6 mm; information (0,0) counts them.
         assert!((pairs[0].information[(0, 0)] - 1250.0).abs() < 1e-9);
         // Low-overlap lists: 0.52 is above a 0.30 cap and within a 0.60 one.

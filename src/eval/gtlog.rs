@@ -21,8 +21,9 @@ pub struct LogRecord {
     pub j: usize,
     /// Number of fragments in the scene (third header field).
     pub n: usize,
-    /// x_i = matrix * x_j.
-    pub matrix: Matrix4<f64>,
+    /// The pose of fragment j in fragment i's frame: x_i = i_from_j x_j. (A trajectory log's records `k k N`
+    /// hold world_from_k here.)
+    pub i_from_j: Matrix4<f64>,
 }
 
 /// One record of a `.info` file.
@@ -35,7 +36,7 @@ pub struct InfoRecord {
     /// Number of fragments in the scene.
     pub n: usize,
     /// The 6x6 information matrix (translation first, then rotation).
-    pub matrix: Matrix6<f64>,
+    pub information: Matrix6<f64>,
 }
 
 /// Lines that carry data, with their 1-based line numbers.
@@ -114,12 +115,18 @@ fn parse_records<const R: usize>(text: &str, path: &Path) -> Result<Vec<Record<R
 
 /// Parses the text of a `.log` file; `path` is only used in error messages.
 pub fn parse_log(text: &str, path: &Path) -> Result<Vec<LogRecord>> {
-    Ok(parse_records::<4>(text, path)?.into_iter().map(|((i, j, n), matrix)| LogRecord { i, j, n, matrix }).collect())
+    Ok(parse_records::<4>(text, path)?
+        .into_iter()
+        .map(|((i, j, n), i_from_j)| LogRecord { i, j, n, i_from_j })
+        .collect())
 }
 
 /// Parses the text of a `.info` file; `path` is only used in error messages.
 pub fn parse_info(text: &str, path: &Path) -> Result<Vec<InfoRecord>> {
-    Ok(parse_records::<6>(text, path)?.into_iter().map(|((i, j, n), matrix)| InfoRecord { i, j, n, matrix }).collect())
+    Ok(parse_records::<6>(text, path)?
+        .into_iter()
+        .map(|((i, j, n), information)| InfoRecord { i, j, n, information })
+        .collect())
 }
 
 /// Reads a `.log` file.
@@ -160,12 +167,12 @@ fn format_records<const R: usize>(
 
 /// The text of a `.log` file holding `records` in the given order (tab-separated, `%15.8e` numbers).
 pub fn format_log(records: &[LogRecord]) -> String {
-    format_records::<4>(records.iter().map(|r| ((r.i, r.j, r.n), r.matrix)))
+    format_records::<4>(records.iter().map(|r| ((r.i, r.j, r.n), r.i_from_j)))
 }
 
 /// The text of a `.info` file holding `records` in the given order.
 pub fn format_info(records: &[InfoRecord]) -> String {
-    format_records::<6>(records.iter().map(|r| ((r.i, r.j, r.n), r.matrix)))
+    format_records::<6>(records.iter().map(|r| ((r.i, r.j, r.n), r.information)))
 }
 
 #[cfg(test)]
@@ -188,7 +195,7 @@ mod tests {
                      0.00000000e+00\t  0.00000000e+00\t  0.00000000e+00\t  1.00000000e+00\t\n";
         let r = parse_log(text, Path::new("gt.log")).unwrap();
         assert_eq!((r[0].i, r[0].j, r[0].n), (0, 1, 60));
-        assert!((r[0].matrix[(0, 3)] + 0.115576939).abs() < 1e-15);
+        assert!((r[0].i_from_j[(0, 3)] + 0.115576939).abs() < 1e-15);
     }
 
     #[test]

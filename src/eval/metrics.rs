@@ -1,21 +1,8 @@
 //! The 3DMatch registration metrics (spec 3.5, 3.6): the information-matrix error of an estimate, registration
 //! recall and precision, feature-match inliers, and plain rotation / translation errors.
 
-use crate::pose::quaternion_from_matrix;
+use crate::pose::{inverse, quaternion_from_matrix, skew};
 use nalgebra::{Matrix3, Matrix4, Matrix6, Vector3, Vector6};
-
-/// The inverse of a 4x4 transform: the general inverse (as the MATLAB evaluation uses), or the rigid inverse
-/// when the matrix is singular.
-pub fn inverse(t: &Matrix4<f64>) -> Matrix4<f64> {
-    t.try_inverse().unwrap_or_else(|| {
-        let r = t.fixed_view::<3, 3>(0, 0).transpose();
-        let p = -(r * t.fixed_view::<3, 1>(0, 3));
-        let mut m = Matrix4::identity();
-        m.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
-        m.fixed_view_mut::<3, 1>(0, 3).copy_from(&p);
-        m
-    })
-}
 
 /// The protocol's error vector e = [t; x; y; z] of ΔT = T_gt⁻¹ T_est (translation, then the quaternion's vector
 /// part with w >= 0).
@@ -30,11 +17,6 @@ pub fn error_vector(gt: &Matrix4<f64>, estimate: &Matrix4<f64>) -> Vector6<f64> 
 pub fn information_error(gt: &Matrix4<f64>, estimate: &Matrix4<f64>, information: &Matrix6<f64>) -> f64 {
     let e = error_vector(gt, estimate);
     (e.transpose() * information * e)[(0, 0)] / information[(0, 0)]
-}
-
-/// The skew matrix [q]x with [q]x v = q × v.
-pub fn skew(q: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -q.z, q.y, q.z, 0.0, -q.x, -q.y, q.x, 0.0)
 }
 
 /// The information matrix Σ = Σ_q Gᵀ G with G = [I₃ | −[q]×] (spec 3.3 step 6); `points` are in fragment i's frame.

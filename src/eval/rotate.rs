@@ -21,9 +21,9 @@
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::pose::rigid_inverse;
+use crate::pose::{rigid_inverse, rotation_about};
 use crate::rng::Rng;
-use nalgebra::{Matrix4, Rotation3, Unit, Vector3};
+use nalgebra::{Matrix4, Unit, Vector3};
 use serde::Serialize;
 
 /// The angles and seed of a rotation sweep.
@@ -56,21 +56,6 @@ impl RotationSweep {
 /// How an angle appears in paths and in `{rotation}` (Rust's shortest form: `90`, `22.5`, `-45`).
 pub fn angle_label(degrees: f64) -> String {
     format!("{degrees}")
-}
-
-/// True when rotating by `degrees` leaves every point in place (a multiple of 360).
-pub fn is_identity_angle(degrees: f64) -> bool {
-    degrees.rem_euclid(360.0) == 0.0
-}
-
-/// The rigid motion rotating by `degrees` about the unit `axis` through `center`: x ↦ R (x − c) + c.
-/// Exactly the identity for multiples of 360 degrees.
-pub fn rotation_about(axis: &Unit<Vector3<f64>>, center: &Vector3<f64>, degrees: f64) -> Matrix4<f64> {
-    if is_identity_angle(degrees) {
-        return Matrix4::identity();
-    }
-    let r = Rotation3::from_axis_angle(axis, degrees.to_radians()).into_inner();
-    crate::pose::matrix_from_parts(&r, &(center - r * center))
 }
 
 /// The ground truth on the moved data: target_from_rotated_source = T_gt M⁻¹.
@@ -143,6 +128,7 @@ mod tests {
     use super::*;
     use crate::pose::rotation_error_deg;
     use crate::pose::{rigid_fit, transform_point};
+    use nalgebra::Rotation3;
 
     fn cloud(seed: u64) -> PointCloud {
         let mut rng = Rng::new(seed);

@@ -10,9 +10,7 @@ use super::groundtruth::{GroundTruthRule, PreparedFragment, pair_information};
 use super::gtlog::LogRecord;
 use super::metrics::{count_feature_inliers, information_error, rmse_between};
 use super::report::FragmentReport;
-use super::rotate::{
-    FragmentRotation, RotationSweep, is_identity_angle, original_frame_estimate, rotated_ground_truth,
-};
+use super::rotate::{FragmentRotation, RotationSweep, original_frame_estimate, rotated_ground_truth};
 use super::score::{
     FeatureMatch, PairReport, PairRun, SceneScore, Thresholds, add_feature_matches, score_registration,
 };
@@ -20,6 +18,7 @@ use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::io::LoadOptions;
 use crate::pipeline::{Registrar, ScanFeatures};
+use crate::pose::is_identity_angle;
 use crate::rng::Rng;
 use crate::settings::{Estimator, StageTime};
 use nalgebra::Matrix4;
@@ -131,11 +130,11 @@ impl Criterion {
                 let info = gt
                     .information
                     .ok_or_else(|| Error::invalid(format!("pair ({}, {}) has no information matrix", gt.i, gt.j)))?;
-                Ok(information_error(&gt.transform, estimate, &info))
+                Ok(information_error(&gt.i_from_j, estimate, &info))
             }
             Criterion::Rmse(points) => {
                 let p = points.get(&gt.j).map(Vec::as_slice).unwrap_or(&[]);
-                Ok(rmse_between(p, estimate, &gt.transform))
+                Ok(rmse_between(p, estimate, &gt.i_from_j))
             }
         }
     }
@@ -162,7 +161,7 @@ pub fn prepare_criterion(scene: &mut SceneData, opts: &EvalOptions) -> Result<Cr
             let rule = GroundTruthRule::default();
             let mut prepared: HashMap<usize, PreparedFragment> = HashMap::new();
             for &k in &missing {
-                let (i, j, t) = (scene.gt[k].i, scene.gt[k].j, scene.gt[k].transform);
+                let (i, j, t) = (scene.gt[k].i, scene.gt[k].j, scene.gt[k].i_from_j);
                 for f in [i, j] {
                     if let std::collections::hash_map::Entry::Vacant(v) = prepared.entry(f) {
                         let path = scene.files.get(f).ok_or_else(|| {
@@ -335,7 +334,34 @@ fn run_views(
 ) -> Result<SweepRun> {
     let criterion = prepare_criterion(scene, opts)?;
     let pairs = pairs_to_run(scene, opts);
+    let run = ViewRun { scene, registrar, estimators, opts, sweep };
     let views = sweep.map_or(1, |s| s.degrees.len());
+    let last_use = last_uses(&pairs, sweep, views);
+    let mut described = Descriptions::default();
+    let mut results = ViewResults {
+        logs: vec![vec![Vec::new(); estimators.len()]; views],
+        runs: vec![vec![HashMap::new(); estimators.len()]; views],
+        matches: vec![HashMap::new(); views],
+    };
+    for (k, &(i, j)) in pairs.iter().enumerate() {
+        run.describe_pair(&mut described, (i, j), views)?;
+        let target = &described.cache[&(i, None)];
+        for v in 0..views {
+            let source = &described.cache[&source_key(j, sweep, v)];
+            let m = motion(&described.rotations, sweep, j, v);
+            run.register_view((source, target), (i, j), (v, &m), &mut results)?;
+            on_pair();
+        }
+        described.cache.retain(|key, _| last_use.get(key).is_some_and(|&last| last > k));
+    }
+    let angles = run.score_views(&criterion, results, &described.rotations)?;
+    let mut rotations: Vec<FragmentRotation> = described.rotations.into_values().collect();
+    rotations.sort_by_key(|r| r.index);
+    Ok(SweepRun { angles, fragments: described.fragments, rotations })
+}
+
+/// For each description [`run_views`] needs, the index of the last pair that uses it (it is dropped after).
+fn last_uses(pairs: &[(usize, usize)], sweep: Option<&RotationSweep>, views: usize) -> HashMap<DescKey, usize> {
     let mut last_use: HashMap<DescKey, usize> = HashMap::new();
     for (k, &(i, j)) in pairs.iter().enumerate() {
         last_use.insert((i, None), k);
@@ -343,44 +369,68 @@ fn run_views(
             last_use.insert(source_key(j, sweep, v), k);
         }
     }
-    let n = scene.fragment_count();
-    let mut cache: HashMap<DescKey, Described> = HashMap::new();
-    let mut rotations: HashMap<usize, FragmentRotation> = HashMap::new();
-    let mut fragments = Vec::new();
-    // Indexed [view][estimator].
-    let mut logs: Vec<Vec<Vec<LogRecord>>> = vec![vec![Vec::new(); estimators.len()]; views];
-    let mut runs: Vec<Vec<HashMap<(usize, usize), PairRun>>> = vec![vec![HashMap::new(); estimators.len()]; views];
-    let mut matches: Vec<HashMap<(usize, usize), FeatureMatch>> = vec![HashMap::new(); views];
-    for (k, &(i, j)) in pairs.iter().enumerate() {
+    last_use
+}
+
+/// What one evaluation run of a scene works with.
+struct ViewRun<'a> {
+    scene: &'a SceneData,
+    registrar: &'a Registrar,
+    estimators: &'a [Estimator],
+    opts: &'a EvalOptions,
+    sweep: Option<&'a RotationSweep>,
+}
+
+/// The descriptions [`run_views`] keeps for later pairs, the sweep rotation of every source seen, and how each
+/// fragment was described.
+#[derive(Default)]
+struct Descriptions {
+    cache: HashMap<DescKey, Described>,
+    rotations: HashMap<usize, FragmentRotation>,
+    fragments: Vec<FragmentReport>,
+}
+
+/// What [`run_views`] gathers, indexed `[view][estimator]` (feature matches `[view]`).
+struct ViewResults {
+    logs: Vec<Vec<Vec<LogRecord>>>,
+    runs: Vec<Vec<HashMap<(usize, usize), PairRun>>>,
+    matches: Vec<HashMap<(usize, usize), FeatureMatch>>,
+}
+
+impl ViewRun<'_> {
+    /// Describes what pair (i, j) needs and the cache lacks: the target as loaded, the source in every view
+    /// (moved by its sweep rotation, drawn when the source is first seen).
+    fn describe_pair(&self, described: &mut Descriptions, (i, j): (usize, usize), views: usize) -> Result<()> {
+        let (scene, registrar, sweep) = (self.scene, self.registrar, self.sweep);
         let mut needed: Vec<DescKey> = (0..views).map(|v| source_key(j, sweep, v)).collect();
         needed.push((i, None));
-        needed.retain(|key| !cache.contains_key(key));
+        needed.retain(|key| !described.cache.contains_key(key));
         needed.sort_unstable();
         needed.dedup();
         for f in [j, i] {
             let keys: Vec<DescKey> = needed.iter().copied().filter(|key| key.0 == f).collect();
-            let rotation_missing = sweep.is_some() && f == j && !rotations.contains_key(&j);
+            let rotation_missing = sweep.is_some() && f == j && !described.rotations.contains_key(&j);
             if keys.is_empty() && !rotation_missing {
                 continue;
             }
-            let cloud = load_fragment(scene, f, (i, j), opts)?;
+            let cloud = load_fragment(scene, f, (i, j), self.opts)?;
             if let Some(s) = sweep
                 && rotation_missing
             {
-                rotations.insert(f, FragmentRotation::for_fragment(s.seed, &scene.name, f, &cloud));
+                described.rotations.insert(f, FragmentRotation::for_fragment(s.seed, &scene.name, f, &cloud));
             }
             for key in keys {
                 let (features, rotation_deg) = match key.1 {
                     Some(v) => {
                         // The sensor moves with the scan: estimated normals keep facing it.
-                        let m = motion(&rotations, sweep, f, v);
+                        let m = motion(&described.rotations, sweep, f, v);
                         let viewpoint = crate::pose::transform_point(&m, registrar.settings.viewpoint);
                         let moved = cloud.transformed(&m);
                         (registrar.describe_from(&moved, f as u64, viewpoint)?, sweep.map(|s| s.degrees[v]))
                     }
                     None => (registrar.describe(&cloud, f as u64)?, None),
                 };
-                fragments.push(FragmentReport {
+                described.fragments.push(FragmentReport {
                     scene: scene.name.clone(),
                     index: f,
                     rotation_deg,
@@ -391,135 +441,156 @@ fn run_views(
                 // For the estimated overlap (--all-pairs) and the ground-truth overlap of gt pairs.
                 let index = Some(PreparedFragment::from_points(
                     features.cloud.points.iter().map(|p| p.map(f64::from)).collect(),
-                    opts.thresholds.overlap_distance,
+                    self.opts.thresholds.overlap_distance,
                 ));
-                cache.insert(key, Described { features, index });
+                described.cache.insert(key, Described { features, index });
             }
         }
-        let target = &cache[&(i, None)];
-        for v in 0..views {
-            let source = &cache[&source_key(j, sweep, v)];
-            let m = motion(&rotations, sweep, j, v);
-            let started = Instant::now();
-            let correspondences = registrar.correspond(&source.features, &target.features);
-            let correspond_s = started.elapsed().as_secs_f64();
-            if let (Some(g), Ok(c)) = (scene.lookup(i, j), &correspondences) {
-                let inliers = count_feature_inliers(
-                    c.iter().map(|c| (c.target_point, c.source_point)),
-                    &rotated_ground_truth(&g.transform, &m),
-                    opts.thresholds.tau1,
-                );
-                matches[v].insert((i, j), FeatureMatch { correspondences: c.len(), inliers });
+        Ok(())
+    }
+
+    /// Pair (i, j) in view `v` (the source moved by `m`): its feature matches and ground-truth overlap, and
+    /// every estimator's registration.
+    fn register_view(
+        &self,
+        (source, target): (&Described, &Described),
+        (i, j): (usize, usize),
+        (v, m): (usize, &Matrix4<f64>),
+        results: &mut ViewResults,
+    ) -> Result<()> {
+        let (scene, opts) = (self.scene, self.opts);
+        let started = Instant::now();
+        let correspondences = self.registrar.correspond(&source.features, &target.features);
+        let correspond_s = started.elapsed().as_secs_f64();
+        if let (Some(g), Ok(c)) = (scene.lookup(i, j), &correspondences) {
+            let inliers = count_feature_inliers(
+                c.iter().map(|c| (c.target_point, c.source_point)),
+                &rotated_ground_truth(&g.i_from_j, m),
+                opts.thresholds.tau1,
+            );
+            results.matches[v].insert((i, j), FeatureMatch { correspondences: c.len(), inliers });
+        }
+        let gt_overlap = match (scene.lookup(i, j), &target.index, &source.index) {
+            (Some(g), Some(ti), Some(si)) => {
+                Some(estimated_overlap(ti, si, &rotated_ground_truth(&g.i_from_j, m), opts.thresholds.overlap_distance))
             }
-            let gt_overlap = match (scene.lookup(i, j), &target.index, &source.index) {
-                (Some(g), Some(ti), Some(si)) => Some(estimated_overlap(
-                    ti,
-                    si,
-                    &rotated_ground_truth(&g.transform, &m),
-                    opts.thresholds.overlap_distance,
-                )),
-                _ => None,
+            _ => None,
+        };
+        for (e, &estimator) in self.estimators.iter().enumerate() {
+            let run = PairRun {
+                timings: vec![StageTime { stage: "correspond".into(), seconds: correspond_s }],
+                gt_overlap,
+                ..PairRun::default()
             };
-            for (e, &estimator) in estimators.iter().enumerate() {
-                let mut run = PairRun {
-                    timings: vec![StageTime { stage: "correspond".into(), seconds: correspond_s }],
-                    gt_overlap,
-                    ..PairRun::default()
-                };
-                // The progressive schedule `register` runs, over prefixes of the described keypoints.
-                let started = Instant::now();
-                let round = registrar.register_described(&source.features, &target.features, estimator);
-                run.timings.push(StageTime { stage: "estimate".into(), seconds: started.elapsed().as_secs_f64() });
-                let pose = round.map(|r| {
-                    run.correspondences = r.correspondences.len();
-                    run.keypoints = r.keypoints;
-                    run.trusted = Some(r.verdict.success);
-                    (r.estimate, r.correspondences)
-                });
-                match pose {
-                    Ok((p, used)) => {
-                        if let Some(dir) = &opts.snapshots {
-                            let rotation = sweep.map(|s| s.degrees[v]);
-                            let path = snapshot_path(dir, estimator, rotation, scene, (i, j));
-                            let lines = crate::snapshot::inlier_lines(
-                                &used,
-                                &p.target_from_source,
-                                registrar.inlier_threshold(),
-                            );
-                            write_pair_snapshot(
-                                &path,
-                                &source.features,
-                                &target.features,
-                                &p.target_from_source,
-                                lines,
-                            )?;
-                        }
-                        run.hypotheses = p.hypotheses_scored;
-                        run.estimator_inliers = p.inliers;
-                        let report = match (&target.index, &source.index) {
-                            (Some(ti), Some(si)) if opts.all_pairs => {
-                                let overlap =
-                                    estimated_overlap(ti, si, &p.target_from_source, opts.thresholds.overlap_distance);
-                                run.estimated_overlap = Some(overlap);
-                                overlap > opts.min_overlap
-                            }
-                            _ => true,
-                        };
-                        if report {
-                            logs[v][e].push(LogRecord { i, j, n, matrix: p.target_from_source });
-                        }
-                    }
-                    Err(err) => run.error = Some(err.to_string()),
-                }
-                runs[v][e].insert((i, j), run);
-            }
-            on_pair();
+            let (run, record) = self.register_pair((source, target), (i, j), v, estimator, run)?;
+            results.logs[v][e].extend(record);
+            results.runs[v][e].insert((i, j), run);
         }
-        cache.retain(|key, _| last_use.get(key).is_some_and(|&last| last > k));
+        Ok(())
     }
-    let max_error = criterion.max_error(&opts.thresholds);
-    let mut angles = Vec::new();
-    for v in 0..views {
-        let mut out = Vec::new();
-        for (e, &estimator) in estimators.iter().enumerate() {
-            let log = std::mem::take(&mut logs[v][e]);
-            let original: Vec<LogRecord> = log
-                .iter()
-                .map(|r| LogRecord {
-                    matrix: original_frame_estimate(&r.matrix, &motion(&rotations, sweep, r.j, v)),
-                    ..r.clone()
-                })
-                .collect();
-            let mut score = score_registration(scene, &original, &|g, t| criterion.error(g, t), max_error)?;
-            add_feature_matches(&mut score, &matches[v], opts.thresholds.tau2);
-            let runs = &mut runs[v][e];
-            for p in score.pairs.iter_mut() {
-                p.run = runs.remove(&(p.i, p.j));
+
+    /// One estimator on pair (i, j) in view `v`: the progressive schedule `register` runs, over prefixes of the
+    /// described keypoints, added to `run`; the snapshot when asked; the result log record when reported.
+    fn register_pair(
+        &self,
+        (source, target): (&Described, &Described),
+        (i, j): (usize, usize),
+        v: usize,
+        estimator: Estimator,
+        mut run: PairRun,
+    ) -> Result<(PairRun, Option<LogRecord>)> {
+        let (registrar, opts) = (self.registrar, self.opts);
+        let started = Instant::now();
+        let round = registrar.register_described(&source.features, &target.features, estimator);
+        run.timings.push(StageTime { stage: "estimate".into(), seconds: started.elapsed().as_secs_f64() });
+        let pose = round.map(|r| {
+            run.correspondences = r.correspondences.len();
+            run.keypoints = r.keypoints;
+            run.trusted = Some(r.verdict.success);
+            (r.estimate, r.correspondences)
+        });
+        let (p, used) = match pose {
+            Ok(found) => found,
+            Err(err) => {
+                run.error = Some(err.to_string());
+                return Ok((run, None));
             }
-            // Pairs that were registered but neither reported nor in gt.log (with --all-pairs) are listed too.
-            for ((i, j), run) in runs.drain() {
-                score.pairs.push(PairReport {
-                    i,
-                    j,
-                    in_gt: false,
-                    counts_for_recall: scene.counts_for_recall(i, j),
-                    reported: false,
-                    error: None,
-                    success: None,
-                    rotation_error_deg: None,
-                    translation_error: None,
-                    feature_match: None,
-                    run: Some(run),
-                });
-            }
-            score.pairs.sort_by_key(|p| (p.i, p.j));
-            out.push((estimator, score, log));
+        };
+        if let Some(dir) = &opts.snapshots {
+            let rotation = self.sweep.map(|s| s.degrees[v]);
+            let path = snapshot_path(dir, estimator, rotation, self.scene, (i, j));
+            let lines = crate::snapshot::inlier_lines(&used, &p.target_from_source, registrar.inlier_threshold());
+            write_pair_snapshot(&path, &source.features, &target.features, &p.target_from_source, lines)?;
         }
-        angles.push(AngleRun { rotation_deg: sweep.map_or(0.0, |s| s.degrees[v]), estimators: out });
+        run.hypotheses = p.hypotheses_scored;
+        run.estimator_inliers = p.inliers;
+        let report = match (&target.index, &source.index) {
+            (Some(ti), Some(si)) if opts.all_pairs => {
+                let overlap = estimated_overlap(ti, si, &p.target_from_source, opts.thresholds.overlap_distance);
+                run.estimated_overlap = Some(overlap);
+                overlap > opts.min_overlap
+            }
+            _ => true,
+        };
+        let n = self.scene.fragment_count();
+        Ok((run, report.then_some(LogRecord { i, j, n, i_from_j: p.target_from_source })))
     }
-    let mut rotations: Vec<FragmentRotation> = rotations.into_values().collect();
-    rotations.sort_by_key(|r| r.index);
-    Ok(SweepRun { angles, fragments, rotations })
+
+    /// Scores every view's result logs in the original frames (each estimate mapped back with its source's
+    /// sweep rotation), with the feature matches and every registered pair listed.
+    fn score_views(
+        &self,
+        criterion: &Criterion,
+        mut results: ViewResults,
+        rotations: &HashMap<usize, FragmentRotation>,
+    ) -> Result<Vec<AngleRun>> {
+        let (scene, opts, sweep) = (self.scene, self.opts, self.sweep);
+        let max_error = criterion.max_error(&opts.thresholds);
+        let mut angles = Vec::new();
+        for v in 0..results.logs.len() {
+            let mut out = Vec::new();
+            for (e, &estimator) in self.estimators.iter().enumerate() {
+                let log = std::mem::take(&mut results.logs[v][e]);
+                let original: Vec<LogRecord> = log
+                    .iter()
+                    .map(|r| LogRecord {
+                        i_from_j: original_frame_estimate(&r.i_from_j, &motion(rotations, sweep, r.j, v)),
+                        ..r.clone()
+                    })
+                    .collect();
+                let mut score = score_registration(scene, &original, &|g, t| criterion.error(g, t), max_error)?;
+                add_feature_matches(&mut score, &results.matches[v], opts.thresholds.tau2);
+                list_runs(scene, &mut score, &mut results.runs[v][e]);
+                out.push((estimator, score, log));
+            }
+            angles.push(AngleRun { rotation_deg: sweep.map_or(0.0, |s| s.degrees[v]), estimators: out });
+        }
+        Ok(angles)
+    }
+}
+
+/// Attaches each scored pair's run, and lists the pairs that were registered but neither reported nor in
+/// gt.log (with --all-pairs) too, sorted by (i, j).
+fn list_runs(scene: &SceneData, score: &mut SceneScore, runs: &mut HashMap<(usize, usize), PairRun>) {
+    for p in score.pairs.iter_mut() {
+        p.run = runs.remove(&(p.i, p.j));
+    }
+    for ((i, j), run) in runs.drain() {
+        score.pairs.push(PairReport {
+            i,
+            j,
+            in_gt: false,
+            counts_for_recall: scene.counts_for_recall(i, j),
+            reported: false,
+            error: None,
+            success: None,
+            rotation_error_deg: None,
+            translation_error: None,
+            feature_match: None,
+            run: Some(run),
+        });
+    }
+    score.pairs.sort_by_key(|p| (p.i, p.j));
 }
 
 /// Scores result logs on rotated data, one per angle of `sweep` (`logs[v]` holds target_from_rotated_source for
@@ -550,7 +621,7 @@ pub fn score_log_sweep(
         let original: Vec<LogRecord> = log
             .iter()
             .map(|r| LogRecord {
-                matrix: original_frame_estimate(&r.matrix, &motion(&rotations, Some(sweep), r.j, v)),
+                i_from_j: original_frame_estimate(&r.i_from_j, &motion(&rotations, Some(sweep), r.j, v)),
                 ..r.clone()
             })
             .collect();

@@ -172,7 +172,7 @@ pub fn score_registration(
         }
         let (error, success, rot, trans) = match gt {
             Some(g) => {
-                let e = error_of(g, &r.matrix)?;
+                let e = error_of(g, &r.i_from_j)?;
                 let ok = e <= max_error;
                 if counts && ok {
                     good += 1;
@@ -180,8 +180,8 @@ pub fn score_registration(
                 (
                     Some(e),
                     Some(ok),
-                    Some(rotation_error_deg(&g.transform, &r.matrix)),
-                    Some(translation_error(&g.transform, &r.matrix)),
+                    Some(rotation_error_deg(&g.i_from_j, &r.i_from_j)),
+                    Some(translation_error(&g.i_from_j, &r.i_from_j)),
                 )
             }
             None => (None, None, None, None),
@@ -262,7 +262,7 @@ mod tests {
 
     fn scene(pairs: &[(usize, usize)]) -> SceneData {
         let gt =
-            pairs.iter().map(|&(i, j)| GtEntry { i, j, transform: Matrix4::identity(), information: None }).collect();
+            pairs.iter().map(|&(i, j)| GtEntry { i, j, i_from_j: Matrix4::identity(), information: None }).collect();
         SceneData::new("s".into(), PathBuf::new(), vec![PathBuf::new(); 6], gt, Protocol::ThreeDMatch)
     }
 
@@ -271,11 +271,11 @@ mod tests {
         if !ok {
             m[(0, 3)] = 1.0;
         }
-        LogRecord { i, j, n: 6, matrix: m }
+        LogRecord { i, j, n: 6, i_from_j: m }
     }
 
     fn translation_error_of(g: &GtEntry, est: &Matrix4<f64>) -> Result<f64> {
-        Ok(translation_error(&g.transform, est))
+        Ok(translation_error(&g.i_from_j, est))
     }
 
     #[test]

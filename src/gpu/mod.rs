@@ -277,6 +277,24 @@ impl GpuBackend {
         patch_features::record(rec, &params, &b)
     }
 
+    /// Uploads the patch features' inputs `[centers, center normals, points, normals]` of patches `c0..c0 + cp`
+    /// of `patches` (`n` points each) for [`GpuBackend::record_patch_features`].
+    fn upload_patch_inputs(
+        ws: &mut Workspace,
+        ctx: &GpuContext,
+        patches: &GatheredPatches,
+        n: usize,
+        (c0, cp): (usize, usize),
+    ) -> Result<[wgpu::Buffer; 4]> {
+        let pts = c0 * n..(c0 + cp) * n;
+        Ok([
+            ws.upload(ctx, "pf_centers", &patches.centers[c0..c0 + cp])?,
+            ws.upload(ctx, "pf_center_normals", &patches.center_normals[c0..c0 + cp])?,
+            ws.upload(ctx, "pf_points", &patches.points[pts.clone()])?,
+            ws.upload(ctx, "pf_normals", &patches.normals[pts])?,
+        ])
+    }
+
     /// Mutual kNN between the first `ns` rows of `source` and the first `nt` of `target` (codewords of `dim`
     /// on the device); only the per-row lists come back.
     fn match_buffers(
@@ -405,11 +423,8 @@ impl Backend for GpuBackend {
             for c0 in (0..p).step_by(chunk) {
                 let cp = chunk.min(p - c0);
                 let rows = cp * n;
-                let pts = c0 * n..(c0 + cp) * n;
-                let centers = ws.upload(ctx, "pf_centers", &patches.centers[c0..c0 + cp])?;
-                let center_normals = ws.upload(ctx, "pf_center_normals", &patches.center_normals[c0..c0 + cp])?;
-                let points = ws.upload(ctx, "pf_points", &patches.points[pts.clone()])?;
-                let normals = ws.upload(ctx, "pf_normals", &patches.normals[pts])?;
+                let [centers, center_normals, points, normals] =
+                    Self::upload_patch_inputs(ws, ctx, patches, n, (c0, cp))?;
                 let ppf = ws.buffer(ctx, "pf_ppf", (rows * 16) as u64)?;
                 let pc = ws.buffer(ctx, "pf_pc", (rows * 12) as u64)?;
                 let mut rec = Recorder::new(gpu, "patch_features");

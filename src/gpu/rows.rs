@@ -227,13 +227,7 @@ impl GpuBackend {
         let n = self.model.config.points_per_patch;
         let ctx = &self.gpu.context;
         self.describe_chunks(store, batch.len(), batch.radius(), |_, ws, c0, cp| {
-            let pts = c0 * n..(c0 + cp) * n;
-            Ok([
-                ws.upload(ctx, "pf_centers", &patches.centers[c0..c0 + cp])?,
-                ws.upload(ctx, "pf_center_normals", &patches.center_normals[c0..c0 + cp])?,
-                ws.upload(ctx, "pf_points", &patches.points[pts.clone()])?,
-                ws.upload(ctx, "pf_normals", &patches.normals[pts])?,
-            ])
+            Self::upload_patch_inputs(ws, ctx, patches, n, (c0, cp))
         })
     }
 

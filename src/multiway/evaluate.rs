@@ -3,7 +3,8 @@
 
 use crate::error::{Error, Result};
 use crate::eval::gtlog::LogRecord;
-use crate::eval::metrics::{information_error, inverse};
+use crate::eval::metrics::information_error;
+use crate::pose::inverse;
 use crate::pose::{nearest_rotation, rigid_fit_f64, rotation_error_deg, translation_error};
 use nalgebra::{Matrix3, Matrix4, Matrix6, Vector3};
 use serde::Serialize;
@@ -13,7 +14,7 @@ use super::trajectory::Trajectory;
 /// The 3DMatch criterion: a relative pose is correct when eᵀΣe / Σ(0,0) (about the mean squared displacement of
 /// the overlap's points) is at most 0.2² (cloud units squared).
 pub const REGISTERED_MAX_INFORMATION_ERROR: f64 = 0.04;
-/// Without an information matrix: a relative pose is correct within this rotation error (degrees)...
+/// Without an information i_from_j: a relative pose is correct within this rotation error (degrees)...
 pub const REGISTERED_MAX_ROTATION_DEG: f64 = 15.0;
 /// ... and this translation error (cloud units).
 pub const REGISTERED_MAX_TRANSLATION: f64 = 0.3;
@@ -174,12 +175,12 @@ pub fn pairwise_errors(
                 return None;
             }
             let t = estimate.i_from_j(a, b);
-            let (correct, _) = is_correct(&t, &r.matrix, information(r.i, r.j).as_ref());
+            let (correct, _) = is_correct(&t, &r.i_from_j, information(r.i, r.j).as_ref());
             Some(PairError {
                 i: r.i,
                 j: r.j,
-                rotation_deg: rotation_error_deg(&t, &r.matrix),
-                translation: translation_error(&t, &r.matrix),
+                rotation_deg: rotation_error_deg(&t, &r.i_from_j),
+                translation: translation_error(&t, &r.i_from_j),
                 correct,
             })
         })

@@ -2,7 +2,7 @@
 //! relative pose and information matrix, and the initial poses from a maximum spanning tree of the edges.
 
 use crate::error::{Error, Result};
-use crate::eval::metrics::inverse;
+use crate::pose::inverse;
 use nalgebra::{Matrix4, Matrix6};
 use std::collections::{BTreeSet, VecDeque};
 

@@ -18,7 +18,6 @@ pub mod graph;
 pub mod optimize;
 pub mod pair;
 pub mod pairs;
-pub mod so3;
 pub mod trajectory;
 
 use crate::cloud::PointCloud;

@@ -19,9 +19,9 @@
 //! The crate is dense, so the step costs O(edges · nodes²): fine for hundreds of scans, not for many thousands.
 
 use super::graph::{GraphEdge, PoseGraph, reachable_from_reference};
-use super::so3;
 use crate::error::{Error, Result};
-use crate::eval::metrics::skew;
+use crate::pose::skew;
+use crate::pose::so3;
 use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
 use nalgebra::{Matrix3, Matrix4, Matrix6, SMatrix, Vector3, Vector6};
 use nalgebra_lm::{DMatrix as LmMatrix, DVector as LmVector, Dyn, Owned};

@@ -4,7 +4,7 @@
 
 use crate::error::{Error, Result};
 use crate::eval::gtlog::{LogRecord, format_log, parse_log};
-use crate::eval::metrics::inverse;
+use crate::pose::inverse;
 use nalgebra::Matrix4;
 use std::path::Path;
 
@@ -41,8 +41,12 @@ impl Trajectory {
     /// The text of the trajectory `.log`: per scan k a line `k k N` and world_from_scan_k.
     pub fn to_log_text(&self) -> String {
         let n = self.len();
-        let records: Vec<LogRecord> =
-            self.world_from_scan.iter().enumerate().map(|(k, &matrix)| LogRecord { i: k, j: k, n, matrix }).collect();
+        let records: Vec<LogRecord> = self
+            .world_from_scan
+            .iter()
+            .enumerate()
+            .map(|(k, &world_from_k)| LogRecord { i: k, j: k, n, i_from_j: world_from_k })
+            .collect();
         format_log(&records)
     }
 
@@ -67,7 +71,7 @@ impl Trajectory {
                     format!("the file holds {n} records, so every header must be `k k {n}` with k < {n}"),
                 ));
             }
-            poses[r.i] = Some(r.matrix);
+            poses[r.i] = Some(r.i_from_j);
         }
         // Duplicates are refused by the parser, so n records with distinct k < n cover every k.
         Ok(Trajectory { world_from_scan: poses.into_iter().map(|p| p.expect("every k present")).collect() })

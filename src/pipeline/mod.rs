@@ -683,21 +683,34 @@ impl Registrar {
         estimator: Estimator,
     ) -> Result<Round> {
         let mut clock = Stopwatch::new(None);
+        let plan = (estimator, self.context_in_every_round());
+        let (outcome, last) = self.progressive_rounds(&mut (source, target), plan, &mut clock)?;
+        self.conclude(outcome, (source, target), last, estimator, &mut clock)
+    }
+
+    /// The progressive schedule: for each keypoint stage k, `scans` are readied for k keypoints a scan
+    /// ([`RoundScans::prepare`]); a round runs when that changed the rows it would match, and the first trusted
+    /// round ends the schedule. Returns the rounds' outcome and the last stage.
+    fn progressive_rounds(
+        &self,
+        scans: &mut impl RoundScans,
+        plan: (Estimator, bool),
+        clock: &mut Stopwatch<'_>,
+    ) -> Result<(stages::Outcome, usize)> {
         let mut outcome = stages::Outcome::default();
         let mut rows = None;
         let stages = self.keypoint_stages();
-        let every = self.context_in_every_round();
         for &k in &stages {
-            let now = (source.rows_within(k), target.rows_within(k));
+            let now = scans.prepare(self, k, clock)?;
             if rows == Some(now) {
                 continue;
             }
             rows = Some(now);
-            if outcome.offer(self.round((source, target), k, (estimator, every), &mut clock)) {
+            if outcome.offer(self.round(scans.pair(), k, plan, clock)) {
                 break;
             }
         }
-        self.conclude(outcome, (source, target), stages[stages.len() - 1], estimator, &mut clock)
+        Ok((outcome, stages[stages.len() - 1]))
     }
 
     /// One round on all keypoints of two described scans (and the round on the context radii too when
@@ -747,34 +760,20 @@ impl Registrar {
         let mut clock = Stopwatch::new(self.progress.as_deref().map(|p| (p, "")));
         let viewpoint = self.settings.viewpoint;
         clock.scope = "source.";
-        let mut src = self.start_description(source, 0, viewpoint, &mut clock).map_err(|e| prefix("source", e))?;
+        let src = self.start_description(source, 0, viewpoint, &mut clock).map_err(|e| prefix("source", e))?;
         clock.scope = "target.";
-        let mut tgt = self.start_description(target, 1, viewpoint, &mut clock).map_err(|e| prefix("target", e))?;
-        let mut outcome = stages::Outcome::default();
-        let mut rows = None;
-        let stages = self.keypoint_stages();
+        let tgt = self.start_description(target, 1, viewpoint, &mut clock).map_err(|e| prefix("target", e))?;
         let plan = (self.settings.estimator, self.context_in_every_round());
-        for &k in &stages {
-            clock.scope = "source.";
-            self.extend_description(&mut src, k, &mut clock).map_err(|e| prefix("source", e))?;
-            clock.scope = "target.";
-            self.extend_description(&mut tgt, k, &mut clock).map_err(|e| prefix("target", e))?;
-            let now = (src.features.keypoints.len(), tgt.features.keypoints.len());
-            if rows == Some(now) {
-                continue;
-            }
-            rows = Some(now);
-            if outcome.offer(self.round((&src.features, &tgt.features), k, plan, &mut clock)) {
-                break;
-            }
-        }
+        let mut scans = (src, tgt);
+        let (outcome, last) = self.progressive_rounds(&mut scans, plan, &mut clock)?;
+        let (mut src, mut tgt) = scans;
         if self.needs_context_round(&outcome) {
             clock.scope = "source.";
             self.describe_context(&mut src, &mut clock).map_err(|e| prefix("source", e))?;
             clock.scope = "target.";
             self.describe_context(&mut tgt, &mut clock).map_err(|e| prefix("target", e))?;
         }
-        let (scans, last) = ((&src.features, &tgt.features), stages[stages.len() - 1]);
+        let scans = (&src.features, &tgt.features);
         let round = self.conclude(outcome, scans, last, self.settings.estimator, &mut clock)?;
         for scan in [&mut src, &mut tgt] {
             if !scan.cloud.normals_complete() {
@@ -806,6 +805,48 @@ impl Registrar {
             scale: self.scale_report(),
         };
         Ok(Registration { result, source: described_source, target: described_target, correspondences })
+    }
+}
+
+/// The two scans a progressive schedule registers ([`Registrar::progressive_rounds`]).
+trait RoundScans {
+    /// Readies the scans for a round over their first `keypoints` keypoints (describing more where needed) and
+    /// says how many rows of each such a round would match.
+    fn prepare(&mut self, registrar: &Registrar, keypoints: usize, clock: &mut Stopwatch<'_>)
+    -> Result<(usize, usize)>;
+
+    /// The (source, target) features a round matches.
+    fn pair(&self) -> (&ScanFeatures, &ScanFeatures);
+}
+
+/// Scans described already ([`Registrar::register_described`]): nothing to do but count rows.
+impl RoundScans for (&ScanFeatures, &ScanFeatures) {
+    fn prepare(&mut self, _: &Registrar, keypoints: usize, _: &mut Stopwatch<'_>) -> Result<(usize, usize)> {
+        Ok((self.0.rows_within(keypoints), self.1.rows_within(keypoints)))
+    }
+
+    fn pair(&self) -> (&ScanFeatures, &ScanFeatures) {
+        *self
+    }
+}
+
+/// Scans being described ([`Registrar::register_detailed`]): each stage describes more keypoints of both.
+impl RoundScans for (DescribingScan, DescribingScan) {
+    fn prepare(
+        &mut self,
+        registrar: &Registrar,
+        keypoints: usize,
+        clock: &mut Stopwatch<'_>,
+    ) -> Result<(usize, usize)> {
+        clock.scope = "source.";
+        registrar.extend_description(&mut self.0, keypoints, clock).map_err(|e| prefix("source", e))?;
+        clock.scope = "target.";
+        registrar.extend_description(&mut self.1, keypoints, clock).map_err(|e| prefix("target", e))?;
+        Ok((self.0.features.keypoints.len(), self.1.features.keypoints.len()))
+    }
+
+    fn pair(&self) -> (&ScanFeatures, &ScanFeatures) {
+        (&self.0.features, &self.1.features)
     }
 }
 

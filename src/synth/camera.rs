@@ -2,7 +2,7 @@
 //!
 //! Camera frame: x right, y down, z forward (the optical axis); depth is the z coordinate.
 
-use super::geometry::{Object, cast_ray};
+use super::geometry::{Hit, Object, cast_ray_object};
 use super::room::Room;
 use crate::rng::Rng;
 use nalgebra::{Matrix3, Matrix4, Vector3};
@@ -64,30 +64,132 @@ impl CameraModel {
         out_from_camera: &Matrix4<f64>,
         rng: &mut Rng,
     ) -> Vec<([f64; 3], [f64; 3])> {
-        let r = world_from_camera.fixed_view::<3, 3>(0, 0).into_owned();
-        let origin = world_from_camera.fixed_view::<3, 1>(0, 3).into_owned();
-        let r_out = out_from_camera.fixed_view::<3, 3>(0, 0).into_owned();
-        let t_out = out_from_camera.fixed_view::<3, 1>(0, 3).into_owned();
-        let fx = self.width as f64 / 2.0 / (self.hfov_deg.to_radians() / 2.0).tan();
-        let fy = self.height as f64 / 2.0 / (self.vfov_deg.to_radians() / 2.0).tan();
-        let (cx, cy) = (self.width as f64 / 2.0, self.height as f64 / 2.0);
-        let cos_max = self.max_incidence_deg.to_radians().cos();
-        let mut out = Vec::with_capacity(self.width * self.height);
-        for v in 0..self.height {
-            for u in 0..self.width {
-                let (ju, jv) = (rng.unit_f64(), rng.unit_f64());
-                let ray = Vector3::new((u as f64 + ju - cx) / fx, (v as f64 + jv - cy) / fy, 1.0);
-                let len = ray.norm();
-                let dir = r * (ray / len);
-                let Some(hit) = cast_ray(objects, &origin, &dir, self.max_depth * len) else { continue };
+        let image = PinholeImage {
+            size: (self.width, self.height),
+            fov_deg: (self.hfov_deg, self.vfov_deg),
+            depth: (self.min_depth, self.max_depth),
+            max_incidence_deg: self.max_incidence_deg,
+        };
+        let rays = PinholeRays::new(&image, world_from_camera, out_from_camera);
+        let pixel = |rng: &mut Rng, u: usize, v: usize| {
+            let (ju, jv) = (rng.unit_f64(), rng.unit_f64());
+            Some(([u as f64 + ju, v as f64 + jv], ()))
+        };
+        let measure = |rng: &mut Rng, _: &PinholeRays, (): (), hit: &PixelHit| {
+            if rng.unit_f64() < self.dropout {
+                return None;
+            }
+            Some(hit.z + self.sigma(hit.z) * rng.normal())
+        };
+        rays.scan(objects, rng, pixel, measure)
+    }
+}
+
+/// The image of a pinhole depth sensor: rays per row and column, fields of view (degrees), the depth range
+/// that returns (metres, or scene units) and the largest incidence angle that does (degrees).
+pub(super) struct PinholeImage {
+    pub size: (usize, usize),
+    pub fov_deg: (f64, f64),
+    pub depth: (f64, f64),
+    pub max_incidence_deg: f64,
+}
+
+/// A ray of a [`PinholeRays`] image that hit a surface within the depth range and incidence limit.
+pub(super) struct PixelHit {
+    /// Image position (pixels) the ray went through.
+    pub pixel: [f64; 2],
+    /// The hit (distance along the unit world direction, and the surface normal).
+    pub hit: Hit,
+    /// Index of the object hit.
+    pub object: usize,
+    /// Depth (camera z) of the hit.
+    pub z: f64,
+    /// Cosine of the incidence angle.
+    pub cos_incidence: f64,
+    /// Unit world direction of the ray.
+    pub dir: Vector3<f64>,
+}
+
+/// The one depth-camera ray caster ([`CameraModel`] and [`super::sensor::Sensor`] scan with it): a pinhole at
+/// `world_from_camera`, rays through image positions, the first hit within range, and each return mapped by
+/// `out_from_camera`. Camera frame: x right, y down, z forward.
+pub(super) struct PinholeRays {
+    world_from_camera: Matrix4<f64>,
+    out_from_camera: Matrix4<f64>,
+    size: (usize, usize),
+    focal: (f64, f64),
+    center: (f64, f64),
+    depth: (f64, f64),
+    cos_max: f64,
+}
+
+impl PinholeRays {
+    pub fn new(image: &PinholeImage, world_from_camera: &Matrix4<f64>, out_from_camera: &Matrix4<f64>) -> PinholeRays {
+        let (w, h) = (image.size.0 as f64, image.size.1 as f64);
+        PinholeRays {
+            world_from_camera: *world_from_camera,
+            out_from_camera: *out_from_camera,
+            size: image.size,
+            focal: (
+                w / 2.0 / (image.fov_deg.0.to_radians() / 2.0).tan(),
+                h / 2.0 / (image.fov_deg.1.to_radians() / 2.0).tan(),
+            ),
+            center: (w / 2.0, h / 2.0),
+            depth: image.depth,
+            cos_max: image.max_incidence_deg.to_radians().cos(),
+        }
+    }
+
+    /// The camera rotation (world_from_camera's).
+    pub fn rotation(&self) -> Matrix3<f64> {
+        self.world_from_camera.fixed_view::<3, 3>(0, 0).into_owned()
+    }
+
+    /// The camera centre in the world.
+    pub fn origin(&self) -> Vector3<f64> {
+        self.world_from_camera.fixed_view::<3, 1>(0, 3).into_owned()
+    }
+
+    /// The ray through image position `pixel`: in the camera frame with z = 1, its length, and its unit world
+    /// direction.
+    pub fn ray(&self, pixel: [f64; 2]) -> (Vector3<f64>, f64, Vector3<f64>) {
+        let ray =
+            Vector3::new((pixel[0] - self.center.0) / self.focal.0, (pixel[1] - self.center.1) / self.focal.1, 1.0);
+        let len = ray.norm();
+        (ray, len, self.rotation() * (ray / len))
+    }
+
+    /// The image, pixel by pixel in row-major order: `pixel` draws what a pixel needs from `rng` and gives the
+    /// image position its ray goes through (None: no return, e.g. a hole); a hit within the depth range and
+    /// incidence limit goes to `measure`, which draws the measured depth (None: no return); each return is
+    /// (point, normal facing the camera) in the output frame.
+    pub fn scan<P>(
+        &self,
+        objects: &[Object],
+        rng: &mut Rng,
+        mut pixel: impl FnMut(&mut Rng, usize, usize) -> Option<([f64; 2], P)>,
+        mut measure: impl FnMut(&mut Rng, &PinholeRays, P, &PixelHit) -> Option<f64>,
+    ) -> Vec<([f64; 3], [f64; 3])> {
+        let (r, origin) = (self.rotation(), self.origin());
+        let r_out = self.out_from_camera.fixed_view::<3, 3>(0, 0).into_owned();
+        let t_out = self.out_from_camera.fixed_view::<3, 1>(0, 3).into_owned();
+        let mut out = Vec::with_capacity(self.size.0 * self.size.1);
+        for v in 0..self.size.1 {
+            for u in 0..self.size.0 {
+                let Some((position, drawn)) = pixel(rng, u, v) else { continue };
+                let (ray, len, dir) = self.ray(position);
+                let Some((hit, object)) = cast_ray_object(objects, &origin, &dir, self.depth.1 * len) else {
+                    continue;
+                };
                 let z = hit.t / len;
-                let cos_inc = -hit.normal.dot(&dir);
-                if z < self.min_depth || cos_inc < cos_max || rng.unit_f64() < self.dropout {
+                let cos_incidence = -hit.normal.dot(&dir);
+                if z < self.depth.0 || cos_incidence < self.cos_max {
                     continue;
                 }
-                let zn = z + self.sigma(z) * rng.normal();
+                let found = PixelHit { pixel: position, hit, object, z, cos_incidence, dir };
+                let Some(zn) = measure(rng, self, drawn, &found) else { continue };
                 let p = r_out * (ray * zn) + t_out;
-                let n = r_out * (r.transpose() * hit.normal);
+                let n = r_out * (r.transpose() * found.hit.normal);
                 out.push(([p.x, p.y, p.z], [n.x, n.y, n.z]));
             }
         }

@@ -107,9 +107,9 @@ impl Scene {
         ground_truth_pairs(&self.fragments, &self.world_from_fragment, rule, seed)
     }
 
-    /// x_i = T x_j for fragments i and j.
-    pub fn relative_pose(&self, i: usize, j: usize) -> Matrix4<f64> {
-        crate::eval::metrics::inverse(&self.world_from_fragment[i]) * self.world_from_fragment[j]
+    /// The pose of fragment j in fragment i's frame: x_i = i_from_j x_j.
+    pub fn i_from_j(&self, i: usize, j: usize) -> Matrix4<f64> {
+        crate::pose::inverse(&self.world_from_fragment[i]) * self.world_from_fragment[j]
     }
 }
 
@@ -172,7 +172,7 @@ pub fn generate_scene(seed: u64, settings: &SynthSettings) -> Result<Scene> {
     let mut world_from_fragment = Vec::with_capacity(settings.fragments);
     for k in 0..settings.fragments {
         let base = poses[k * m];
-        let fragment_from_world = crate::eval::metrics::inverse(&base);
+        let fragment_from_world = crate::pose::inverse(&base);
         let frames: Vec<Vec<([f64; 3], [f64; 3])>> = (k * m..(k + 1) * m)
             .into_par_iter()
             .map(|n| {
@@ -260,8 +260,9 @@ pub fn write_scene(dir: &Path, scene: &Scene, gt: &[GtPair], force: bool) -> Res
     for (k, cloud) in scene.fragments.iter().enumerate() {
         crate::io::write_ply(&dir.join(format!("cloud_bin_{k}.ply")), cloud)?;
     }
-    let log: Vec<LogRecord> = gt.iter().map(|p| LogRecord { i: p.i, j: p.j, n, matrix: p.transform }).collect();
-    let info: Vec<InfoRecord> = gt.iter().map(|p| InfoRecord { i: p.i, j: p.j, n, matrix: p.information }).collect();
+    let log: Vec<LogRecord> = gt.iter().map(|p| LogRecord { i: p.i, j: p.j, n, i_from_j: p.i_from_j }).collect();
+    let info: Vec<InfoRecord> =
+        gt.iter().map(|p| InfoRecord { i: p.i, j: p.j, n, information: p.information }).collect();
     crate::io::write_atomic(&dir.join("gt.log"), format_log(&log).as_bytes())?;
     crate::io::write_atomic(&dir.join("gt.info"), format_info(&info).as_bytes())?;
     let mut pairs = String::from(
@@ -273,7 +274,7 @@ pub fn write_scene(dir: &Path, scene: &Scene, gt: &[GtPair], force: bool) -> Res
     );
     for p in gt {
         pairs.push_str(&format!("# gt.log ({}, {}) overlap {:.3}\n", p.i, p.j, p.overlap));
-        pairs.push_str(&format!("cloud_bin_{}.ply cloud_bin_{}.ply {}\n", p.j, p.i, matrix_row_major(&p.transform)));
+        pairs.push_str(&format!("cloud_bin_{}.ply cloud_bin_{}.ply {}\n", p.j, p.i, matrix_row_major(&p.i_from_j)));
     }
     crate::io::write_atomic(&dir.join("pairs.txt"), pairs.as_bytes())?;
     let mut poses = String::from(
@@ -393,7 +394,7 @@ mod tests {
         );
         for p in &gt {
             assert!(p.overlap >= 0.3 && p.information[(0, 0)] > 100.0);
-            assert!((p.transform - scene.relative_pose(p.i, p.j)).norm() < 1e-12);
+            assert!((p.i_from_j - scene.i_from_j(p.i, p.j)).norm() < 1e-12);
         }
     }
 

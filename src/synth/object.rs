@@ -27,8 +27,7 @@ pub enum ObjectFamily {
 
 /// A random 3D rotation (uniform).
 fn random_rotation(rng: &mut Rng) -> Matrix3<f64> {
-    let [w, x, y, z] = rng.unit_quaternion();
-    nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z)).to_rotation_matrix().into_inner()
+    crate::pose::matrix_from_quaternion(crate::pose::random_rotation(rng, 180.0))
 }
 
 fn blob(rng: &mut Rng) -> Vec<Primitive> {

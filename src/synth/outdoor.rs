@@ -395,120 +395,154 @@ fn build_street(rng: &mut Rng, site: &mut Site, s0: f64, s1: f64) {
     let walk = [rng.uniform(2.0, 4.5), rng.uniform(2.0, 4.5)];
     for (k, side) in [1.0f64, -1.0].into_iter().enumerate() {
         let road_edge = lane + parking[k];
-        let outer = road_edge + walk[k];
-        // Curb stone and sidewalk in 2 m pieces, tilted with the ground along the road.
-        let mut s = s0;
-        while s < s1 {
-            let (x, y, h) = site.drive.point(s + 1.0, side * (road_edge + walk[k] / 2.0));
-            let g = site.ground.gradient(x, y);
-            let pitch = -(g[0] * h.cos() + g[1] * h.sin()).atan();
-            let z = site.ground.height(x, y);
-            let r = rot_z(h) * rot_y(pitch);
-            let stone = Primitive {
-                shape: Shape::Cuboid { half: v(1.0, 0.12, (curb + 0.62) / 2.0) },
-                center: v(0.0, -side * (walk[k] / 2.0 - 0.12), (curb + 0.02 - 0.6) / 2.0),
-                rotation: nalgebra::Matrix3::identity(),
-            };
-            let slab = Primitive {
-                shape: Shape::Cuboid { half: v(1.0, walk[k] / 2.0 - 0.12, (curb + 0.6) / 2.0) },
-                center: v(0.0, side * 0.12, (curb - 0.6) / 2.0),
-                rotation: nalgebra::Matrix3::identity(),
-            };
-            let parts = [stone, slab].iter().map(|p| p.placed(&r, &v(x, y, z))).collect();
-            site.add("curb", parts, Material::SOLID);
-            s += 2.0;
+        let st =
+            StreetSide { side, lane, parking: parking[k], curb, walk: walk[k], road_edge, outer: road_edge + walk[k] };
+        street_curbs(site, &st, (s0, s1));
+        street_buildings(rng, site, &st, (s0, s1));
+        street_posts(rng, site, &st, (s0, s1));
+        street_trees(rng, site, &st, (s0, s1));
+        street_cars(rng, site, &st, (s0, s1));
+    }
+}
+
+/// One side of a street: `side` (+1 left of the drive, -1 right), the lane and parking lane widths, curb
+/// height, sidewalk width, and the distances of the road's edge and the sidewalk's outer edge from the centre.
+struct StreetSide {
+    side: f64,
+    lane: f64,
+    parking: f64,
+    curb: f64,
+    walk: f64,
+    road_edge: f64,
+    outer: f64,
+}
+
+/// Curb stone and sidewalk in 2 m pieces, tilted with the ground along the road.
+fn street_curbs(site: &mut Site, st: &StreetSide, (s0, s1): (f64, f64)) {
+    let mut s = s0;
+    while s < s1 {
+        let (x, y, h) = site.drive.point(s + 1.0, st.side * (st.road_edge + st.walk / 2.0));
+        let g = site.ground.gradient(x, y);
+        let pitch = -(g[0] * h.cos() + g[1] * h.sin()).atan();
+        let z = site.ground.height(x, y);
+        let r = rot_z(h) * rot_y(pitch);
+        let stone = Primitive {
+            shape: Shape::Cuboid { half: v(1.0, 0.12, (st.curb + 0.62) / 2.0) },
+            center: v(0.0, -st.side * (st.walk / 2.0 - 0.12), (st.curb + 0.02 - 0.6) / 2.0),
+            rotation: nalgebra::Matrix3::identity(),
+        };
+        let slab = Primitive {
+            shape: Shape::Cuboid { half: v(1.0, st.walk / 2.0 - 0.12, (st.curb + 0.6) / 2.0) },
+            center: v(0.0, st.side * 0.12, (st.curb - 0.6) / 2.0),
+            rotation: nalgebra::Matrix3::identity(),
+        };
+        let parts = [stone, slab].iter().map(|p| p.placed(&r, &v(x, y, z))).collect();
+        site.add("curb", parts, Material::SOLID);
+        s += 2.0;
+    }
+}
+
+/// Buildings behind the sidewalk, with alleys between them.
+fn street_buildings(rng: &mut Rng, site: &mut Site, st: &StreetSide, (s0, s1): (f64, f64)) {
+    let mut s = s0 + rng.uniform(-10.0, 0.0);
+    while s < s1 {
+        if rng.below(5) == 0 {
+            s += rng.uniform(3.0, 8.0);
         }
-        // Buildings behind the sidewalk, with alleys between them.
-        let mut s = s0 + rng.uniform(-10.0, 0.0);
-        while s < s1 {
-            if rng.below(5) == 0 {
-                s += rng.uniform(3.0, 8.0);
-            }
-            let frontage = rng.uniform(8.0, 25.0);
-            let depth = rng.uniform(8.0, 18.0);
-            let floors = 1 + rng.below(6);
-            let setback = if rng.below(3) == 0 { rng.uniform(1.0, 5.0) } else { 0.0 };
-            let local = building(rng, side, frontage, depth, floors);
-            let mid = s + frontage / 2.0;
-            // Off the road and the sidewalk, also on the inside of a bend.
-            let w = site.add_standing("building", &local, mid, side * (outer + setback + 0.3), side, outer + 0.1);
-            // A hedge or bushes in front of some buildings set back from the walk.
-            if setback > 1.5 {
-                let n = 3 + rng.below(6);
-                let local =
-                    blob_cluster(rng, v(0.0, -side * setback / 2.0, 0.4), [frontage * 0.3, 0.3, 0.1], [0.4, 0.8], n);
-                let m = foliage(rng);
-                site.add("bush", site.place(&local, mid, w, 0.0, 0.0), m);
-            }
-            s += frontage + rng.uniform(0.0, 1.5);
+        let frontage = rng.uniform(8.0, 25.0);
+        let depth = rng.uniform(8.0, 18.0);
+        let floors = 1 + rng.below(6);
+        let setback = if rng.below(3) == 0 { rng.uniform(1.0, 5.0) } else { 0.0 };
+        let local = building(rng, st.side, frontage, depth, floors);
+        let mid = s + frontage / 2.0;
+        // Off the road and the sidewalk, also on the inside of a bend.
+        let w =
+            site.add_standing("building", &local, mid, st.side * (st.outer + setback + 0.3), st.side, st.outer + 0.1);
+        // A hedge or bushes in front of some buildings set back from the walk.
+        if setback > 1.5 {
+            let n = 3 + rng.below(6);
+            let local =
+                blob_cluster(rng, v(0.0, -st.side * setback / 2.0, 0.4), [frontage * 0.3, 0.3, 0.1], [0.4, 0.8], n);
+            let m = foliage(rng);
+            site.add("bush", site.place(&local, mid, w, 0.0, 0.0), m);
         }
-        // Street lights and sign posts near the curb.
-        let mut s = s0 + rng.uniform(0.0, 15.0);
-        while s < s1 {
-            let w = side * (road_edge + 0.5);
-            if rng.below(3) == 0 {
-                let h = rng.uniform(2.2, 3.0);
-                let plate = if rng.below(2) == 0 {
-                    cuboid(-0.03, 0.03, -0.35, 0.35, h - 0.6, h)
-                } else {
-                    Primitive::cylinder(v(0.0, 0.0, h - 0.35), 0.33, 0.02, rot_y(FRAC_PI_2))
-                };
-                let local = vec![Primitive::upright_cylinder(v(0.0, 0.0, h / 2.0), 0.035, h / 2.0 + 0.3), plate];
-                site.add("sign", site.place(&local, s, w, 0.0, 0.3), Material::SOLID);
+        s += frontage + rng.uniform(0.0, 1.5);
+    }
+}
+
+/// Street lights and sign posts near the curb.
+fn street_posts(rng: &mut Rng, site: &mut Site, st: &StreetSide, (s0, s1): (f64, f64)) {
+    let mut s = s0 + rng.uniform(0.0, 15.0);
+    while s < s1 {
+        let w = st.side * (st.road_edge + 0.5);
+        if rng.below(3) == 0 {
+            let h = rng.uniform(2.2, 3.0);
+            let plate = if rng.below(2) == 0 {
+                cuboid(-0.03, 0.03, -0.35, 0.35, h - 0.6, h)
             } else {
-                let (h, r, arm) = (rng.uniform(6.0, 9.0), rng.uniform(0.07, 0.12), rng.uniform(1.2, 2.5));
-                let local = vec![
-                    Primitive::upright_cylinder(v(0.0, 0.0, h / 2.0), r, h / 2.0 + 0.3),
-                    Primitive::cylinder(v(0.0, -side * arm / 2.0, h), 0.05, arm / 2.0, rot_x(FRAC_PI_2)),
-                    cuboid(-0.2, 0.2, -side * (arm - 0.3), -side * (arm + 0.3), h - 0.25, h - 0.05),
-                ];
-                site.add("pole", site.place(&local, s, w, 0.0, 0.3), Material::SOLID);
-            }
-            s += rng.uniform(12.0, 35.0);
+                Primitive::cylinder(v(0.0, 0.0, h - 0.35), 0.33, 0.02, rot_y(FRAC_PI_2))
+            };
+            let local = vec![Primitive::upright_cylinder(v(0.0, 0.0, h / 2.0), 0.035, h / 2.0 + 0.3), plate];
+            site.add("sign", site.place(&local, s, w, 0.0, 0.3), Material::SOLID);
+        } else {
+            let (h, r, arm) = (rng.uniform(6.0, 9.0), rng.uniform(0.07, 0.12), rng.uniform(1.2, 2.5));
+            let local = vec![
+                Primitive::upright_cylinder(v(0.0, 0.0, h / 2.0), r, h / 2.0 + 0.3),
+                Primitive::cylinder(v(0.0, -st.side * arm / 2.0, h), 0.05, arm / 2.0, rot_x(FRAC_PI_2)),
+                cuboid(-0.2, 0.2, -st.side * (arm - 0.3), -st.side * (arm + 0.3), h - 0.25, h - 0.05),
+            ];
+            site.add("pole", site.place(&local, s, w, 0.0, 0.3), Material::SOLID);
         }
-        // Trees on the sidewalk, between the lights.
-        let mut s = s0 + rng.uniform(0.0, 10.0);
+        s += rng.uniform(12.0, 35.0);
+    }
+}
+
+/// Trees on the sidewalk, between the lights.
+fn street_trees(rng: &mut Rng, site: &mut Site, st: &StreetSide, (s0, s1): (f64, f64)) {
+    let mut s = s0 + rng.uniform(0.0, 10.0);
+    while s < s1 {
+        if rng.below(4) != 0 {
+            let w = st.side * (st.road_edge + st.walk * rng.uniform(0.5, 0.8));
+            let trunk_h = rng.uniform(2.0, 3.5);
+            let r = rng.uniform(0.12, 0.25);
+            site.add(
+                "tree",
+                site.place(
+                    &[Primitive::upright_cylinder(v(0.0, 0.0, trunk_h / 2.0), r, trunk_h / 2.0 + 0.3)],
+                    s,
+                    w,
+                    0.0,
+                    0.3,
+                ),
+                Material::SOLID,
+            );
+            let crown = rng.uniform(1.2, 2.5);
+            let n = 4 + rng.below(6);
+            let local = blob_cluster(
+                rng,
+                v(0.0, 0.0, trunk_h + crown),
+                [crown * 0.6, crown * 0.6, crown * 0.5],
+                [crown * 0.4, crown * 0.8],
+                n,
+            );
+            let m = foliage(rng);
+            site.add("crown", site.place(&local, s, w, 0.0, 0.0), m);
+        }
+        s += rng.uniform(7.0, 20.0);
+    }
+}
+
+/// Parked cars in the parking lane, if the side has one.
+fn street_cars(rng: &mut Rng, site: &mut Site, st: &StreetSide, (s0, s1): (f64, f64)) {
+    if st.parking > 0.0 {
+        let mut s = s0 + rng.uniform(0.0, 8.0);
         while s < s1 {
             if rng.below(4) != 0 {
-                let w = side * (road_edge + walk[k] * rng.uniform(0.5, 0.8));
-                let trunk_h = rng.uniform(2.0, 3.5);
-                let r = rng.uniform(0.12, 0.25);
-                site.add(
-                    "tree",
-                    site.place(
-                        &[Primitive::upright_cylinder(v(0.0, 0.0, trunk_h / 2.0), r, trunk_h / 2.0 + 0.3)],
-                        s,
-                        w,
-                        0.0,
-                        0.3,
-                    ),
-                    Material::SOLID,
-                );
-                let crown = rng.uniform(1.2, 2.5);
-                let n = 4 + rng.below(6);
-                let local = blob_cluster(
-                    rng,
-                    v(0.0, 0.0, trunk_h + crown),
-                    [crown * 0.6, crown * 0.6, crown * 0.5],
-                    [crown * 0.4, crown * 0.8],
-                    n,
-                );
-                let m = foliage(rng);
-                site.add("crown", site.place(&local, s, w, 0.0, 0.0), m);
+                let local = car(rng);
+                let w = st.side * (st.lane + st.parking / 2.0 + rng.uniform(-0.15, 0.15));
+                site.add("car", site.place(&local, s, w, rng.uniform(-0.04, 0.04), 0.0), Material::SOLID);
             }
-            s += rng.uniform(7.0, 20.0);
-        }
-        // Parked cars in the parking lane.
-        if parking[k] > 0.0 {
-            let mut s = s0 + rng.uniform(0.0, 8.0);
-            while s < s1 {
-                if rng.below(4) != 0 {
-                    let local = car(rng);
-                    let w = side * (lane + parking[k] / 2.0 + rng.uniform(-0.15, 0.15));
-                    site.add("car", site.place(&local, s, w, rng.uniform(-0.04, 0.04), 0.0), Material::SOLID);
-                }
-                s += rng.uniform(5.5, 9.0);
-            }
+            s += rng.uniform(5.5, 9.0);
         }
     }
 }
@@ -547,148 +581,134 @@ fn build_yard(rng: &mut Rng, site: &mut Site, s0: f64, s1: f64) {
         let mut s = s0 + rng.uniform(-10.0, 0.0);
         while s < s1 {
             let w0 = side * (corridor + rng.uniform(0.5, 3.0));
-            match rng.below(6) {
-                0 | 1 => {
-                    // A row of container stacks, end to end.
-                    let length = if rng.below(2) == 0 { 6.06 } else { 12.19 };
-                    let count = 1 + rng.below(4);
-                    for c in 0..count {
-                        let mid = s + (c as f64 + 0.5) * (length + 0.3);
-                        let mut stack = Vec::new();
-                        for level in 0..1 + rng.below(3) {
-                            stack.extend(container(length, level as f64 * 2.6 + 0.01).into_iter().map(|p| {
-                                p.placed(
-                                    &rot_z(rng.uniform(-0.02, 0.02)),
-                                    &v(rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), 0.0),
-                                )
-                            }));
-                        }
-                        site.add_standing("container", &stack, mid, w0 + side * 1.3, side, 0.0);
-                    }
-                    s += count as f64 * (length + 0.3) + rng.uniform(2.0, 8.0);
-                }
-                2 => {
-                    // Storage tanks with a roof cap, and bollards in front.
-                    let r = rng.uniform(2.0, 6.0);
-                    let h = rng.uniform(5.0, 14.0);
-                    let w = w0 + side * (r + 1.5);
-                    let local = vec![
-                        Primitive::upright_cylinder(v(0.0, 0.0, h / 2.0 - 0.5), r, h / 2.0 + 0.5),
-                        Primitive::upright_cylinder(v(0.0, 0.0, h + 0.3), r * 0.6, 0.3),
-                    ];
-                    site.add("tank", site.place(&local, s + r, w, 0.0, 0.3), Material::SOLID);
-                    for b in 0..3 + rng.below(4) {
-                        let x = s + r * (b as f64 * 0.6 - 0.8);
-                        let local = [Primitive::upright_cylinder(v(0.0, 0.0, 0.3), 0.12, 0.9)];
-                        site.add("bollard", site.place(&local, x, w0, 0.0, 0.3), Material::SOLID);
-                    }
-                    s += 2.0 * r + rng.uniform(3.0, 8.0);
-                }
-                3 => {
-                    // A gable-roofed shed, ridge along the drive.
-                    let (length, depth) = (rng.uniform(15.0, 35.0), rng.uniform(10.0, 20.0));
-                    let eave = rng.uniform(4.0, 7.0);
-                    let pitch = rng.uniform(0.2, 0.4);
-                    let hx = length / 2.0;
-                    let yc = side * depth / 2.0;
-                    let half_span = depth / 2.0;
-                    let rafter = half_span / pitch.cos();
-                    let rise = half_span * pitch.tan();
-                    let mut local = vec![cuboid(-hx, hx, 0.0, side * depth, 0.0, eave)];
-                    for s2 in [-1.0, 1.0] {
-                        let centre = v(0.0, yc + s2 * half_span / 2.0, eave + rise / 2.0);
-                        let tilt = rot_x(-s2 * pitch);
-                        local.push(Primitive {
-                            shape: Shape::Cuboid { half: v(hx + 0.3, rafter / 2.0 + 0.2, 0.1) },
-                            center: centre,
-                            rotation: tilt,
-                        });
-                    }
-                    // Roll-up doors: shallow recesses framed by posts on the drive side.
-                    for d in 0..(length / 8.0) as usize {
-                        let x = -hx + 4.0 + d as f64 * 8.0;
-                        local.push(cuboid(x - 2.2, x - 1.9, 0.0, -side * 0.3, 0.0, eave * 0.7));
-                        local.push(cuboid(x + 1.9, x + 2.2, 0.0, -side * 0.3, 0.0, eave * 0.7));
-                    }
-                    site.add_standing("shed", &local, s + hx, w0, side, corridor + 0.2);
-                    s += length + rng.uniform(3.0, 10.0);
-                }
-                4 => {
-                    // A parked semi-trailer: a long box on a raised frame, wheels at the rear, legs at the front.
-                    let (len, floor) = (rng.uniform(12.0, 13.6), rng.uniform(1.1, 1.3));
-                    let hx = len / 2.0;
-                    let mut local = vec![cuboid(-hx, hx, -1.27, 1.27, floor, floor + 2.7)];
-                    for a in 0..3 {
-                        let x = hx - 1.5 - a as f64 * 1.3;
-                        local.push(Primitive::cylinder(v(x, 0.0, 0.5), 0.5, 1.25, rot_x(FRAC_PI_2)));
-                    }
-                    for sy in [-1.0, 1.0] {
-                        local.push(cuboid(-hx + 2.5, -hx + 2.7, sy * 1.0, sy * 1.2, 0.0, floor));
-                    }
-                    let w = w0 + side * 1.5;
-                    site.add("trailer", site.place(&local, s + hx, w, rng.uniform(-0.1, 0.1), 0.0), Material::SOLID);
-                    s += len + rng.uniform(2.0, 6.0);
-                }
-                _ => {
-                    // A gravel heap (a buried sphere) behind a line of jersey barriers.
-                    let r = rng.uniform(3.0, 7.0);
-                    let h = rng.uniform(1.5, 3.5);
-                    let w = w0 + side * (r + 2.0);
-                    let local = [Primitive::sphere(v(0.0, 0.0, h - r), r)];
-                    site.add("heap", site.place(&local, s + r, w, 0.0, 0.0), Material::SOLID);
-                    let barriers = 1 + rng.below(4);
-                    for b in 0..barriers {
-                        let local = [cuboid(-1.5, 1.5, -0.3, 0.3, 0.0, 0.3), cuboid(-1.5, 1.5, -0.12, 0.12, 0.3, 0.81)];
-                        let local: Vec<Primitive> = local.iter().map(|p| sunk(p, 0.3)).collect();
-                        site.add(
-                            "barrier",
-                            site.place(&local, s + 1.6 + b as f64 * 3.1, w0, 0.0, 0.3),
-                            Material::SOLID,
-                        );
-                    }
-                    s += 2.0 * r + rng.uniform(2.0, 6.0);
-                }
-            }
+            s = match rng.below(6) {
+                0 | 1 => yard_containers(rng, site, s, (w0, side)),
+                2 => yard_tank(rng, site, s, (w0, side)),
+                3 => yard_shed(rng, site, s, (w0, side), corridor),
+                4 => yard_trailer(rng, site, s, (w0, side)),
+                _ => yard_heap(rng, site, s, (w0, side)),
+            };
         }
-        // A fence line far out: posts every 3 m and a top rail, in 30 m pieces.
-        let w = side * rng.uniform(25.0, 40.0);
-        let mut s = s0;
-        while s < s1 {
-            let mut local = Vec::new();
-            for p in 0..10 {
-                local.push(Primitive::upright_cylinder(v(p as f64 * 3.0, 0.0, 0.9), 0.03, 1.2));
-            }
-            local.push(Primitive::cylinder(v(13.5, 0.0, 2.0), 0.025, 13.5, rot_y(FRAC_PI_2)));
-            site.add("fence", site.place(&local, s, w, 0.0, 0.3), Material::SOLID);
-            s += 30.0;
+        yard_fence(rng, site, (s0, s1), side);
+    }
+}
+
+/// A row of container stacks, end to end. Returns where the next piece may start.
+fn yard_containers(rng: &mut Rng, site: &mut Site, s: f64, (w0, side): (f64, f64)) -> f64 {
+    let length = if rng.below(2) == 0 { 6.06 } else { 12.19 };
+    let count = 1 + rng.below(4);
+    for c in 0..count {
+        let mid = s + (c as f64 + 0.5) * (length + 0.3);
+        let mut stack = Vec::new();
+        for level in 0..1 + rng.below(3) {
+            stack.extend(container(length, level as f64 * 2.6 + 0.01).into_iter().map(|p| {
+                p.placed(&rot_z(rng.uniform(-0.02, 0.02)), &v(rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), 0.0))
+            }));
         }
+        site.add_standing("container", &stack, mid, w0 + side * 1.3, side, 0.0);
+    }
+    s + (count as f64 * (length + 0.3) + rng.uniform(2.0, 8.0))
+}
+
+/// Storage tanks with a roof cap, and bollards in front. Returns where the next piece may start.
+fn yard_tank(rng: &mut Rng, site: &mut Site, s: f64, (w0, side): (f64, f64)) -> f64 {
+    let r = rng.uniform(2.0, 6.0);
+    let h = rng.uniform(5.0, 14.0);
+    let w = w0 + side * (r + 1.5);
+    let local = vec![
+        Primitive::upright_cylinder(v(0.0, 0.0, h / 2.0 - 0.5), r, h / 2.0 + 0.5),
+        Primitive::upright_cylinder(v(0.0, 0.0, h + 0.3), r * 0.6, 0.3),
+    ];
+    site.add("tank", site.place(&local, s + r, w, 0.0, 0.3), Material::SOLID);
+    for b in 0..3 + rng.below(4) {
+        let x = s + r * (b as f64 * 0.6 - 0.8);
+        let local = [Primitive::upright_cylinder(v(0.0, 0.0, 0.3), 0.12, 0.9)];
+        site.add("bollard", site.place(&local, x, w0, 0.0, 0.3), Material::SOLID);
+    }
+    s + (2.0 * r + rng.uniform(3.0, 8.0))
+}
+
+/// A gable-roofed shed, ridge along the drive. Returns where the next piece may start.
+fn yard_shed(rng: &mut Rng, site: &mut Site, s: f64, (w0, side): (f64, f64), corridor: f64) -> f64 {
+    let (length, depth) = (rng.uniform(15.0, 35.0), rng.uniform(10.0, 20.0));
+    let eave = rng.uniform(4.0, 7.0);
+    let pitch = rng.uniform(0.2, 0.4);
+    let hx = length / 2.0;
+    let yc = side * depth / 2.0;
+    let half_span = depth / 2.0;
+    let rafter = half_span / pitch.cos();
+    let rise = half_span * pitch.tan();
+    let mut local = vec![cuboid(-hx, hx, 0.0, side * depth, 0.0, eave)];
+    for s2 in [-1.0, 1.0] {
+        let centre = v(0.0, yc + s2 * half_span / 2.0, eave + rise / 2.0);
+        let tilt = rot_x(-s2 * pitch);
+        local.push(Primitive {
+            shape: Shape::Cuboid { half: v(hx + 0.3, rafter / 2.0 + 0.2, 0.1) },
+            center: centre,
+            rotation: tilt,
+        });
+    }
+    // Roll-up doors: shallow recesses framed by posts on the drive side.
+    for d in 0..(length / 8.0) as usize {
+        let x = -hx + 4.0 + d as f64 * 8.0;
+        local.push(cuboid(x - 2.2, x - 1.9, 0.0, -side * 0.3, 0.0, eave * 0.7));
+        local.push(cuboid(x + 1.9, x + 2.2, 0.0, -side * 0.3, 0.0, eave * 0.7));
+    }
+    site.add_standing("shed", &local, s + hx, w0, side, corridor + 0.2);
+    s + (length + rng.uniform(3.0, 10.0))
+}
+
+/// A parked semi-trailer: a long box on a raised frame, wheels at the rear, legs at the front. Returns where the next piece may start.
+fn yard_trailer(rng: &mut Rng, site: &mut Site, s: f64, (w0, side): (f64, f64)) -> f64 {
+    let (len, floor) = (rng.uniform(12.0, 13.6), rng.uniform(1.1, 1.3));
+    let hx = len / 2.0;
+    let mut local = vec![cuboid(-hx, hx, -1.27, 1.27, floor, floor + 2.7)];
+    for a in 0..3 {
+        let x = hx - 1.5 - a as f64 * 1.3;
+        local.push(Primitive::cylinder(v(x, 0.0, 0.5), 0.5, 1.25, rot_x(FRAC_PI_2)));
+    }
+    for sy in [-1.0, 1.0] {
+        local.push(cuboid(-hx + 2.5, -hx + 2.7, sy * 1.0, sy * 1.2, 0.0, floor));
+    }
+    let w = w0 + side * 1.5;
+    site.add("trailer", site.place(&local, s + hx, w, rng.uniform(-0.1, 0.1), 0.0), Material::SOLID);
+    s + (len + rng.uniform(2.0, 6.0))
+}
+
+/// A gravel heap (a buried sphere) behind a line of jersey barriers. Returns where the next piece may start.
+fn yard_heap(rng: &mut Rng, site: &mut Site, s: f64, (w0, side): (f64, f64)) -> f64 {
+    let r = rng.uniform(3.0, 7.0);
+    let h = rng.uniform(1.5, 3.5);
+    let w = w0 + side * (r + 2.0);
+    let local = [Primitive::sphere(v(0.0, 0.0, h - r), r)];
+    site.add("heap", site.place(&local, s + r, w, 0.0, 0.0), Material::SOLID);
+    let barriers = 1 + rng.below(4);
+    for b in 0..barriers {
+        let local = [cuboid(-1.5, 1.5, -0.3, 0.3, 0.0, 0.3), cuboid(-1.5, 1.5, -0.12, 0.12, 0.3, 0.81)];
+        let local: Vec<Primitive> = local.iter().map(|p| sunk(p, 0.3)).collect();
+        site.add("barrier", site.place(&local, s + 1.6 + b as f64 * 3.1, w0, 0.0, 0.3), Material::SOLID);
+    }
+    s + (2.0 * r + rng.uniform(2.0, 6.0))
+}
+
+/// A fence line far out: posts every 3 m and a top rail, in 30 m pieces.
+fn yard_fence(rng: &mut Rng, site: &mut Site, (s0, s1): (f64, f64), side: f64) {
+    let w = side * rng.uniform(25.0, 40.0);
+    let mut s = s0;
+    while s < s1 {
+        let mut local = Vec::new();
+        for p in 0..10 {
+            local.push(Primitive::upright_cylinder(v(p as f64 * 3.0, 0.0, 0.9), 0.03, 1.2));
+        }
+        local.push(Primitive::cylinder(v(13.5, 0.0, 2.0), 0.025, 13.5, rot_y(FRAC_PI_2)));
+        site.add("fence", site.place(&local, s, w, 0.0, 0.3), Material::SOLID);
+        s += 30.0;
     }
 }
 
 /// Draws and scans a LiDAR scene (`lidar` or `heldout-lidar`) with `sweeps` sweeps.
 pub fn generate_lidar_scene(seed: u64, style: Style, sweeps: usize, overrides: &Overrides) -> Result<LidarScene> {
-    let yard = match style {
-        Style::Lidar => false,
-        Style::HeldoutLidar => true,
-        _ => return Err(Error::invalid("synth: not a LiDAR style")),
-    };
-    if sweeps == 0 {
-        return Err(Error::invalid("synth: fragments must be at least 1"));
-    }
-    if overrides.voxel.is_some()
-        || overrides.frames_per_fragment.is_some()
-        || overrides.object_scenes.is_some()
-        || overrides.repeated
-        || overrides.orbit
-    {
-        return Err(Error::invalid(
-            "synth: the LiDAR styles take no voxel, frames, scene kind, repeated rooms or orbit (one sweep per \
-             fragment, no fusion); --width sets the azimuth steps per revolution",
-        ));
-    }
-    if overrides.width.is_some_and(|w| w < 4) {
-        return Err(Error::invalid("synth: the scanner needs at least 4 azimuth steps"));
-    }
+    let yard = check_lidar_request(style, sweeps, overrides)?;
     let mut rng = Rng::derived(seed, STREAM_RECIPE);
     let mut scanner = if yard { yard_scanner(&mut rng) } else { street_scanner(&mut rng) };
     if let Some(w) = overrides.width {
@@ -696,34 +716,8 @@ pub fn generate_lidar_scene(seed: u64, style: Style, sweeps: usize, overrides: &
     }
     let mount_height = if yard { rng.uniform(1.8, 2.1) } else { rng.uniform(1.7, 2.0) };
     let n_waves = if yard { 1 } else { 2 + rng.below(2) };
-    let max_slope = if yard { 0.01 } else { 0.03 };
-    let ground = Ground {
-        base: 0.0,
-        slope: [rng.uniform(-max_slope, max_slope), rng.uniform(-max_slope, max_slope)],
-        waves: (0..n_waves)
-            .map(|_| {
-                let (len, dir) = (rng.uniform(25.0, 80.0), rng.uniform(0.0, TAU));
-                let k = TAU / len;
-                (
-                    rng.uniform(0.03, if yard { 0.08 } else { 0.2 }),
-                    [k * dir.cos(), k * dir.sin()],
-                    rng.uniform(0.0, TAU),
-                )
-            })
-            .collect(),
-    };
-    let drive = DriveRecord {
-        curvature: if yard {
-            [rng.uniform(-0.015, 0.015), rng.uniform(0.01, 0.04)]
-        } else {
-            [rng.uniform(-0.008, 0.008), rng.uniform(0.0, 0.02)]
-        },
-        wavelength: rng.uniform(40.0, 120.0),
-        phase: rng.uniform(0.0, TAU),
-        heading: rng.uniform(-PI, PI),
-        lane_offset: if yard { rng.uniform(-0.5, 0.5) } else { -rng.uniform(1.4, 2.0) },
-        step: if yard { [1.2, 3.0] } else { [1.0, 2.5] },
-    };
+    let ground = draw_ground(&mut rng, yard, n_waves);
+    let drive = draw_drive(&mut rng, yard);
     // Sweep positions along the centre line.
     let mut pose_rng = Rng::derived(seed, STREAM_POSES);
     let mut along = vec![0.0];
@@ -747,19 +741,7 @@ pub fn generate_lidar_scene(seed: u64, style: Style, sweeps: usize, overrides: &
     for o in &objects {
         *families.entry(o.kind.to_string()).or_insert(0) += 1;
     }
-    let poses: Vec<(Matrix4<f64>, [f64; 3])> = along
-        .iter()
-        .map(|&s| {
-            let (x, y, heading) = path.point(s, drive.lane_offset);
-            let g = ground.gradient(x, y);
-            let (c, sn) = (heading.cos(), heading.sin());
-            let pitch = -(g[0] * c + g[1] * sn).atan() + pose_rng.normal() * 0.2f64.to_radians();
-            let roll = (-g[0] * sn + g[1] * c).atan() + pose_rng.normal() * 0.2f64.to_radians();
-            let yaw = heading + pose_rng.normal() * 0.3f64.to_radians();
-            let position = v(x, y, ground.height(x, y) + mount_height);
-            (sensor_pose(position, yaw, pitch, roll), [yaw.to_degrees(), pitch.to_degrees(), roll.to_degrees()])
-        })
-        .collect();
+    let poses = sweep_poses(&path, &ground, (&along, drive.lane_offset, mount_height), &mut pose_rng);
     let world = World { ground: Some(ground.clone()), objects, materials };
     let fragments: Vec<PointCloud> = poses
         .par_iter()
@@ -798,6 +780,92 @@ pub fn generate_lidar_scene(seed: u64, style: Style, sweeps: usize, overrides: &
         footprints: Vec::new(),
     };
     Ok(LidarScene { fragments, world_from_fragment: poses.into_iter().map(|(p, _)| p).collect(), room, recipe })
+}
+
+/// Refuses requests the LiDAR styles cannot honour; true for `heldout-lidar` (the yard).
+fn check_lidar_request(style: Style, sweeps: usize, overrides: &Overrides) -> Result<bool> {
+    let yard = match style {
+        Style::Lidar => false,
+        Style::HeldoutLidar => true,
+        _ => return Err(Error::invalid("synth: not a LiDAR style")),
+    };
+    if sweeps == 0 {
+        return Err(Error::invalid("synth: fragments must be at least 1"));
+    }
+    if overrides.voxel.is_some()
+        || overrides.frames_per_fragment.is_some()
+        || overrides.object_scenes.is_some()
+        || overrides.repeated
+        || overrides.orbit
+    {
+        return Err(Error::invalid(
+            "synth: the LiDAR styles take no voxel, frames, scene kind, repeated rooms or orbit (one sweep per \
+             fragment, no fusion); --width sets the azimuth steps per revolution",
+        ));
+    }
+    if overrides.width.is_some_and(|w| w < 4) {
+        return Err(Error::invalid("synth: the scanner needs at least 4 azimuth steps"));
+    }
+    Ok(yard)
+}
+
+/// The ground under a LiDAR scene: a gentle slope and `n_waves` long waves (flatter in the yard).
+fn draw_ground(rng: &mut Rng, yard: bool, n_waves: usize) -> Ground {
+    let max_slope = if yard { 0.01 } else { 0.03 };
+    Ground {
+        base: 0.0,
+        slope: [rng.uniform(-max_slope, max_slope), rng.uniform(-max_slope, max_slope)],
+        waves: (0..n_waves)
+            .map(|_| {
+                let (len, dir) = (rng.uniform(25.0, 80.0), rng.uniform(0.0, TAU));
+                let k = TAU / len;
+                (
+                    rng.uniform(0.03, if yard { 0.08 } else { 0.2 }),
+                    [k * dir.cos(), k * dir.sin()],
+                    rng.uniform(0.0, TAU),
+                )
+            })
+            .collect(),
+    }
+}
+
+/// The drive's centre line: curvature, its waves, heading, the lane the vehicle keeps and the sweep spacing.
+fn draw_drive(rng: &mut Rng, yard: bool) -> DriveRecord {
+    DriveRecord {
+        curvature: if yard {
+            [rng.uniform(-0.015, 0.015), rng.uniform(0.01, 0.04)]
+        } else {
+            [rng.uniform(-0.008, 0.008), rng.uniform(0.0, 0.02)]
+        },
+        wavelength: rng.uniform(40.0, 120.0),
+        phase: rng.uniform(0.0, TAU),
+        heading: rng.uniform(-PI, PI),
+        lane_offset: if yard { rng.uniform(-0.5, 0.5) } else { -rng.uniform(1.4, 2.0) },
+        step: if yard { [1.2, 3.0] } else { [1.0, 2.5] },
+    }
+}
+
+/// The sensor pose of each sweep at arc lengths `along` (the vehicle on the ground at `lane_offset`, the
+/// scanner `mount_height` above it, with small attitude jitter from `rng`), and its yaw, pitch and roll in degrees.
+fn sweep_poses(
+    path: &Drive,
+    ground: &Ground,
+    (along, lane_offset, mount_height): (&[f64], f64, f64),
+    rng: &mut Rng,
+) -> Vec<(Matrix4<f64>, [f64; 3])> {
+    along
+        .iter()
+        .map(|&s| {
+            let (x, y, heading) = path.point(s, lane_offset);
+            let g = ground.gradient(x, y);
+            let (c, sn) = (heading.cos(), heading.sin());
+            let pitch = -(g[0] * c + g[1] * sn).atan() + rng.normal() * 0.2f64.to_radians();
+            let roll = (-g[0] * sn + g[1] * c).atan() + rng.normal() * 0.2f64.to_radians();
+            let yaw = heading + rng.normal() * 0.3f64.to_radians();
+            let position = v(x, y, ground.height(x, y) + mount_height);
+            (sensor_pose(position, yaw, pitch, roll), [yaw.to_degrees(), pitch.to_degrees(), roll.to_degrees()])
+        })
+        .collect()
 }
 
 /// The ground-truth rule for LiDAR sweeps: `rule` with its distances times [`GT_SCALE`].

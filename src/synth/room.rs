@@ -314,9 +314,82 @@ pub fn generate_room_with(rng: &mut Rng, spec: &RoomSpec) -> Room {
 
 /// Floor, ceiling, walls and the things fixed to them.
 fn build_shell(room: &mut Room, rng: &mut Rng) {
+    let mut shell = build_walls(room, rng);
+    add_doors(room, &mut shell, rng);
+    add_windows(room, &mut shell, rng);
+    add_pictures(room, &mut shell, rng);
+    add_pillar(room, &mut shell, rng);
+    add_wall_shelves(room, &mut shell, rng);
+    add_ceiling_light(room, rng);
+}
+
+/// Wall thickness (and the floor's and ceiling's), metres.
+const WALL_THICKNESS: f64 = 0.15;
+
+/// One wall edge from `a` to `b` (floor-plan corners, the room on the left).
+#[derive(Clone, Copy)]
+struct WallEdge {
+    a: [f64; 2],
+    b: [f64; 2],
+}
+
+impl WallEdge {
+    fn len(&self) -> f64 {
+        (self.b[0] - self.a[0]).hypot(self.b[1] - self.a[1])
+    }
+
+    fn yaw(&self) -> f64 {
+        (self.b[1] - self.a[1]).atan2(self.b[0] - self.a[0])
+    }
+
+    /// Wall-local placement: position s along the edge, offset o into the room, height z.
+    fn at(&self, s: f64, o: f64, z: f64) -> Vector3<f64> {
+        let (a, b) = (self.a, self.b);
+        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let e = [(b[0] - a[0]) / len, (b[1] - a[1]) / len];
+        Vector3::new(a[0] + e[0] * s - e[1] * o, a[1] + e[1] * s + e[0] * o, z)
+    }
+
+    /// Box on the wall: centred at s along the edge, `half_w` wide each way, from offset o0 to o1 into the
+    /// room, between heights z0 and z1.
+    fn boxed(&self, s: f64, half_w: f64, o0: f64, o1: f64, z0: f64, z1: f64) -> Primitive {
+        Primitive::cuboid(
+            self.at(s, (o0 + o1) / 2.0, (z0 + z1) / 2.0),
+            Vector3::new(half_w, (o1 - o0) / 2.0, (z1 - z0) / 2.0),
+            self.yaw(),
+        )
+    }
+}
+
+/// The walls of a room and, per wall, the stretches (along the edge) its fixtures already take.
+struct Shell {
+    edges: Vec<([f64; 2], [f64; 2])>,
+    fixtures: Vec<Vec<(f64, f64)>>,
+}
+
+impl Shell {
+    fn edge(&self, k: usize) -> WallEdge {
+        let (a, b) = self.edges[k];
+        WallEdge { a, b }
+    }
+
+    /// Whether the stretch s0..s1 of wall k is free.
+    fn free(&self, k: usize, s0: f64, s1: f64) -> bool {
+        self.fixtures[k].iter().all(|&(a, b)| s1 < a || s0 > b)
+    }
+
+    /// A random wall, if it is at least `min_len` long.
+    fn pick_edge(&self, rng: &mut Rng, min_len: f64) -> Option<usize> {
+        let k = rng.below(self.edges.len());
+        (self.edge(k).len() >= min_len).then_some(k)
+    }
+}
+
+/// Floor, ceiling and the walls with their skirting boards.
+fn build_walls(room: &mut Room, rng: &mut Rng) -> Shell {
     let (lo, hi) = room.bounds();
     let h = room.height;
-    let t = 0.15;
+    let t = WALL_THICKNESS;
     let v = Vector3::new;
     let slab = |x0: f64, x1: f64, y0: f64, y1: f64, z0: f64, z1: f64| {
         Primitive::cuboid(
@@ -328,180 +401,185 @@ fn build_shell(room: &mut Room, rng: &mut Rng) {
     room.objects.push(Object::new("floor", vec![slab(lo[0] - t, hi[0] + t, lo[1] - t, hi[1] + t, -t, 0.0)]));
     room.objects.push(Object::new("ceiling", vec![slab(lo[0] - t, hi[0] + t, lo[1] - t, hi[1] + t, h, h + t)]));
     let edges: Vec<_> = room.edges().collect();
-    // Wall-local placement: position s along the edge, offset o into the room, height z.
-    let on_wall = |a: [f64; 2], b: [f64; 2], s: f64, o: f64, z: f64| {
-        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
-        let e = [(b[0] - a[0]) / len, (b[1] - a[1]) / len];
-        v(a[0] + e[0] * s - e[1] * o, a[1] + e[1] * s + e[0] * o, z)
-    };
-    // Box on a wall: centred at s along the edge, `depth` into the room, between heights z0 and z1.
-    let wall_box = |a: [f64; 2], b: [f64; 2], s: f64, half_w: f64, o0: f64, o1: f64, z0: f64, z1: f64| {
-        let yaw = (b[1] - a[1]).atan2(b[0] - a[0]);
-        Primitive::cuboid(
-            on_wall(a, b, s, (o0 + o1) / 2.0, (z0 + z1) / 2.0),
-            v(half_w, (o1 - o0) / 2.0, (z1 - z0) / 2.0),
-            yaw,
-        )
-    };
     let base_h = rng.uniform(0.06, 0.12);
     let base_t = rng.uniform(0.01, 0.02);
     let mut fixtures: Vec<Vec<(f64, f64)>> = vec![Vec::new(); edges.len()];
     for (k, &(a, b)) in edges.iter().enumerate() {
-        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
-        let mut parts = vec![wall_box(a, b, len / 2.0, len / 2.0 + t, -t, 0.0, -t, h + t)];
-        parts.push(wall_box(a, b, len / 2.0, len / 2.0, 0.0, base_t, 0.0, base_h));
+        let e = WallEdge { a, b };
+        let len = e.len();
+        let mut parts = vec![e.boxed(len / 2.0, len / 2.0 + t, -t, 0.0, -t, h + t)];
+        parts.push(e.boxed(len / 2.0, len / 2.0, 0.0, base_t, 0.0, base_h));
         room.objects.push(Object::new("wall", parts));
         fixtures[k].push((-1.0, 0.05));
         fixtures[k].push((len - 0.05, len + 1.0));
     }
-    let free = |fixtures: &Vec<(f64, f64)>, s0: f64, s1: f64| fixtures.iter().all(|&(a, b)| s1 < a || s0 > b);
-    let pick_edge = |rng: &mut Rng, min_len: f64| {
-        let k = rng.below(edges.len());
-        let (a, b) = edges[k];
-        ((b[0] - a[0]).hypot(b[1] - a[1]) >= min_len).then_some(k)
-    };
-    // Doors: panel, frame and handle; keep the floor in front free.
+    Shell { edges, fixtures }
+}
+
+/// Doors: panel, frame and handle; keep the floor in front free.
+fn add_doors(room: &mut Room, shell: &mut Shell, rng: &mut Rng) {
+    let h = room.height;
     for _ in 0..1 + rng.below(2) {
-        let Some(k) = pick_edge(rng, 1.4) else { continue };
-        let (a, b) = edges[k];
-        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let Some(k) = shell.pick_edge(rng, 1.4) else { continue };
+        let e = shell.edge(k);
+        let len = e.len();
         let (dw, dh) = (rng.uniform(0.8, 0.95), rng.uniform(2.0, 2.1).min(h - 0.15));
         let s = rng.uniform(dw / 2.0 + 0.15, len - dw / 2.0 - 0.15);
-        if !free(&fixtures[k], s - dw / 2.0 - 0.1, s + dw / 2.0 + 0.1) {
+        if !shell.free(k, s - dw / 2.0 - 0.1, s + dw / 2.0 + 0.1) {
             continue;
         }
-        fixtures[k].push((s - dw / 2.0 - 0.1, s + dw / 2.0 + 0.1));
+        shell.fixtures[k].push((s - dw / 2.0 - 0.1, s + dw / 2.0 + 0.1));
         let p = rng.uniform(0.01, 0.04);
         let fw = rng.uniform(0.05, 0.08);
         let parts = vec![
-            wall_box(a, b, s, dw / 2.0, 0.0, p, 0.0, dh),
-            wall_box(a, b, s - dw / 2.0 - fw / 2.0, fw / 2.0, 0.0, p + 0.015, 0.0, dh + fw),
-            wall_box(a, b, s + dw / 2.0 + fw / 2.0, fw / 2.0, 0.0, p + 0.015, 0.0, dh + fw),
-            wall_box(a, b, s, dw / 2.0 + fw, 0.0, p + 0.015, dh, dh + fw),
+            e.boxed(s, dw / 2.0, 0.0, p, 0.0, dh),
+            e.boxed(s - dw / 2.0 - fw / 2.0, fw / 2.0, 0.0, p + 0.015, 0.0, dh + fw),
+            e.boxed(s + dw / 2.0 + fw / 2.0, fw / 2.0, 0.0, p + 0.015, 0.0, dh + fw),
+            e.boxed(s, dw / 2.0 + fw, 0.0, p + 0.015, dh, dh + fw),
             Primitive::cylinder(
-                on_wall(a, b, s + dw / 2.0 - 0.08, p + 0.03, 1.0),
+                e.at(s + dw / 2.0 - 0.08, p + 0.03, 1.0),
                 0.01,
                 0.06,
-                rot_z((b[1] - a[1]).atan2(b[0] - a[0])) * rot_y(FRAC_PI_2),
+                rot_z(e.yaw()) * rot_y(FRAC_PI_2),
             ),
         ];
         room.objects.push(Object::new("door", parts));
-        let c = on_wall(a, b, s, 0.45, 0.0);
-        let yaw = (b[1] - a[1]).atan2(b[0] - a[0]);
+        let c = e.at(s, 0.45, 0.0);
+        let yaw = e.yaw();
         room.footprints.push(Footprint { center: [c.x, c.y], half: [dw / 2.0 + 0.1, 0.45], yaw, height: 0.0 });
     }
-    // Windows (sill and frame), sometimes a radiator underneath.
+}
+
+/// Windows (sill and frame), sometimes a radiator underneath.
+fn add_windows(room: &mut Room, shell: &mut Shell, rng: &mut Rng) {
+    let h = room.height;
     for _ in 0..rng.below(3) {
-        let Some(k) = pick_edge(rng, 1.5) else { continue };
-        let (a, b) = edges[k];
-        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let Some(k) = shell.pick_edge(rng, 1.5) else { continue };
+        let e = shell.edge(k);
+        let len = e.len();
         let ww = rng.uniform(0.8, 1.6).min(len - 0.4);
         let s = rng.uniform(ww / 2.0 + 0.15, len - ww / 2.0 - 0.15);
-        if !free(&fixtures[k], s - ww / 2.0 - 0.1, s + ww / 2.0 + 0.1) {
+        if !shell.free(k, s - ww / 2.0 - 0.1, s + ww / 2.0 + 0.1) {
             continue;
         }
-        fixtures[k].push((s - ww / 2.0 - 0.1, s + ww / 2.0 + 0.1));
+        shell.fixtures[k].push((s - ww / 2.0 - 0.1, s + ww / 2.0 + 0.1));
         let z0 = rng.uniform(0.8, 1.0);
         let z1 = (z0 + rng.uniform(1.0, 1.4)).min(h - 0.2);
         let f = 0.05;
         let mut parts = vec![
-            wall_box(a, b, s, ww / 2.0 + 0.05, 0.0, rng.uniform(0.1, 0.2), z0 - 0.03, z0),
-            wall_box(a, b, s - ww / 2.0, f / 2.0, 0.0, 0.03, z0, z1),
-            wall_box(a, b, s + ww / 2.0, f / 2.0, 0.0, 0.03, z0, z1),
-            wall_box(a, b, s, ww / 2.0, 0.0, 0.03, z1 - f, z1),
-            wall_box(a, b, s, f / 4.0, 0.0, 0.02, z0, z1),
+            e.boxed(s, ww / 2.0 + 0.05, 0.0, rng.uniform(0.1, 0.2), z0 - 0.03, z0),
+            e.boxed(s - ww / 2.0, f / 2.0, 0.0, 0.03, z0, z1),
+            e.boxed(s + ww / 2.0, f / 2.0, 0.0, 0.03, z0, z1),
+            e.boxed(s, ww / 2.0, 0.0, 0.03, z1 - f, z1),
+            e.boxed(s, f / 4.0, 0.0, 0.02, z0, z1),
         ];
-        let yaw = (b[1] - a[1]).atan2(b[0] - a[0]);
+        let yaw = e.yaw();
         if rng.below(2) == 0 {
             let rw = ww / 2.0 * rng.uniform(0.6, 0.9);
             let (r0, r1) = (0.15, (z0 - 0.15).max(0.4));
             let depth = rng.uniform(0.06, 0.1);
-            parts.push(wall_box(a, b, s, rw, 0.03, depth - 0.02, r0, r1));
+            parts.push(e.boxed(s, rw, 0.03, depth - 0.02, r0, r1));
             let fins = (rw * 2.0 / 0.06) as usize;
             for i in 0..fins {
                 let fs = s - rw + (i as f64 + 0.5) * (2.0 * rw / fins as f64);
-                parts.push(wall_box(a, b, fs, 0.012, depth - 0.02, depth, r0, r1));
+                parts.push(e.boxed(fs, 0.012, depth - 0.02, depth, r0, r1));
             }
-            let c = on_wall(a, b, s, depth / 2.0, 0.0);
+            let c = e.at(s, depth / 2.0, 0.0);
             room.footprints.push(Footprint { center: [c.x, c.y], half: [rw, depth / 2.0 + 0.05], yaw, height: r1 });
         }
         room.objects.push(Object::new("window", parts));
     }
-    // Pictures: thin boards on the walls.
+}
+
+/// Pictures: thin boards on the walls.
+fn add_pictures(room: &mut Room, shell: &mut Shell, rng: &mut Rng) {
+    let h = room.height;
     for _ in 0..rng.below(4) {
-        let Some(k) = pick_edge(rng, 1.0) else { continue };
-        let (a, b) = edges[k];
-        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let Some(k) = shell.pick_edge(rng, 1.0) else { continue };
+        let e = shell.edge(k);
+        let len = e.len();
         let pw = rng.uniform(0.3, 1.0).min(len - 0.3);
         let s = rng.uniform(pw / 2.0 + 0.1, len - pw / 2.0 - 0.1);
-        if !free(&fixtures[k], s - pw / 2.0, s + pw / 2.0) {
+        if !shell.free(k, s - pw / 2.0, s + pw / 2.0) {
             continue;
         }
-        fixtures[k].push((s - pw / 2.0, s + pw / 2.0));
+        shell.fixtures[k].push((s - pw / 2.0, s + pw / 2.0));
         let ph = pw * rng.uniform(0.5, 1.2);
         let z = rng.uniform(1.3, 1.8).min(h - ph / 2.0 - 0.15);
         let depth = rng.uniform(0.01, 0.04);
-        room.objects
-            .push(Object::new("picture", vec![wall_box(a, b, s, pw / 2.0, 0.0, depth, z - ph / 2.0, z + ph / 2.0)]));
+        room.objects.push(Object::new("picture", vec![e.boxed(s, pw / 2.0, 0.0, depth, z - ph / 2.0, z + ph / 2.0)]));
     }
-    // Sometimes a pillar in a wall.
+}
+
+/// Sometimes a pillar in a wall.
+fn add_pillar(room: &mut Room, shell: &mut Shell, rng: &mut Rng) {
+    let h = room.height;
     if rng.below(4) == 0
-        && let Some(k) = pick_edge(rng, 2.5)
+        && let Some(k) = shell.pick_edge(rng, 2.5)
     {
-        let (a, b) = edges[k];
-        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let e = shell.edge(k);
+        let len = e.len();
         let (pw, pd) = (rng.uniform(0.25, 0.5), rng.uniform(0.15, 0.4));
         let s = rng.uniform(pw + 0.3, len - pw - 0.3);
-        if free(&fixtures[k], s - pw, s + pw) {
-            fixtures[k].push((s - pw, s + pw));
-            room.objects.push(Object::new("pillar", vec![wall_box(a, b, s, pw / 2.0, 0.0, pd, 0.0, h)]));
-            let c = on_wall(a, b, s, pd / 2.0, 0.0);
-            let yaw = (b[1] - a[1]).atan2(b[0] - a[0]);
+        if shell.free(k, s - pw, s + pw) {
+            shell.fixtures[k].push((s - pw, s + pw));
+            room.objects.push(Object::new("pillar", vec![e.boxed(s, pw / 2.0, 0.0, pd, 0.0, h)]));
+            let c = e.at(s, pd / 2.0, 0.0);
+            let yaw = e.yaw();
             room.footprints.push(Footprint { center: [c.x, c.y], half: [pw / 2.0, pd / 2.0], yaw, height: h });
         }
     }
-    // Wall shelves: a board on two brackets holding clutter, or a wall cabinet.
+}
+
+/// Wall shelves: a board on two brackets holding clutter, or a wall cabinet.
+fn add_wall_shelves(room: &mut Room, shell: &mut Shell, rng: &mut Rng) {
+    let h = room.height;
     for _ in 0..rng.below(4) {
-        let Some(k) = pick_edge(rng, 1.0) else { continue };
-        let (a, b) = edges[k];
-        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let Some(k) = shell.pick_edge(rng, 1.0) else { continue };
+        let e = shell.edge(k);
+        let len = e.len();
         let sw = rng.uniform(0.5, 1.2).min(len - 0.3);
         let s = rng.uniform(sw / 2.0 + 0.1, len - sw / 2.0 - 0.1);
-        if !free(&fixtures[k], s - sw / 2.0, s + sw / 2.0) {
+        if !shell.free(k, s - sw / 2.0, s + sw / 2.0) {
             continue;
         }
         let depth = rng.uniform(0.18, 0.32);
         let z = rng.uniform(1.1, 1.7).min(h - 0.5);
-        let yaw = (b[1] - a[1]).atan2(b[0] - a[0]);
+        let yaw = e.yaw();
         let mut parts = Vec::new();
         let top = if rng.below(3) == 0 {
             // A closed wall cabinet.
             let ch = rng.uniform(0.35, 0.6);
-            parts.push(wall_box(a, b, s, sw / 2.0, 0.0, depth, z, z + ch));
-            parts.push(wall_box(a, b, s - sw / 4.0, sw / 4.0 - 0.005, depth, depth + 0.015, z + 0.01, z + ch - 0.01));
-            parts.push(wall_box(a, b, s + sw / 4.0, sw / 4.0 - 0.005, depth, depth + 0.015, z + 0.01, z + ch - 0.01));
+            parts.push(e.boxed(s, sw / 2.0, 0.0, depth, z, z + ch));
+            parts.push(e.boxed(s - sw / 4.0, sw / 4.0 - 0.005, depth, depth + 0.015, z + 0.01, z + ch - 0.01));
+            parts.push(e.boxed(s + sw / 4.0, sw / 4.0 - 0.005, depth, depth + 0.015, z + 0.01, z + ch - 0.01));
             z + ch
         } else {
             let t = rng.uniform(0.018, 0.03);
-            parts.push(wall_box(a, b, s, sw / 2.0, 0.0, depth, z - t, z));
+            parts.push(e.boxed(s, sw / 2.0, 0.0, depth, z - t, z));
             for side in [-1.0, 1.0] {
-                parts.push(wall_box(a, b, s + side * sw * 0.35, 0.01, 0.0, depth * 0.8, z - t - 0.12, z - t));
+                parts.push(e.boxed(s + side * sw * 0.35, 0.01, 0.0, depth * 0.8, z - t - 0.12, z - t));
             }
             // Clutter in the board's frame: local x along the wall, local y into the room.
             let rot = rot_z(yaw);
-            let origin = on_wall(a, b, s, depth / 2.0, 0.0);
+            let origin = e.at(s, depth / 2.0, 0.0);
             let count = 1 + rng.below(5);
             for p in furniture::clutter(rng, sw / 2.0, depth / 2.0, z, count, 0.3) {
                 parts.push(p.placed(&rot, &origin));
             }
             z + 0.3
         };
-        fixtures[k].push((s - sw / 2.0, s + sw / 2.0));
+        shell.fixtures[k].push((s - sw / 2.0, s + sw / 2.0));
         room.objects.push(Object::new("wall shelf", parts));
-        let c = on_wall(a, b, s, depth / 2.0, 0.0);
+        let c = e.at(s, depth / 2.0, 0.0);
         room.footprints.push(Footprint { center: [c.x, c.y], half: [sw / 2.0, depth / 2.0], yaw, height: top });
     }
-    // A ceiling light: a flat disc or a pendant sphere on a cord.
+}
+
+/// A ceiling light: a flat disc or a pendant sphere on a cord.
+fn add_ceiling_light(room: &mut Room, rng: &mut Rng) {
+    let h = room.height;
+    let v = Vector3::new;
     let c = room.kernel_center;
     let light = if rng.below(2) == 0 {
         let r = rng.uniform(0.15, 0.3);

@@ -7,6 +7,7 @@
 //! Camera frame as in [`super::camera`]: x right, y down, z forward; depth is the z coordinate. Noise moves a
 //! return along its ray.
 
+use super::camera::{PinholeImage, PinholeRays, PixelHit};
 use super::geometry::{Object, cast_ray_object};
 use crate::rng::Rng;
 use nalgebra::{Matrix4, Vector3};
@@ -139,15 +140,14 @@ impl Sensor {
         out_from_camera: &Matrix4<f64>,
         rng: &mut Rng,
     ) -> Vec<([f64; 3], [f64; 3])> {
-        let r = world_from_camera.fixed_view::<3, 3>(0, 0).into_owned();
-        let origin = world_from_camera.fixed_view::<3, 1>(0, 3).into_owned();
-        let r_out = out_from_camera.fixed_view::<3, 3>(0, 0).into_owned();
-        let t_out = out_from_camera.fixed_view::<3, 1>(0, 3).into_owned();
+        let image = PinholeImage {
+            size: (self.width, self.height),
+            fov_deg: (self.hfov_deg, self.vfov_deg),
+            depth: (self.min_depth, self.max_depth),
+            max_incidence_deg: self.max_incidence_deg,
+        };
+        let rays = PinholeRays::new(&image, world_from_camera, out_from_camera);
         let (w, h) = (self.width as f64, self.height as f64);
-        let fx = w / 2.0 / (self.hfov_deg.to_radians() / 2.0).tan();
-        let fy = h / 2.0 / (self.vfov_deg.to_radians() / 2.0).tan();
-        let (cx, cy) = (w / 2.0, h / 2.0);
-        let cos_max = self.max_incidence_deg.to_radians().cos();
         let holes: Vec<Hole> = (0..rng.below(self.max_holes + 1))
             .map(|_| Hole {
                 center: [rng.uniform(0.0, w), rng.uniform(0.0, h)],
@@ -157,73 +157,73 @@ impl Sensor {
                 ],
             })
             .collect();
-        let projector = self.projector_baseline.map(|b| origin + r * Vector3::new(b, 0.0, 0.0));
-        let mut out = Vec::with_capacity(self.width * self.height);
-        for v in 0..self.height {
-            for u in 0..self.width {
-                let (ju, jv) = (rng.unit_f64(), rng.unit_f64());
-                let (pu, pv) = (u as f64 + ju, v as f64 + jv);
-                let drop = rng.unit_f64();
-                let material = rng.unit_f64();
-                let noise_rng_seed = rng.next_u64();
-                if holes.iter().any(|hole| {
-                    ((pu - hole.center[0]) / hole.radius[0]).powi(2) + ((pv - hole.center[1]) / hole.radius[1]).powi(2)
-                        < 1.0
-                }) {
-                    continue;
-                }
-                let ray = Vector3::new((pu - cx) / fx, (pv - cy) / fy, 1.0);
-                let len = ray.norm();
-                let dir = r * (ray / len);
-                let Some((hit, object)) = cast_ray_object(objects, &origin, &dir, self.max_depth * len) else {
-                    continue;
-                };
-                let z = hit.t / len;
-                let cos_inc = -hit.normal.dot(&dir);
-                if z < self.min_depth
-                    || cos_inc < cos_max
-                    || drop < self.dropout
-                    || material < object_dropout.get(object).copied().unwrap_or(0.0)
-                {
-                    continue;
-                }
-                if let Some(p) = projector {
-                    let target = origin + dir * hit.t;
-                    let to = target - p;
-                    let dist = to.norm();
-                    let seen = match cast_ray_object(objects, &p, &(to / dist), dist + 1.0) {
-                        Some((h2, _)) => h2.t > dist - 1e-3 * dist.max(1.0),
-                        None => true,
-                    };
-                    if !seen {
-                        continue;
-                    }
-                }
-                let mut noise_rng = Rng::new(noise_rng_seed);
-                let z = match self.mixed_pixel_footprint {
-                    Some(footprint) => {
-                        let (du, dv) =
-                            (noise_rng.uniform(-0.5, 0.5) * footprint, noise_rng.uniform(-0.5, 0.5) * footprint);
-                        let mix = noise_rng.unit_f64();
-                        let ray2 = Vector3::new((pu + du - cx) / fx, (pv + dv - cy) / fy, 1.0);
-                        let len2 = ray2.norm();
-                        let far = self.max_depth * len2 * 2.0;
-                        match cast_ray_object(objects, &origin, &(r * (ray2 / len2)), far) {
-                            Some((hit2, _)) if (hit2.t / len2 - z).abs() > MIXED_PIXEL_EDGE => {
-                                mix * z + (1.0 - mix) * hit2.t / len2
-                            }
-                            _ => z,
-                        }
-                    }
-                    None => z,
-                };
-                let zn = self.noise.apply(z, cos_inc, &mut noise_rng);
-                let p = r_out * (ray * zn) + t_out;
-                let n = r_out * (r.transpose() * hit.normal);
-                out.push(([p.x, p.y, p.z], [n.x, n.y, n.z]));
+        let projector = self.projector_baseline.map(|b| rays.origin() + rays.rotation() * Vector3::new(b, 0.0, 0.0));
+        let pixel = |rng: &mut Rng, u: usize, v: usize| {
+            let (ju, jv) = (rng.unit_f64(), rng.unit_f64());
+            let (pu, pv) = (u as f64 + ju, v as f64 + jv);
+            let draws = PixelDraws { drop: rng.unit_f64(), material: rng.unit_f64(), noise_seed: rng.next_u64() };
+            let in_hole = holes.iter().any(|hole| {
+                ((pu - hole.center[0]) / hole.radius[0]).powi(2) + ((pv - hole.center[1]) / hole.radius[1]).powi(2)
+                    < 1.0
+            });
+            (!in_hole).then_some(([pu, pv], draws))
+        };
+        let measure = |_: &mut Rng, rays: &PinholeRays, draws: PixelDraws, hit: &PixelHit| {
+            if draws.drop < self.dropout
+                || draws.material < object_dropout.get(hit.object).copied().unwrap_or(0.0)
+                || projector.is_some_and(|p| !lit_by_projector(objects, rays, &p, hit))
+            {
+                return None;
             }
+            let mut noise_rng = Rng::new(draws.noise_seed);
+            let z = match self.mixed_pixel_footprint {
+                Some(footprint) => self.mixed_depth(objects, rays, footprint, hit, &mut noise_rng),
+                None => hit.z,
+            };
+            Some(self.noise.apply(z, hit.cos_incidence, &mut noise_rng))
+        };
+        rays.scan(objects, rng, pixel, measure)
+    }
+
+    /// Time of flight: the depth of a pixel whose `footprint` (pixels) may straddle a depth edge: a second ray
+    /// at a random offset inside the footprint; where its depth differs by more than [`MIXED_PIXEL_EDGE`], a
+    /// random mix of the two depths.
+    fn mixed_depth(
+        &self,
+        objects: &[Object],
+        rays: &PinholeRays,
+        footprint: f64,
+        hit: &PixelHit,
+        rng: &mut Rng,
+    ) -> f64 {
+        let (du, dv) = (rng.uniform(-0.5, 0.5) * footprint, rng.uniform(-0.5, 0.5) * footprint);
+        let mix = rng.unit_f64();
+        let (_, len2, dir2) = rays.ray([hit.pixel[0] + du, hit.pixel[1] + dv]);
+        let far = self.max_depth * len2 * 2.0;
+        match cast_ray_object(objects, &rays.origin(), &dir2, far) {
+            Some((hit2, _)) if (hit2.t / len2 - hit.z).abs() > MIXED_PIXEL_EDGE => {
+                mix * hit.z + (1.0 - mix) * hit2.t / len2
+            }
+            _ => hit.z,
         }
-        out
+    }
+}
+
+/// What a structured-light or styled pixel draws before its ray is cast (so every pixel draws the same).
+struct PixelDraws {
+    drop: f64,
+    material: f64,
+    noise_seed: u64,
+}
+
+/// Structured light: whether the projector at `projector` sees the surface point of `hit`.
+fn lit_by_projector(objects: &[Object], rays: &PinholeRays, projector: &Vector3<f64>, hit: &PixelHit) -> bool {
+    let target = rays.origin() + hit.dir * hit.hit.t;
+    let to = target - projector;
+    let dist = to.norm();
+    match cast_ray_object(objects, projector, &(to / dist), dist + 1.0) {
+        Some((h2, _)) => h2.t > dist - 1e-3 * dist.max(1.0),
+        None => true,
     }
 }
 

@@ -32,7 +32,7 @@ use crate::error::{Error, Result};
 use crate::io::{LoadOptions, read_cloud};
 use crate::model::ModelConfig;
 use crate::model::config::PoseFrame;
-use crate::pose::{matrix_from_quaternion, nearest_rotation};
+use crate::pose::{matrix_from_quaternion, nearest_rotation, random_rotation};
 use crate::preprocess::{
     GatheredPatches, Patches, estimate_normals, extract_patch_where, extract_patches, gather, voxel_downsample,
 };
@@ -158,7 +158,7 @@ pub fn discover_pairs(paths: &[PathBuf]) -> Result<Vec<FragmentPair>> {
                         ))
                     })
                 };
-                out.push(FragmentPair { source: file(e.j)?, target: file(e.i)?, target_from_source: e.transform });
+                out.push(FragmentPair { source: file(e.j)?, target: file(e.i)?, target_from_source: e.i_from_j });
             }
         }
     }
@@ -256,23 +256,6 @@ pub const MAX_PATCHES_PER_PAIR: usize = 64;
 /// Match draws per extra sample of a pair while looking for one a patch radius away from those drawn; after
 /// that the nearest-to-separate draw is taken anyway (a small overlap region may not fit them all).
 const SEPARATION_DRAWS: usize = 32;
-
-/// A rotation drawn uniformly from SO(3) restricted to angles up to `max_deg` (by rejection; at most a few
-/// hundred draws for angles down to 20 degrees, and the identity when `max_deg` is tiny and every draw fails).
-fn random_rotation(rng: &mut Rng, max_deg: f64) -> [f64; 4] {
-    if max_deg >= 180.0 {
-        return rng.unit_quaternion();
-    }
-    let max_w = (max_deg.to_radians() / 2.0).cos();
-    for _ in 0..100_000 {
-        let q = rng.unit_quaternion();
-        // angle = 2 acos(|w|) <= max  <=>  |w| >= cos(max / 2)
-        if q[0].abs() >= max_w {
-            return q;
-        }
-    }
-    [1.0, 0.0, 0.0, 0.0]
-}
 
 fn squared_distance(a: [f32; 3], b: [f32; 3]) -> f32 {
     (0..3).map(|k| (a[k] - b[k]) * (a[k] - b[k])).sum()

@@ -19,6 +19,7 @@ use super::backward::{Gradients, LayerWeights, decode_backward, encode_backward,
 use super::contrast::hardest_negative_loss;
 use super::loss::{chamfer, feat_loss, rotation_loss};
 use crate::error::{Error, Result};
+use crate::model::config::RotationOutput;
 use crate::model::params::foldnet_layers;
 use crate::model::{Model, Net, Weights, pose_feature};
 use rayon::prelude::*;
@@ -173,17 +174,16 @@ pub fn sample_objective(
         d_ppf_rec[p * m * 4..][..m * 4].iter_mut().zip(&g_ppf).for_each(|(d, g)| *d = k * g);
     }
 
-    // Pose: RelativeNet on the pose features (PC codeword minus PPF codeword) of source and target.
+    // Pose: RelativeNet on the pose features (PC codeword minus PPF codeword) of source and target; feature
+    // consistency on the PPF codewords.
     let cw = model.config.codeword();
     let feature = |p: usize| pose_feature(&pc_e.codeword[p * cw..][..cw], &ppf_e.codeword[p * cw..][..cw]);
     let (f_s, f_t) = (feature(0), feature(1));
     let rel = model.relative.forward_tape(&f_s, &f_t, 1);
     let raw = rel.last().expect("relative has layers");
-    let (pose, d_raw) = rotation_loss(raw, model.config.rotation_output, &sample.label);
+    let mut heads = PairHeads::new(raw, model.config.rotation_output, &sample.label, &ppf_e.codeword, settings, scale);
 
-    // Feature consistency on the PPF codewords.
-    let (feat, d_fp) = feat_loss(&ppf_e.codeword[..cw], &ppf_e.codeword[cw..]);
-
+    let (pose, feat) = (heads.pose, heads.feat);
     let total = settings.weighted_total(rec, pose, feat);
     let losses = Losses { rec, pose, feat, contrast: 0.0, total };
     let Some(grads) = grads else { return Ok(losses) };
@@ -195,9 +195,17 @@ pub fn sample_objective(
         decode_backward(&model.pc, w, pc_base, &pc_e.codeword, &pc_d, d_pc_rec, &mut d_pc_cw, grads);
     }
     if settings.pose {
-        let k = (settings.lambda_pose * scale) as f32;
-        let d_raw = d_raw.iter().map(|v| v * k).collect();
-        let (d_fs, d_ft) = relative_backward(&model.relative, w, rel_base, &f_s, &f_t, 1, &rel, d_raw, grads);
+        let (d_fs, d_ft) = relative_backward(
+            &model.relative,
+            w,
+            rel_base,
+            &f_s,
+            &f_t,
+            1,
+            &rel,
+            std::mem::take(&mut heads.d_raw),
+            grads,
+        );
         for (p, d_f) in [d_fs, d_ft].iter().enumerate() {
             for (i, &g) in d_f.iter().enumerate() {
                 d_pc_cw[p * cw + i] += g;
@@ -207,13 +215,7 @@ pub fn sample_objective(
             }
         }
     }
-    if settings.feat {
-        let k = (settings.lambda_feat * scale) as f32;
-        for (i, &g) in d_fp.iter().enumerate() {
-            d_ppf_cw[i] += k * g;
-            d_ppf_cw[cw + i] -= k * g;
-        }
-    }
+    heads.add_feat_gradient(&mut d_ppf_cw, settings, scale);
     if let Some(extra) = batch_ppf_cw {
         d_ppf_cw.iter_mut().zip(extra).for_each(|(d, g)| *d += g);
     }
@@ -316,12 +318,74 @@ fn batch_terms(model: &Model, samples: &[PairSample], settings: &LossSettings) -
         .collect::<Result<_>>()?;
     let source: Vec<f32> = codewords.iter().flat_map(|c| c[..cw].iter().copied()).collect();
     let target: Vec<f32> = codewords.iter().flat_map(|c| c[cw..].iter().copied()).collect();
-    let (value, d_source, d_target) = hardest_negative_loss(&source, &target, cw, settings.contrast_margin);
+    Ok(contrast_terms(&source, &target, cw, settings))
+}
+
+/// The contrastive batch term of both trainers from the pairs' PPF codewords (`source` and `target`, pair by
+/// pair, `cw` wide; enabled and two pairs or more): its value and, per pair, its gradient w.r.t. the pair's two
+/// codewords (source then target), weighted by lambda3. (0, none) when disabled or under two pairs.
+pub(crate) fn contrast_terms(
+    source: &[f32],
+    target: &[f32],
+    cw: usize,
+    settings: &LossSettings,
+) -> (f64, Vec<Vec<f32>>) {
+    let pairs = source.len() / cw.max(1);
+    if !settings.contrast || pairs < 2 {
+        return (0.0, Vec::new());
+    }
+    let (value, d_source, d_target) = hardest_negative_loss(source, target, cw, settings.contrast_margin);
     let k = settings.lambda_contrast as f32;
-    let grads = (0..samples.len())
+    let grads = (0..pairs)
         .map(|i| d_source[i * cw..][..cw].iter().chain(&d_target[i * cw..][..cw]).map(|g| k * g).collect())
         .collect();
-    Ok((value, grads))
+    (value, grads)
+}
+
+/// The per-pair loss heads of both trainers (the CPU's [`sample_objective`] and the GPU trainer): the pose
+/// loss of the raw RelativeNet output against the label, and the feature-consistency loss of the pair's two
+/// PPF codewords, with their gradients.
+pub(crate) struct PairHeads {
+    /// `L_pose`.
+    pub pose: f64,
+    /// Gradient w.r.t. the raw output, weighted by lambda1 and the batch scale.
+    pub d_raw: Vec<f32>,
+    /// `L_feat`.
+    pub feat: f64,
+    /// Gradient of `L_feat` w.r.t. the source codeword (unweighted; the target's is its negation).
+    d_feat: Vec<f32>,
+}
+
+impl PairHeads {
+    /// The heads of one pair: `raw` RelativeNet output, `label` rotation, `ppf_codewords` source then target.
+    pub fn new(
+        raw: &[f32],
+        output: RotationOutput,
+        label: &[f64; 9],
+        ppf_codewords: &[f32],
+        settings: &LossSettings,
+        scale: f64,
+    ) -> PairHeads {
+        let cw = ppf_codewords.len() / 2;
+        let (pose, d) = rotation_loss(raw, output, label);
+        let k_pose = (settings.lambda_pose * scale) as f32;
+        let (feat, d_feat) = feat_loss(&ppf_codewords[..cw], &ppf_codewords[cw..]);
+        PairHeads { pose, d_raw: d.iter().map(|g| g * k_pose).collect(), feat, d_feat }
+    }
+
+    /// Adds the weighted `L_feat` gradient into `d_ppf_codewords` (the pair's two codewords, source then
+    /// target) when `L_feat` is trained.
+    pub fn add_feat_gradient(&self, d_ppf_codewords: &mut [f32], settings: &LossSettings, scale: f64) {
+        if !settings.feat {
+            return;
+        }
+        let cw = self.d_feat.len();
+        let k = (settings.lambda_feat * scale) as f32;
+        for (i, &g) in self.d_feat.iter().enumerate() {
+            d_ppf_codewords[i] += k * g;
+            d_ppf_codewords[cw + i] -= k * g;
+        }
+    }
 }
 
 impl Losses {

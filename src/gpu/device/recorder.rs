@@ -130,31 +130,9 @@ impl<'a> Recorder<'a> {
                 usage: wgpu::BufferUsages::UNIFORM,
             })
         });
-        // Passes: maximal runs of dispatches; copies between them.
-        let mut runs: Vec<std::ops::Range<usize>> = Vec::new();
-        for (i, op) in self.ops.iter().enumerate() {
-            if let Op::Dispatch { .. } = op {
-                match runs.last_mut() {
-                    Some(r) if r.end == i => r.end = i + 1,
-                    _ => runs.push(i..i + 1),
-                }
-            }
-        }
+        let runs = dispatch_runs(&self.ops);
         let timestamps = self.gpu.profiling() && ctx.has_timestamps() && !runs.is_empty();
-        let query = timestamps.then(|| {
-            let set = device.create_query_set(&wgpu::QuerySetDescriptor {
-                label: Some("dpr-gpu timestamps"),
-                ty: wgpu::QueryType::Timestamp,
-                count: 2,
-            });
-            let resolve = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("dpr-gpu timestamp resolve"),
-                size: 16,
-                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-                mapped_at_creation: false,
-            });
-            (set, resolve)
-        });
+        let query = timestamps.then(|| timestamp_query(device));
 
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(self.label) });
         let mut i = 0;
@@ -176,33 +154,9 @@ impl<'a> Recorder<'a> {
                         beginning_of_pass_write_index: (run_index == 0).then_some(0),
                         end_of_pass_write_index: (run_index + 1 == runs.len()).then_some(1),
                     });
-                    let mut pass = encoder
+                    let pass = encoder
                         .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(self.label), timestamp_writes });
-                    for op in &self.ops[run.clone()] {
-                        let Op::Dispatch { kernel, params: (offset, size), buffers, grid } = op else { continue };
-                        let uniform = params.as_ref().expect("dispatches have parameters");
-                        let mut entries = vec![wgpu::BindGroupEntry {
-                            binding: 0,
-                            resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                                buffer: uniform,
-                                offset: *offset,
-                                size: wgpu::BufferSize::new(*size),
-                            }),
-                        }];
-                        entries.extend(buffers.iter().enumerate().map(|(b, buf)| wgpu::BindGroupEntry {
-                            binding: b as u32 + 1,
-                            resource: buf.as_entire_binding(),
-                        }));
-                        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                            label: Some(kernel.spec.name),
-                            layout: &kernel.layout,
-                            entries: &entries,
-                        });
-                        pass.set_pipeline(&kernel.pipeline);
-                        pass.set_bind_group(0, &bind_group, &[]);
-                        pass.dispatch_workgroups(grid[0], grid[1], 1);
-                    }
-                    drop(pass);
+                    record_pass(device, pass, &self.ops[run.clone()], params.as_ref());
                     i = run.end;
                 }
             }
@@ -215,30 +169,102 @@ impl<'a> Recorder<'a> {
             encoder.resolve_query_set(set, 0..2, resolve, 0);
             reads.push((resolve.clone(), 0, 16));
         }
-        let mut layout = Vec::with_capacity(reads.len());
-        let mut total = 0u64;
-        for (_, _, size) in &reads {
-            layout.push((total, *size));
-            total += size.next_multiple_of(8);
-        }
-        let staging = (total > 0).then(|| {
-            device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("dpr-gpu readback"),
-                size: total,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            })
-        });
-        if let Some(staging) = &staging {
-            for ((buffer, offset, size), (dst, _)) in reads.iter().zip(&layout) {
-                if *size > 0 {
-                    encoder.copy_buffer_to_buffer(buffer, *offset, staging, *dst, Some(size.next_multiple_of(4)));
-                }
-            }
-        }
+        let (staging, layout) = record_readback(device, &mut encoder, &reads);
         let submission = ctx.queue.submit([encoder.finish()]);
         Ok(Pending { submission, staging, reads: layout, timestamps: query.is_some(), label: self.label })
     }
+}
+
+/// The compute passes of `ops`: maximal runs of dispatches (copies and clears go between them).
+fn dispatch_runs(ops: &[Op<'_>]) -> Vec<std::ops::Range<usize>> {
+    let mut runs: Vec<std::ops::Range<usize>> = Vec::new();
+    for (i, op) in ops.iter().enumerate() {
+        if let Op::Dispatch { .. } = op {
+            match runs.last_mut() {
+                Some(r) if r.end == i => r.end = i + 1,
+                _ => runs.push(i..i + 1),
+            }
+        }
+    }
+    runs
+}
+
+/// A two-entry timestamp query set (start of the first pass, end of the last) and the buffer it resolves into.
+fn timestamp_query(device: &wgpu::Device) -> (wgpu::QuerySet, wgpu::Buffer) {
+    let set = device.create_query_set(&wgpu::QuerySetDescriptor {
+        label: Some("dpr-gpu timestamps"),
+        ty: wgpu::QueryType::Timestamp,
+        count: 2,
+    });
+    let resolve = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("dpr-gpu timestamp resolve"),
+        size: 16,
+        usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    });
+    (set, resolve)
+}
+
+/// Records the dispatches `ops` (one run) into `pass`: each binds its slice of the `params` uniform at
+/// binding 0 and its buffers from binding 1.
+fn record_pass(device: &wgpu::Device, mut pass: wgpu::ComputePass<'_>, ops: &[Op<'_>], params: Option<&wgpu::Buffer>) {
+    for op in ops {
+        let Op::Dispatch { kernel, params: (offset, size), buffers, grid } = op else { continue };
+        let uniform = params.expect("dispatches have parameters");
+        let mut entries = vec![wgpu::BindGroupEntry {
+            binding: 0,
+            resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                buffer: uniform,
+                offset: *offset,
+                size: wgpu::BufferSize::new(*size),
+            }),
+        }];
+        entries.extend(
+            buffers
+                .iter()
+                .enumerate()
+                .map(|(b, buf)| wgpu::BindGroupEntry { binding: b as u32 + 1, resource: buf.as_entire_binding() }),
+        );
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(kernel.spec.name),
+            layout: &kernel.layout,
+            entries: &entries,
+        });
+        pass.set_pipeline(&kernel.pipeline);
+        pass.set_bind_group(0, &bind_group, &[]);
+        pass.dispatch_workgroups(grid[0], grid[1], 1);
+    }
+}
+
+/// Copies every read into one staging buffer (each at an 8-byte aligned offset, copied rounded up to 4 bytes);
+/// returns the buffer (none when nothing is read) and each read's (offset, size) in it.
+fn record_readback(
+    device: &wgpu::Device,
+    encoder: &mut wgpu::CommandEncoder,
+    reads: &[(wgpu::Buffer, u64, u64)],
+) -> (Option<wgpu::Buffer>, Vec<(u64, u64)>) {
+    let mut layout = Vec::with_capacity(reads.len());
+    let mut total = 0u64;
+    for (_, _, size) in reads {
+        layout.push((total, *size));
+        total += size.next_multiple_of(8);
+    }
+    let staging = (total > 0).then(|| {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("dpr-gpu readback"),
+            size: total,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    });
+    if let Some(staging) = &staging {
+        for ((buffer, offset, size), (dst, _)) in reads.iter().zip(&layout) {
+            if *size > 0 {
+                encoder.copy_buffer_to_buffer(buffer, *offset, staging, *dst, Some(size.next_multiple_of(4)));
+            }
+        }
+    }
+    (staging, layout)
 }
 
 impl Pending {

@@ -36,9 +36,9 @@ use crate::error::{Error, Result};
 use crate::model::{FoldNet, Model, Weights};
 use crate::train::adam::Adam;
 use crate::train::backward::{Gradients, LayerWeights};
-use crate::train::contrast::hardest_negative_loss;
-use crate::train::loss::{feat_loss, rotation_loss};
-use crate::train::objective::{LossSettings, Losses, PairSample, add_contrast, bases, check_sample};
+use crate::train::objective::{
+    LossSettings, Losses, PairHeads, PairSample, add_contrast, bases, check_sample, contrast_terms,
+};
 use crate::train::trainer::tensor_order;
 use backward::{
     DeviceDecodeTape, DeviceEncodeTape, DeviceLayerBuffers, DeviceSlice, record_decode_backward,
@@ -290,34 +290,20 @@ impl DeviceTrainer {
         losses.rec = rec_sum * scale;
         let mut d_raw = vec![0.0f32; pairs * k];
         let mut d_ppf_codewords = vec![0.0f32; patches * cw];
-        let (k_pose, k_feat) = ((s.lambda_pose * scale) as f32, (s.lambda_feat * scale) as f32);
         for (i, sample) in batch.iter().enumerate() {
-            let (pose_loss, d) = rotation_loss(&raw[i * k..][..k], config.rotation_output, &sample.label);
-            losses.pose += pose_loss * scale;
-            d_raw[i * k..][..k].iter_mut().zip(&d).for_each(|(o, g)| *o = g * k_pose);
-            let (feat, d_f) = feat_loss(&ppf_cw[2 * i * cw..][..cw], &ppf_cw[(2 * i + 1) * cw..][..cw]);
-            losses.feat += feat * scale;
-            if s.feat {
-                for (j, &g) in d_f.iter().enumerate() {
-                    d_ppf_codewords[2 * i * cw + j] += k_feat * g;
-                    d_ppf_codewords[(2 * i + 1) * cw + j] -= k_feat * g;
-                }
-            }
+            let pair_cw = &ppf_cw[2 * i * cw..][..2 * cw];
+            let heads = PairHeads::new(&raw[i * k..][..k], config.rotation_output, &sample.label, pair_cw, &s, scale);
+            losses.pose += heads.pose * scale;
+            d_raw[i * k..][..k].copy_from_slice(&heads.d_raw);
+            losses.feat += heads.feat * scale;
+            heads.add_feat_gradient(&mut d_ppf_codewords[2 * i * cw..][..2 * cw], &s, scale);
         }
-        let mut contrast = 0.0;
-        if s.contrast && pairs >= 2 {
-            let side = |p: usize| -> Vec<f32> {
-                (0..pairs).flat_map(|i| ppf_cw[(2 * i + p) * cw..][..cw].iter().copied()).collect()
-            };
-            let (value, d_source, d_target) = hardest_negative_loss(&side(0), &side(1), cw, s.contrast_margin);
-            contrast = value;
-            let kc = s.lambda_contrast as f32;
-            for i in 0..pairs {
-                for (p, d) in [(0, &d_source), (1, &d_target)] {
-                    let dst = &mut d_ppf_codewords[(2 * i + p) * cw..][..cw];
-                    dst.iter_mut().zip(&d[i * cw..][..cw]).for_each(|(o, g)| *o += kc * g);
-                }
-            }
+        let side = |p: usize| -> Vec<f32> {
+            (0..pairs).flat_map(|i| ppf_cw[(2 * i + p) * cw..][..cw].iter().copied()).collect()
+        };
+        let (contrast, d_contrast) = contrast_terms(&side(0), &side(1), cw, &s);
+        for (i, d) in d_contrast.iter().enumerate() {
+            d_ppf_codewords[2 * i * cw..][..2 * cw].iter_mut().zip(d).for_each(|(o, g)| *o += g);
         }
         losses.total = s.weighted_total(losses.rec, losses.pose, losses.feat);
         add_contrast(&mut losses, contrast, &s);

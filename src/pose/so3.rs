@@ -2,8 +2,7 @@
 //! (exp(φ + δ) ≈ exp(J_l(φ) δ) exp(φ)) with its inverse, each with a series near zero so that tiny angles keep
 //! full precision.
 
-use crate::eval::metrics::skew;
-use crate::pose::quaternion_from_matrix;
+use super::{quaternion_from_matrix, skew};
 use nalgebra::{Matrix3, Vector3};
 
 /// Below this angle (radians) the closed forms are replaced by their Taylor series.
