@@ -2,8 +2,8 @@
 
 use crate::cloud::PointCloud;
 use crate::io::{
-    LoadOptions, OriginShift, XyzColumns, check_outputs, check_writable_cloud_path, read_cloud, write_atomic,
-    write_cloud, write_ply_with_colors,
+    LoadOptions, OriginShift, XyzColumns, check_outputs, check_scan, check_writable_cloud_path, read_cloud,
+    write_atomic, write_cloud, write_ply_with_colors,
 };
 use crate::pipeline::{Registrar, weights_file};
 use crate::settings::*;
@@ -311,6 +311,8 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
     let (source, source_report) = read_cloud(&args.source, &LoadOptions { origin: OriginShift::Auto, ..load })?;
     let origin = source_report.origin;
     let (target, target_report) = read_cloud(&args.target, &LoadOptions { origin: OriginShift::At(origin), ..load })?;
+    check_scan(&args.source, &source, &source_report, crate::pipeline::MIN_POINTS)?;
+    check_scan(&args.target, &target, &target_report, crate::pipeline::MIN_POINTS)?;
     let load_seconds = started.elapsed().as_secs_f64();
     let bar = stage_bar();
     let registrar = Registrar::new(&settings)?.with_progress({
