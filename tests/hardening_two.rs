@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{room_pair, temp_dir};
+use common::{room_pair, temp_dir, tiny_dataset};
 use dpr_gpu::PointCloud;
 use dpr_gpu::io::write_ply;
 use dpr_gpu::multiway::Trajectory;
@@ -62,14 +62,6 @@ fn poses_text(t: &Trajectory) -> String {
         out.push_str(&format!("{k} {}\n", values.join(" ")));
     }
     out
-}
-
-/// A tiny synthetic dataset (one scene, three fragments).
-fn tiny_dataset(dir: &Path) -> PathBuf {
-    let data = dir.join("data");
-    let o = dpr(&["synth", s(&data), "--fragments", "3", "--frames", "4", "--width", "64"]);
-    assert!(o.status.success(), "{:?}", text(&o));
-    data
 }
 
 // ------------------------------------------------------------------------------ data loss (cases 1-3)

@@ -101,7 +101,7 @@ fn process_alive(pid: u32) -> bool {
     }
     #[cfg(target_os = "linux")]
     {
-        Path::new("/proc/self").exists().then(|| Path::new(&format!("/proc/{pid}")).exists()).unwrap_or(true)
+        !Path::new("/proc/self").exists() || Path::new(&format!("/proc/{pid}")).exists()
     }
     #[cfg(not(target_os = "linux"))]
     {
