@@ -22,6 +22,8 @@ use std::path::{Path, PathBuf};
 
 /// Arguments of `dpr-gpu multiway`.
 #[derive(clap::Args, Debug)]
+#[command(after_help = "Exit status: 0 when every scan is placed; 3 when some scan is connected to scan 0 by no \
+surviving edge (its pose is a guess; every output is still written, and edges.json lists which); 1 on an error.")]
 pub struct Args {
     /// A folder of scans (its PLY, PCD, XYZ and PTS files in natural name order, so cloud_bin_2 comes before
     /// cloud_bin_10; .txt files are skipped as they are usually metadata such as pairs.txt), or a list file with
