@@ -189,6 +189,50 @@ pub fn rigid_fit_f64(source: &[Vector3<f64>], target: &[Vector3<f64>]) -> Option
     Some(matrix_from_parts(&r, &t))
 }
 
+/// Largest deviation of a pose read from a file from a rigid motion: of R^T R from the identity (entrywise),
+/// of det R from 1 and of the bottom row from (0, 0, 0, 1). Files written with 8 significant digits (the
+/// 3DMatch logs) are within 1e-7.
+pub const RIGID_TOLERANCE: f64 = 1e-3;
+
+/// Largest translation of a pose read from a file, in file units (georeferenced coordinates reach 1e7).
+pub const MAX_TRANSLATION: f64 = 1e9;
+
+/// Why `m` is not a rigid motion (a rotation and a bounded translation), or `None` when it is one: the check
+/// every reader of poses (trajectories, logs, pairs files) applies, so a scaled, sheared, reflected or zero
+/// block is refused instead of scored as a pose.
+pub fn rigidity_problem(m: &Matrix4<f64>) -> Option<String> {
+    if let Some(v) = m.iter().find(|v| !v.is_finite()) {
+        return Some(format!("non-finite matrix entry {v}"));
+    }
+    let bottom = m.fixed_view::<1, 4>(3, 0) - nalgebra::RowVector4::new(0.0, 0.0, 0.0, 1.0);
+    if bottom.abs().max() > RIGID_TOLERANCE {
+        return Some(format!(
+            "bottom row ({}, {}, {}, {}) is not (0, 0, 0, 1)",
+            m[(3, 0)],
+            m[(3, 1)],
+            m[(3, 2)],
+            m[(3, 3)]
+        ));
+    }
+    let r: Matrix3<f64> = m.fixed_view::<3, 3>(0, 0).into();
+    let det = r.determinant();
+    if det < 0.0 {
+        return Some(format!("the 3x3 block is a reflection (determinant {det:.4}), not a rotation"));
+    }
+    let off = (r.transpose() * r - Matrix3::identity()).abs().max();
+    if off > RIGID_TOLERANCE || (det - 1.0).abs() > RIGID_TOLERANCE {
+        return Some(format!(
+            "the 3x3 block is not a rotation (R^T R differs from the identity by {off:.3e}, determinant {det:.4}): \
+             a scaled, sheared or degenerate matrix is not a pose"
+        ));
+    }
+    let t = m.fixed_view::<3, 1>(0, 3).norm();
+    if t > MAX_TRANSLATION {
+        return Some(format!("translation {t:e} is beyond {MAX_TRANSLATION:e} units"));
+    }
+    None
+}
+
 /// A 4x4 transform as plain text: four rows of four numbers (9 decimals), one row per line, the format `register
 /// --out` writes and `Display` of [`crate::PoseEstimate`] prints.
 pub fn matrix_text(m: &Matrix4<f64>) -> String {

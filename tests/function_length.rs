@@ -15,10 +15,10 @@ use std::path::{Path, PathBuf};
 /// The most lines a function may span.
 const MAX_LINES: usize = 100;
 
-/// Functions over the limit that are being split right now (path, function). This list must become empty: a
+/// Functions over the limit that are being split right now (path, function); empty since issue 40 item 5. A
 /// function leaves it when it is split (the test fails while an entry is no longer over the limit, so the list
 /// only shrinks).
-const BEING_SPLIT: &[(&str, &str)] = &[("src/cli/multiway.rs", "run"), ("src/cli/eval_trajectory.rs", "run")];
+const BEING_SPLIT: &[(&str, &str)] = &[];
 
 /// The index of the brace that closes the one at `open`.
 fn matching_brace(c: &[char], open: usize) -> usize {

@@ -1,5 +1,5 @@
-//! Mutation fuzzing on stable Rust (proptest): valid PLY (ascii and binary), PCD (ascii and binary), XYZ and
-//! weights files are mutated (bytes flipped, set, inserted, removed, truncated, ranges duplicated) and fed to
+//! Mutation fuzzing on stable Rust (proptest): valid PLY (ascii and binary), PCD (ascii and binary), XYZ,
+//! weights, trajectory (.log and poses.txt), gt.info and scan-list files are mutated (bytes flipped, set, inserted, removed, truncated, ranges duplicated) and fed to
 //! the readers, and random registration settings to the pipeline. Nothing may panic; what reads must be a
 //! valid cloud. Each target runs a fixed number of cases (`FUZZ_CASES`, default 1000), about 2 s in all in
 //! release builds, well under the 2 minutes CI allows in total. The generator is seeded (`FUZZ_SEED`, fixed by
@@ -9,8 +9,10 @@
 
 mod common;
 
-use dpr_gpu::io::{LoadOptions, ZeroPoints, read_cloud};
+use dpr_gpu::eval::gtlog::{InfoRecord, format_info, parse_info};
+use dpr_gpu::io::{LoadOptions, ZeroPoints, list_text, parse_scan_list, read_cloud};
 use dpr_gpu::model::{ModelConfig, Weights};
+use dpr_gpu::multiway::Trajectory;
 use dpr_gpu::{PointCloud, Registrar, RegistrationSettings};
 use proptest::prelude::*;
 use proptest::test_runner::RngSeed;
@@ -200,6 +202,64 @@ proptest! {
         if let Ok(w) = Weights::from_bytes(&bytes, "fuzz") {
             w.config.validate().unwrap();
         }
+    }
+}
+
+/// The valid pose and list texts the text readers' mutations start from: a trajectory .log, synth's poses.txt,
+/// a gt.info and a scan list.
+fn text_seeds() -> &'static [Vec<u8>; 4] {
+    static SEEDS: OnceLock<[Vec<u8>; 4]> = OnceLock::new();
+    SEEDS.get_or_init(|| {
+        let poses: Vec<nalgebra::Matrix4<f64>> = (0..3).map(|k| common::known_pose(k + 1)).collect();
+        let trajectory = Trajectory { world_from_scan: poses.clone() };
+        let mut poses_txt = String::from("# k and 16 numbers\n");
+        for (k, m) in poses.iter().enumerate() {
+            let values: Vec<String> = (0..16).map(|c| format!("{:e}", m[(c / 4, c % 4)])).collect();
+            poses_txt.push_str(&format!("{k} {}\n", values.join(" ")));
+        }
+        let info = InfoRecord { i: 0, j: 1, n: 3, information: nalgebra::Matrix6::identity() * 1000.0 };
+        let list = "# scans\ncloud_bin_0.ply\n /abs/cloud_bin_1.pcd \n\nscans/cloud_bin_2.xyz\n";
+        [trajectory.to_log_text().into_bytes(), poses_txt.into_bytes(), format_info(&[info]).into_bytes(), list.into()]
+    })
+}
+
+/// Parses mutated `bytes` with the reader of seed `which`: an error is fine, a panic is not; a trajectory read
+/// has every pose rigid, and a scan list only paths that name a file.
+fn parse_text_must_not_panic(which: usize, bytes: Vec<u8>) {
+    let path = std::path::Path::new("fuzzed.txt");
+    let text = match list_text(path, bytes, "fuzzed text") {
+        Ok(text) => text,
+        Err(e) => return assert!(e.to_string().contains("fuzzed.txt"), "{e}"),
+    };
+    let trajectory = match which {
+        0 => Trajectory::parse_log(&text, path).ok(),
+        1 => Trajectory::parse_poses(&text, path).ok(),
+        2 => {
+            let _ = parse_info(&text, path);
+            None
+        }
+        _ => {
+            // Every path names something below the base folder, or is absolute.
+            for p in parse_scan_list(&text, std::path::Path::new("base")) {
+                assert!(p.is_absolute() || p.as_os_str().len() > "base/".len(), "{p:?}");
+            }
+            None
+        }
+    };
+    for pose in trajectory.iter().flat_map(|t| &t.world_from_scan) {
+        assert_eq!(dpr_gpu::pose::rigidity_problem(pose), None, "{pose}");
+    }
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    #[test]
+    fn trajectory_info_and_scan_list_readers_survive_mutated_files(
+        which in 0..4usize,
+        mutations in proptest::collection::vec(mutation(), 1..6),
+    ) {
+        parse_text_must_not_panic(which, mutate(text_seeds()[which].clone(), &mutations));
     }
 }
 

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{room_corner, room_pair, temp_dir};
+use common::{room_corner, room_pair, temp_dir, tiny_dataset};
 use dpr_gpu::io::{LoadOptions, read_cloud, write_ply};
 use dpr_gpu::model::Weights;
 use dpr_gpu::pose::rotation_error_deg;
@@ -268,14 +268,6 @@ fn aligned_output_is_written_in_the_format_its_extension_names() {
         let (cloud, _) = read_cloud(&aligned, &LoadOptions::default()).unwrap();
         assert_eq!(cloud.len(), source.len(), "{ext}");
     }
-}
-
-/// A tiny synthetic dataset (one scene, three fragments) for `train`.
-fn tiny_dataset(dir: &Path) -> PathBuf {
-    let data = dir.join("data");
-    let o = dpr(&["synth", s(&data), "--fragments", "3", "--frames", "4", "--width", "64"]);
-    assert!(o.status.success(), "{:?}", text(&o));
-    data
 }
 
 #[test]

@@ -425,6 +425,30 @@ impl SceneScales {
     }
 }
 
+/// Fails before any work when report.json or a result log would land on a file of the dataset (compared by
+/// identity), or cannot be written.
+fn check_eval_outputs(args: &Args, scenes: &[SceneData]) -> anyhow::Result<()> {
+    let mut inputs = crate::eval::dataset::dataset_files(&args.dataset)?;
+    inputs.extend(args.log.as_ref().map(PathBuf::from));
+    let report = args.out.join("report.json");
+    let mut outputs = vec![report];
+    if args.log.is_none() && args.rotate.is_none() {
+        for e in parse_estimators(&args.register.estimator)? {
+            outputs.extend(scenes.iter().map(|s| args.out.join(estimator_name(e)).join(format!("{}.log", s.name))));
+        }
+    }
+    let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+    let report = &outputs[0];
+    crate::io::check_outputs(&inputs, &[("--out", report)])?;
+    for log in &outputs[1..] {
+        // The estimator folders do not exist yet: only a log already there can land on an input.
+        if log.exists() {
+            crate::io::check_outputs(&inputs, &[("--out", log)])?;
+        }
+    }
+    Ok(())
+}
+
 /// Runs `dpr-gpu eval`.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let radius = args.register.radius.map_or(REFERENCE_RADIUS, f64::from);
@@ -435,6 +459,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(s) if !(s > 0.0 && s.is_finite()) => bail!("--protocol-scale must be positive, got {s}"),
         _ => protocol_thresholds(&args, radius),
     };
+    if !(0.0..=1.0).contains(&args.min_overlap) {
+        bail!("--min-overlap is a fraction of the source's points, 0..=1; got {}", args.min_overlap);
+    }
     let opts = EvalOptions {
         thresholds,
         seed: args.register.seed,
@@ -464,6 +491,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let scenes = load_dataset(&args.dataset).with_context(|| format!("loading {}", args.dataset.display()))?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    check_eval_outputs(&args, &scenes)?;
     if let Some(dir) = &args.snapshots {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }

@@ -65,15 +65,38 @@ fn cloud_bin_number(path: &str) -> Option<usize> {
     name.strip_prefix("cloud_bin_")?.parse().ok()
 }
 
-fn default_ids(trajectory: &Path, n: usize) -> Vec<usize> {
+/// The ground-truth fragment number of each of the `n` trajectory scans when `--ids` is not given, from the
+/// `scans.txt` beside the trajectory: K of every `cloud_bin_K` name; the scans' order (0, 1, 2, ...) when
+/// there is no such file or none of its names has that form. A list that names some scans `cloud_bin_K` and
+/// others not, or another number of scans than the trajectory, is refused: the scans' order would silently
+/// pair them with the wrong poses.
+fn default_ids(trajectory: &Path, n: usize) -> anyhow::Result<Vec<usize>> {
     let scans = trajectory.parent().unwrap_or(Path::new(".")).join("scans.txt");
-    if let Ok(text) = std::fs::read_to_string(scans) {
-        let ids: Option<Vec<usize>> = text.lines().filter(|l| !l.trim().is_empty()).map(cloud_bin_number).collect();
-        if let Some(ids) = ids.filter(|ids| ids.len() == n) {
-            return ids;
-        }
+    if !scans.is_file() {
+        return Ok((0..n).collect());
     }
-    (0..n).collect()
+    let text = crate::io::read_list(&scans, "a scan list")?;
+    let names: Vec<(usize, &str)> =
+        text.lines().enumerate().map(|(k, l)| (k + 1, l.trim())).filter(|(_, l)| !l.is_empty()).collect();
+    let ids: Vec<Option<usize>> = names.iter().map(|(_, name)| cloud_bin_number(name)).collect();
+    if ids.iter().all(Option::is_none) {
+        return Ok((0..n).collect());
+    }
+    if let Some(((line, name), _)) = names.iter().zip(&ids).find(|(_, id)| id.is_none()) {
+        bail!(
+            "{}: line {line}: `{name}` is not a cloud_bin_K name while other scans are, so the ground-truth \
+             fragment of each scan is unknown; give them with --ids",
+            scans.display()
+        );
+    }
+    if ids.len() != n {
+        bail!(
+            "{}: lists {} scans but the trajectory has {n}; give the fragment ids with --ids",
+            scans.display(),
+            ids.len()
+        );
+    }
+    Ok(ids.into_iter().flatten().collect())
 }
 
 #[derive(Deserialize)]
@@ -81,58 +104,64 @@ struct EdgesFile {
     edges: Vec<EdgeRecord>,
 }
 
-/// Runs `dpr-gpu eval-trajectory`.
-pub fn run(args: Args) -> anyhow::Result<()> {
-    let trajectory = Trajectory::read_log(&args.trajectory)?;
-    let n = trajectory.len();
-    let ids = args.ids.clone().unwrap_or_else(|| default_ids(&args.trajectory, n));
-    if ids.len() != n {
-        bail!("--ids names {} fragments but the trajectory has {n} scans", ids.len());
-    }
-    let (truth, info_path) = load_truth(&args.ground_truth)?;
-    let infos: HashMap<(usize, usize), Matrix6<f64>> = match &info_path {
-        Some(p) => read_info(p)?.into_iter().map(|r| ((r.i, r.j), r.information)).collect(),
-        None => HashMap::new(),
-    };
-    let info_of = |i: usize, j: usize| infos.get(&(i, j)).copied();
+/// The multiway edges file `--edges`, else edges.json beside the trajectory when present (no edges without one).
+fn read_edges(args: &Args, n: usize) -> anyhow::Result<Vec<EdgeRecord>> {
     let edges_path = args.edges.clone().or_else(|| {
         let p = args.trajectory.parent().unwrap_or(Path::new(".")).join("edges.json");
         p.is_file().then_some(p)
     });
-    let edges: Vec<EdgeRecord> = match &edges_path {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            serde_json::from_str::<EdgesFile>(&text)
-                .with_context(|| format!("{}: not a multiway edges file", p.display()))?
-                .edges
-        }
-        None => Vec::new(),
-    };
+    let Some(p) = &edges_path else { return Ok(Vec::new()) };
+    let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+    let edges = serde_json::from_str::<EdgesFile>(&text)
+        .with_context(|| format!("{}: not a multiway edges file", p.display()))?
+        .edges;
     if let Some(e) = edges.iter().find(|e| e.pair.i >= n || e.pair.j >= n) {
-        bail!("edge ({}, {}) names a scan beyond the trajectory's {n}", e.pair.i, e.pair.j);
+        bail!("{}: edge ({}, {}) names a scan beyond the trajectory's {n}", p.display(), e.pair.i, e.pair.j);
     }
+    Ok(edges)
+}
 
-    let mut report = serde_json::Map::new();
-    // The true relative pose x_i = T x_j of trajectory scans (a, b), when known.
-    let true_relative: Box<dyn Fn(usize, usize) -> Option<Matrix4<f64>>> = match &truth {
+/// The true relative pose x_i = T x_j of trajectory scans (a, b), when known.
+type TrueRelative = Box<dyn Fn(usize, usize) -> Option<Matrix4<f64>>>;
+
+/// Scores the trajectory against the truth into `report` ("trajectory" or "pairs"); returns the true relative
+/// pose of any two trajectory scans, where the truth knows it.
+fn score_poses(
+    trajectory: &Trajectory,
+    truth: &Truth,
+    ids: &[usize],
+    info_of: &dyn Fn(usize, usize) -> Option<Matrix6<f64>>,
+    report: &mut serde_json::Map<String, serde_json::Value>,
+) -> anyhow::Result<TrueRelative> {
+    match truth {
         Truth::Poses(gt) => {
             if let Some(&bad) = ids.iter().find(|&&id| id >= gt.len()) {
                 bail!("fragment {bad} is not in the ground truth ({} poses)", gt.len());
             }
             let sub = Trajectory { world_from_scan: ids.iter().map(|&id| gt.world_from_scan[id]).collect() };
-            let errors = trajectory_errors(&trajectory, &sub)?;
+            let errors = trajectory_errors(trajectory, &sub)?;
             report.insert("trajectory".into(), serde_json::to_value(&errors)?);
-            Box::new(move |a, b| Some(sub.i_from_j(a, b)))
+            Ok(Box::new(move |a, b| Some(sub.i_from_j(a, b))))
         }
         Truth::Pairs(records) => {
-            let pairs = pairwise_errors(&trajectory, records, &ids, &info_of);
+            let pairs = pairwise_errors(trajectory, records, ids, info_of);
             report.insert("pairs".into(), serde_json::to_value(&pairs)?);
             let by_pair: HashMap<(usize, usize), Matrix4<f64>> =
                 records.iter().map(|r| ((r.i, r.j), r.i_from_j)).collect();
-            let ids = ids.clone();
-            Box::new(move |a, b| by_pair.get(&(ids[a], ids[b])).copied())
+            let ids = ids.to_vec();
+            Ok(Box::new(move |a, b| by_pair.get(&(ids[a], ids[b])).copied()))
         }
-    };
+    }
+}
+
+/// Counts the loop closures among `edges` that are true and kept; returns the counts and the number of loop
+/// closures without ground truth.
+fn count_loop_closures(
+    edges: &[EdgeRecord],
+    true_relative: &TrueRelative,
+    ids: &[usize],
+    info_of: &dyn Fn(usize, usize) -> Option<Matrix6<f64>>,
+) -> (LoopClosureCounts, usize) {
     let mut counts = LoopClosureCounts::default();
     let mut unknown = 0;
     for e in edges.iter().filter(|e| e.kind == EdgeKind::Loop) {
@@ -144,6 +173,30 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let (correct, _) = is_correct(&e.pair.transform(), &gt, Some(&info));
         counts.add(correct, e.survived);
     }
+    (counts, unknown)
+}
+
+/// Runs `dpr-gpu eval-trajectory`.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let trajectory = Trajectory::read_log(&args.trajectory)?;
+    let n = trajectory.len();
+    let ids = match args.ids.clone() {
+        Some(ids) => ids,
+        None => default_ids(&args.trajectory, n)?,
+    };
+    if ids.len() != n {
+        bail!("--ids names {} fragments but the trajectory has {n} scans", ids.len());
+    }
+    let (truth, info_path) = load_truth(&args.ground_truth)?;
+    let infos: HashMap<(usize, usize), Matrix6<f64>> = match &info_path {
+        Some(p) => read_info(p)?.into_iter().map(|r| ((r.i, r.j), r.information)).collect(),
+        None => HashMap::new(),
+    };
+    let info_of = |i: usize, j: usize| infos.get(&(i, j)).copied();
+    let edges = read_edges(&args, n)?;
+    let mut report = serde_json::Map::new();
+    let true_relative = score_poses(&trajectory, &truth, &ids, &info_of, &mut report)?;
+    let (counts, unknown) = count_loop_closures(&edges, &true_relative, &ids, &info_of);
     if !edges.is_empty() {
         report.insert("loop_closures".into(), serde_json::to_value(counts)?);
         report.insert("loop_closures_without_truth".into(), unknown.into());

@@ -47,6 +47,7 @@ pub enum Command {
 /// Runs the CLI; returns the process exit code. Errors are printed as one line.
 pub fn main() -> std::process::ExitCode {
     default_sigpipe();
+    quiet_device_select();
     let cli = Cli::parse();
     cap_thread_pool();
     let mut untrusted = false;
@@ -58,7 +59,7 @@ pub fn main() -> std::process::ExitCode {
         Command::Synth(args) => synth::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Train(args) => train::run(args),
-        Command::Multiway(args) => multiway::run(args),
+        Command::Multiway(args) => multiway::run(args).map(|placed| untrusted = !placed),
         Command::EvalTrajectory(args) => eval_trajectory::run(args),
     };
     match outcome {
@@ -97,6 +98,20 @@ fn default_sigpipe() {
     // SAFETY: called first in `main`, before any other thread exists; SIG_DFL is a valid action for SIGPIPE.
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
+/// Turns Mesa's Vulkan device-select layer off (`NODEVICE_SELECT=1`, the switch its manifest names) where
+/// there is no desktop session (`XDG_RUNTIME_DIR` unset or not a folder: servers, containers, ssh): while the
+/// loader enumerates adapters it asks the Wayland display for the default GPU and, without a session, prints
+/// "error: XDG_RUNTIME_DIR is invalid or not set" twice, on every run. The layer only reorders the adapters,
+/// which the adapter policy ranks itself. A value the user set is kept.
+fn quiet_device_select() {
+    let session = std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| std::path::Path::new(&d).is_dir());
+    if !session && std::env::var_os("NODEVICE_SELECT").is_none() {
+        // SAFETY: called first in `main`, before any other thread exists (nothing reads the environment
+        // concurrently).
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
     }
 }
 

@@ -2,8 +2,8 @@
 
 use crate::cloud::PointCloud;
 use crate::io::{
-    LoadOptions, LoadReport, OriginShift, XyzColumns, ZeroPoints, check_outputs, check_writable_cloud_path, read_cloud,
-    write_atomic, write_cloud, write_ply_with_colors,
+    LoadOptions, LoadReport, OriginShift, XyzColumns, ZeroPoints, check_outputs, check_scan, check_writable_cloud_path,
+    read_cloud, write_atomic, write_cloud, write_ply_with_colors,
 };
 use crate::pipeline::{Registrar, weights_file};
 use crate::settings::*;
@@ -310,6 +310,8 @@ impl LoadedPair {
         let origin = source_report.origin;
         let (target, target_report) =
             read_cloud(&args.target, &LoadOptions { origin: OriginShift::At(origin), ..load })?;
+        check_scan(&args.source, &source, &source_report, crate::pipeline::MIN_POINTS)?;
+        check_scan(&args.target, &target, &target_report, crate::pipeline::MIN_POINTS)?;
         Ok(LoadedPair { source, target, source_report, target_report, origin })
     }
 

@@ -323,23 +323,26 @@ fn mean(losses: &[Losses]) -> Losses {
 pub const MAX_BATCH: usize = 4_096;
 
 /// Fails early (not after hours of training) when an output cannot be written (a directory in its place, a
-/// missing folder) or would destroy an input: a dataset file (fragments, gt.log), the `--init` weights, or (for
-/// `--out` and `--log`) the `--resume` checkpoint, compared by file identity. Two outputs may not share a path.
+/// missing or read-only folder, weights not named .safetensors) or would destroy an input: any file of a dataset
+/// folder (fragments, gt.log, poses.txt, ...), the `--init` weights, or (for `--out` and `--log`) the `--resume`
+/// checkpoint, compared by file identity. Two outputs may not share a path.
 fn check_train_outputs(args: &Args, ckpt: &Path) -> anyhow::Result<()> {
     let mut outputs: Vec<(&str, &Path)> = vec![("--out", &args.out), ("--checkpoint", ckpt)];
     if let Some(log) = &args.log {
         outputs.push(("--log", log));
     }
-    let mut inputs: Vec<PathBuf> = args.data.iter().filter(|p| p.is_file()).cloned().collect();
+    for (flag, path) in &outputs {
+        crate::io::check_output_path(flag, path)?;
+    }
+    let mut inputs: Vec<PathBuf> = Vec::new();
     for path in &args.data {
-        for scene in crate::eval::dataset::load_dataset(path)? {
-            inputs.extend(["gt.log", "gt.info", "pairs.txt"].map(|name| scene.dir.join(name)));
-            inputs.extend(scene.files);
-        }
+        inputs.extend(crate::eval::dataset::dataset_files(path)?);
     }
     inputs.extend(args.init.iter().cloned());
     let refs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
     crate::io::check_outputs(&refs, &outputs)?;
+    crate::cli::weights::check_weights_path("--out", &args.out)?;
+    crate::cli::weights::check_weights_path("--checkpoint", ckpt)?;
     if let Some(resume) = &args.resume {
         // The checkpoint may be the resumed one (it is updated in place); the other outputs may not.
         outputs.retain(|(flag, _)| *flag != "--checkpoint");

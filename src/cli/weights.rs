@@ -2,7 +2,7 @@
 
 use crate::model::config::{PoseFrame, RotationOutput};
 use crate::model::{ModelConfig, Weights};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Model-size options.
 #[derive(clap::Args, Debug, Clone)]
@@ -65,9 +65,23 @@ pub struct InitArgs {
     pub config: ConfigOptions,
 }
 
+/// Refuses a weights output (`flag` names it) whose name does not end in `.safetensors` (an existing device such
+/// as /dev/null excepted), so that a slip such as `init-weights cloud.ply` cannot replace another kind of file;
+/// then checks the path as every output is checked ([`crate::io::check_output_path`]).
+pub fn check_weights_path(flag: &str, path: &Path) -> anyhow::Result<()> {
+    let special = std::fs::metadata(path).is_ok_and(|m| !m.is_file() && !m.is_dir());
+    let named = path.file_name().is_some_and(|n| n.to_string_lossy().to_ascii_lowercase().ends_with(".safetensors"));
+    if !named && !special {
+        anyhow::bail!("{flag} {}: weights are written as safetensors; name the file *.safetensors", path.display());
+    }
+    crate::io::check_output_path(flag, path)?;
+    Ok(())
+}
+
 /// Runs `dpr-gpu init-weights`.
 pub fn run_init(args: InitArgs) -> anyhow::Result<()> {
     let config = args.config.to_config()?;
+    check_weights_path("output", &args.out)?;
     let mut weights = Weights::init(&config, args.seed)?;
     weights.notes.insert("dpr_gpu.origin".into(), format!("random initialisation, seed {}", args.seed));
     weights.save(&args.out)?;

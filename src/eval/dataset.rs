@@ -118,6 +118,28 @@ pub fn load_dataset(path: &Path) -> Result<Vec<SceneData>> {
     dirs.iter().map(|d| load_scene(d, &d.join("gt.log"))).collect()
 }
 
+/// Every file of the dataset at `path`, to protect from a command's outputs: `path` itself when it is a file,
+/// each fragment wherever it lies, and every data file in each scene's folder: clouds, `.txt`, `.log` and
+/// `.info` files (the ground truth in any of its forms, such as `synth`'s poses.txt, pairs files, scan lists),
+/// whatever their names. Weights, checkpoints and CSV logs written beside the data are not data.
+pub fn dataset_files(path: &Path) -> Result<Vec<PathBuf>> {
+    let is_data = |p: &Path| {
+        let ext = p.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
+        ext.is_some_and(|e| e == "log" || e == "info" || crate::io::SUPPORTED_EXTENSIONS.contains(&e.as_str()))
+    };
+    let mut files = Vec::new();
+    if path.is_file() {
+        files.push(path.to_path_buf());
+    }
+    for scene in load_dataset(path)? {
+        if let Ok(entries) = std::fs::read_dir(&scene.dir) {
+            files.extend(entries.flatten().map(|e| e.path()).filter(|p| p.is_file() && is_data(p)));
+        }
+        files.extend(scene.files);
+    }
+    Ok(files)
+}
+
 fn folder_name(dir: &Path) -> String {
     let canonical = dir.canonicalize().unwrap_or_else(|_| dir.to_path_buf());
     canonical.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "scene".into())
@@ -156,7 +178,7 @@ pub fn load_scene(dir: &Path, log_path: &Path) -> Result<SceneData> {
 
 /// A pairs file (`source target` + 16 numbers, p_target = T p_source).
 pub fn load_pairs_file(path: &Path) -> Result<SceneData> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::read_list(path, "a pairs file")?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let mut files: Vec<PathBuf> = Vec::new();
     let mut ids: HashMap<String, usize> = HashMap::new();
@@ -188,6 +210,9 @@ pub fn load_pairs_file(path: &Path) -> Result<SceneData> {
                 Error::parse(path, format!("line {line_no}"), format!("`{f}` is not a finite number"))
             })?;
             m[(c / 4, c % 4)] = v;
+        }
+        if let Some(problem) = crate::pose::rigidity_problem(&m) {
+            return Err(Error::parse(path, format!("line {line_no}"), problem));
         }
         let j = id_of(fields[0], &mut files);
         let i = id_of(fields[1], &mut files);

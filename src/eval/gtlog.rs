@@ -77,8 +77,8 @@ fn parse_row<const C: usize>(path: &Path, line: usize, text: &str) -> Result<[f6
     Ok(std::array::from_fn(|k| values[k]))
 }
 
-/// A record's header `(i, j, n)` and its matrix.
-type Record<const R: usize> = ((usize, usize, usize), SMatrix<f64, R, R>);
+/// A record's header `(i, j, n)`, its matrix and the header's line number.
+type Record<const R: usize> = ((usize, usize, usize), SMatrix<f64, R, R>, usize);
 
 /// Parses records of a header plus a `R x R` matrix.
 fn parse_records<const R: usize>(text: &str, path: &Path) -> Result<Vec<Record<R>>> {
@@ -108,24 +108,28 @@ fn parse_records<const R: usize>(text: &str, path: &Path) -> Result<Vec<Record<R
                 m[(r, c)] = v;
             }
         }
-        out.push(((i, j, n), m));
+        out.push(((i, j, n), m, line));
     }
     Ok(out)
 }
 
-/// Parses the text of a `.log` file; `path` is only used in error messages.
+/// Parses the text of a `.log` file; `path` is only used in error messages. Every matrix must be a rigid motion
+/// ([`crate::pose::rigidity_problem`]).
 pub fn parse_log(text: &str, path: &Path) -> Result<Vec<LogRecord>> {
-    Ok(parse_records::<4>(text, path)?
+    parse_records::<4>(text, path)?
         .into_iter()
-        .map(|((i, j, n), i_from_j)| LogRecord { i, j, n, i_from_j })
-        .collect())
+        .map(|((i, j, n), i_from_j, line)| match crate::pose::rigidity_problem(&i_from_j) {
+            None => Ok(LogRecord { i, j, n, i_from_j }),
+            Some(problem) => Err(Error::parse(path, format!("line {line}"), format!("record ({i}, {j}): {problem}"))),
+        })
+        .collect()
 }
 
 /// Parses the text of a `.info` file; `path` is only used in error messages.
 pub fn parse_info(text: &str, path: &Path) -> Result<Vec<InfoRecord>> {
     Ok(parse_records::<6>(text, path)?
         .into_iter()
-        .map(|((i, j, n), information)| InfoRecord { i, j, n, information })
+        .map(|((i, j, n), information, _)| InfoRecord { i, j, n, information })
         .collect())
 }
 

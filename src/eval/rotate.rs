@@ -42,8 +42,11 @@ impl RotationSweep {
             return Err(Error::invalid("--rotate needs at least one angle"));
         }
         for (k, d) in degrees.iter().enumerate() {
-            if !d.is_finite() {
-                return Err(Error::invalid(format!("--rotate: angle {d} is not a finite number of degrees")));
+            if !(d.is_finite() && d.abs() <= MAX_ROTATION_DEG) {
+                let shown = if d.abs() < 1e6 { format!("{d}") } else { format!("{d:e}") };
+                return Err(Error::invalid(format!(
+                    "--rotate: angle {shown} is not a number of degrees within -{MAX_ROTATION_DEG}..={MAX_ROTATION_DEG}"
+                )));
             }
             if degrees[..k].contains(d) {
                 return Err(Error::invalid(format!("--rotate: angle {d} is given twice")));
@@ -52,6 +55,10 @@ impl RotationSweep {
         Ok(RotationSweep { degrees, seed })
     }
 }
+
+/// Largest angle of `--rotate`, in degrees either way (a full turn: larger angles repeat smaller ones, and
+/// their labels make path names too long).
+pub const MAX_ROTATION_DEG: f64 = 360.0;
 
 /// How an angle appears in paths and in `{rotation}` (Rust's shortest form: `90`, `22.5`, `-45`).
 pub fn angle_label(degrees: f64) -> String {

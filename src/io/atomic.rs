@@ -1,4 +1,6 @@
 //! Atomic file replacement: write a temp file beside the destination, flush it to disk, rename it over.
+//! Temp files a crashed writer left (`kill -9`, a size limit) are removed by the next write to the same
+//! destination: see [`remove_stale_temps`].
 
 use crate::error::{Error, Result};
 use std::ffi::OsString;
@@ -37,6 +39,7 @@ pub(super) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         Some(parent) if !parent.as_os_str().is_empty() => parent,
         _ => Path::new("."),
     };
+    remove_stale_temps(dir, name);
     let temp = temp_path(dir, name);
     match write_synced(&temp, bytes).and_then(|()| fs::rename(&temp, path)) {
         Ok(()) => {
@@ -73,6 +76,54 @@ fn temp_path(dir: &Path, name: &std::ffi::OsStr) -> PathBuf {
     dir.join(temp)
 }
 
+/// Checks that a file can be created in `dir` (permissions, a read-only file system, a full folder) by creating
+/// and removing a temp file there, as the write of `name` will; errors name `dir`.
+pub(super) fn probe_folder(dir: &Path, name: &std::ffi::OsStr) -> io::Result<()> {
+    remove_stale_temps(dir, name);
+    let temp = temp_path(dir, name);
+    OpenOptions::new().write(true).create_new(true).open(&temp)?;
+    fs::remove_file(&temp)
+}
+
+/// The process id in a temp name `.<name>.tmp-<pid>-<n>` of destination `name`, if `entry` is one.
+fn temp_owner(entry: &std::ffi::OsStr, name: &std::ffi::OsStr) -> Option<u32> {
+    let entry = entry.to_str()?;
+    let rest = entry.strip_prefix('.')?.strip_prefix(name.to_str()?)?.strip_prefix(".tmp-")?;
+    let (pid, n) = rest.split_once('-')?;
+    n.parse::<u64>().ok()?;
+    pid.parse().ok()
+}
+
+/// True while process `pid` runs (or when that cannot be told, so a live writer's temp file is never taken).
+fn process_alive(pid: u32) -> bool {
+    if pid == std::process::id() {
+        return true;
+    }
+    #[cfg(target_os = "linux")]
+    {
+        !Path::new("/proc/self").exists() || Path::new(&format!("/proc/{pid}")).exists()
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        true
+    }
+}
+
+/// Removes the temp files of earlier writes to `dir/name` whose writer no longer runs (killed during the write):
+/// without this they stay forever, hidden, up to the size of the largest output.
+fn remove_stale_temps(dir: &Path, name: &std::ffi::OsStr) {
+    let Ok(entries) = fs::read_dir(dir) else { return };
+    for entry in entries.flatten() {
+        let file_name = entry.file_name();
+        if let Some(pid) = temp_owner(&file_name, name)
+            && !process_alive(pid)
+            && entry.file_type().is_ok_and(|t| t.is_file())
+        {
+            let _ = fs::remove_file(entry.path());
+        }
+    }
+}
+
 /// Creates `temp` (which must not exist), writes `bytes` and flushes them to disk.
 fn write_synced(temp: &Path, bytes: &[u8]) -> io::Result<()> {
     let mut file = OpenOptions::new().write(true).create_new(true).open(temp)?;
@@ -101,6 +152,17 @@ mod tests {
         let name = a.file_name().unwrap().to_string_lossy().into_owned();
         assert!(name.starts_with(".out.ply.tmp-"), "{name}");
         assert_eq!(a.parent(), Some(Path::new("d")));
+    }
+
+    #[test]
+    fn temp_owner_reads_the_pid_of_this_destination_only() {
+        let name = std::ffi::OsStr::new("out.ply");
+        let owner = |e: &str| temp_owner(std::ffi::OsStr::new(e), name);
+        assert_eq!(owner(".out.ply.tmp-123-4"), Some(123));
+        assert_eq!(owner(".out.ply.tmp-123-x"), None);
+        assert_eq!(owner(".out.plyx.tmp-123-4"), None);
+        assert_eq!(owner(".other.ply.tmp-123-4"), None);
+        assert_eq!(owner("out.ply.tmp-123-4"), None);
     }
 
     #[test]

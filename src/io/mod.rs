@@ -8,9 +8,11 @@
 
 mod atomic;
 mod bounded;
+mod list;
 mod outputs;
 mod pcd;
 mod ply;
+mod scan_check;
 mod xyz;
 
 use crate::cloud::PointCloud;
@@ -18,7 +20,9 @@ use crate::error::{Error, Result};
 use std::path::Path;
 
 pub use bounded::{MAX_HEADER_BYTES, MAX_INPUT_BYTES, MAX_LINE_BYTES, read_file_bounded};
+pub use list::{MAX_LIST_BYTES, list_text, parse_scan_list, read_list};
 pub use outputs::{FileId, check_output_path, check_outputs, file_id};
+pub use scan_check::{MAX_ROUNDING_PER_EXTENT, check_scan};
 pub use xyz::{UNIT_NORMAL_TOLERANCE, XyzColumns};
 
 /// File extensions [`read_cloud`] understands (lower case, without the dot).

@@ -86,9 +86,18 @@ pub fn check_outputs(inputs: &[&Path], outputs: &[(&str, &Path)]) -> Result<()> 
     Ok(())
 }
 
-/// Fails early (not after a long run) when `path` cannot be an output file: a directory in its place, or a
-/// missing parent folder.
+/// Fails early (not after a long run) when `path` cannot be an output file: a name ending in a path separator
+/// (a folder, not a file), a directory in its place, a dangling symbolic link, a missing parent folder, or a
+/// folder where no file can be created (permissions, a read-only or full file system: probed by creating and
+/// removing a temp file as the write will). An existing device or FIFO is written in place and not probed.
 pub fn check_output_path(flag: &str, path: &Path) -> Result<()> {
+    let text = path.as_os_str().to_string_lossy();
+    if text.ends_with('/') || text.ends_with(std::path::MAIN_SEPARATOR) {
+        return Err(Error::invalid(format!(
+            "{flag} {}: ends with a path separator, so it names a folder; give a file name",
+            path.display()
+        )));
+    }
     if path.is_dir() {
         return Err(Error::invalid(format!("{flag} {} is a directory", path.display())));
     }
@@ -96,5 +105,20 @@ pub fn check_output_path(flag: &str, path: &Path) -> Result<()> {
     if !parent.is_dir() {
         return Err(Error::invalid(format!("{flag} {}: folder {} does not exist", path.display(), parent.display())));
     }
-    Ok(())
+    let is_link = std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink());
+    let resolved = match std::fs::canonicalize(path) {
+        Ok(resolved) => resolved,
+        Err(_) if is_link => {
+            return Err(Error::invalid(format!("{flag} {}: a dangling symbolic link", path.display())));
+        }
+        Err(_) => path.to_path_buf(),
+    };
+    if std::fs::metadata(&resolved).is_ok_and(|m| !m.is_file()) {
+        return Ok(());
+    }
+    let folder = resolved.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name = resolved.file_name().unwrap_or(path.as_os_str());
+    super::atomic::probe_folder(folder, name).map_err(|e| {
+        Error::invalid(format!("{flag} {}: cannot create files in {}: {e}", path.display(), folder.display()))
+    })
 }

@@ -115,10 +115,10 @@ impl Trajectory {
             let mut m = Matrix4::zeros();
             for (c, f) in fields[1..].iter().enumerate() {
                 let v: f64 = f.parse().map_err(|_| Error::parse(path, at(), format!("`{f}` is not a number")))?;
-                if !v.is_finite() {
-                    return Err(Error::parse(path, at(), format!("non-finite matrix entry {v}")));
-                }
                 m[(c / 4, c % 4)] = v;
+            }
+            if let Some(problem) = crate::pose::rigidity_problem(&m) {
+                return Err(Error::parse(path, at(), format!("pose {k}: {problem}")));
             }
             if let Some((_, _, first)) = poses.iter().find(|(other, _, _)| *other == k) {
                 return Err(Error::parse(path, at(), format!("duplicate pose {k} (first at line {first})")));

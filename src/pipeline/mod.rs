@@ -539,8 +539,12 @@ impl Registrar {
         estimator: Estimator,
     ) -> Result<PoseEstimate> {
         if correspondences.len() < MIN_CORRESPONDENCES {
+            let weights = weights_file(&self.settings)
+                .map_or_else(|| "the built-in weights".to_string(), |p| format!("the weights {}", p.display()));
             return Err(Error::invalid(format!(
-                "only {} correspondences; at least {MIN_CORRESPONDENCES} are needed to estimate a pose",
+                "only {} correspondences; at least {MIN_CORRESPONDENCES} are needed to estimate a pose (the scans' \
+                 features matched too few keypoints: {weights} may not describe these scans, being untrained or \
+                 trained for other data, or the scans may not overlap)",
                 correspondences.len()
             )));
         }

@@ -101,3 +101,14 @@ pub fn tiny_config() -> ModelConfig {
         ..ModelConfig::default()
     }
 }
+
+/// A tiny synthetic dataset (one scene, three fragments, made by the `synth` command) in `dir/data`.
+pub fn tiny_dataset(dir: &Path) -> std::path::PathBuf {
+    let data = dir.join("data");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_dpr-gpu"))
+        .args(["synth", data.to_str().unwrap(), "--fragments", "3", "--frames", "4", "--width", "64"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    data
+}
