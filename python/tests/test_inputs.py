@@ -109,7 +109,9 @@ def test_zero_rows_are_dropped_as_sensor_no_returns_by_default(room_pair, baseli
         (np.zeros((0, 3)), "source: the array is empty"),
         (np.zeros((0, 3), dtype=np.float32), "source: the array is empty"),
         (np.full((50, 3), np.nan), "source: .*0 points"),
-        (np.zeros((5, 3)), "source: .*5 points"),
+        (np.ones((5, 3)), "source: .*5 points"),
+        # Rows all at the origin are sensor no-returns: dropped, which leaves nothing.
+        (np.zeros((5, 3)), "source: 0 points"),
         ([[1.0, 2.0], [3.0]], "source: not an array of numbers"),
         (np.array([["a", "b", "c"]] * 20), "source: not an array of numbers"),
     ],

@@ -204,8 +204,9 @@ def test_snapshot_writes_the_documented_png_and_refuses_a_missing_folder(room_pa
     data = out.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
     width, height = struct.unpack(">II", data[16:24])
-    # Three 360-pixel panels per row, two rows, 4-pixel gaps (the library's default layout).
-    assert (width, height) == (3 * 360 + 4 * 4, 2 * 360 + 3 * 4)
+    # Three 360-pixel panels per row, two rows, 4-pixel gaps, and three 20-pixel bands of text (over each row,
+    # the legend under them): the library's default layout.
+    assert (width, height) == (3 * 360 + 4 * 4, 2 * 360 + 3 * 4 + 3 * 20)
     result.snapshot(tmp_path / "no_lines.png", inliers=False)
     assert (tmp_path / "no_lines.png").read_bytes() != data
     with pytest.raises((OSError, ValueError), match="does not exist"):
