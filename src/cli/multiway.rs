@@ -47,6 +47,10 @@ pub struct Args {
     /// Line-process preference: larger keeps more loop closures (Open3D's preference_loop_closure).
     #[arg(long, default_value_t = 1.0)]
     pub loop_preference: f64,
+    /// Also write the pose graph as g2o (optimised poses, the edges in the graph and their final weights as
+    /// comments), in the scans' registration frames, for GTSAM or g2o (`dpr-gpu pose-graph` reads it).
+    #[arg(long, value_name = "GRAPH.g2o")]
+    pub graph_out: Option<PathBuf>,
 }
 
 /// Orders names with digit runs compared as numbers (`cloud_bin_2` < `cloud_bin_10`).
@@ -228,6 +232,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.fused.is_some() {
         outputs.push(("--fused", &fused_path));
     }
+    outputs.extend(args.graph_out.as_deref().map(|p| ("--graph-out", p)));
     check_outputs(&inputs, &outputs)?;
     if let Some(v) = args.fused
         && !(v.is_finite() && v > 0.0)
@@ -292,6 +297,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .collect(),
     };
     trajectory.write_log(&trajectory_path)?;
+    if let Some(path) = &args.graph_out {
+        result.write_g2o(path)?;
+    }
     let edges = EdgesFile {
         scans: paths.len(),
         line_process_weight: result.line_process_weight,

@@ -15,8 +15,10 @@ pub struct GraphEdge {
     pub j: usize,
     /// The measurement x_i = T x_j.
     pub i_from_j: Matrix4<f64>,
-    /// 6x6 information matrix, rows and columns ordered translation then rotation (the gt.info convention), of
-    /// the error [t; ω] of E = world_from_i⁻¹ world_from_j i_from_j⁻¹ acting on points of frame i.
+    /// 6x6 information matrix of the edge error e = Log(i_from_j⁻¹ world_from_i⁻¹ world_from_j) = [ρ; φ]
+    /// (translation first, as g2o's; see [`crate::pose_graph`]). A registration's information matrix, which
+    /// acts on the error of world_from_i⁻¹ world_from_j i_from_j⁻¹ in frame i, is moved here by
+    /// [`information_at_source`].
     pub information: Matrix6<f64>,
     /// Whether a line process may switch the edge off (loop closures); certain edges (trusted odometry) always
     /// count in full.
@@ -52,6 +54,14 @@ impl PoseGraph {
         }
         Ok(())
     }
+}
+
+/// The information matrix of an edge's error in frame j (the pose graph's convention) from `at_target`, the
+/// information of the error [t; ω] of E_i = world_from_i⁻¹ world_from_j i_from_j⁻¹ in frame i (the gt.info and
+/// registration convention). E_i = Z E_j Z⁻¹, so e_i = Ad(Z) e_j to first order and Ω_j = Ad(Z)ᵀ Ω_i Ad(Z).
+pub fn information_at_source(at_target: &Matrix6<f64>, i_from_j: &Matrix4<f64>) -> Matrix6<f64> {
+    let ad = crate::pose_graph::se3::adjoint(i_from_j);
+    ad.transpose() * at_target * ad
 }
 
 /// Nodes reachable from node 0 over the edges whose `active` flag is set.
