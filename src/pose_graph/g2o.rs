@@ -140,10 +140,11 @@ fn parse_edge(fields: &[&str]) -> std::result::Result<((u64, u64), Matrix4<f64>,
             k += 1;
         }
     }
-    let eigen = information.symmetric_eigenvalues();
-    let scale = information.abs().max();
-    if eigen.min() < -1e-9 * scale {
-        return Err(format!("information matrix is not positive semi-definite (eigenvalue {:e})", eigen.min()));
+    // Positive semi-definite within rounding: Ω + 1e-9 max|Ω| I has a Cholesky factor (cheaper than eigenvalues).
+    let shifted = information + Matrix6::identity() * (1e-9 * information.abs().max()).max(f64::MIN_POSITIVE);
+    if shifted.cholesky().is_none() {
+        let smallest = information.symmetric_eigenvalues().min();
+        return Err(format!("information matrix is not positive semi-definite (eigenvalue {smallest:e})"));
     }
     Ok((ids, pose, information))
 }

