@@ -137,8 +137,10 @@ fn with_false_loops(graph: &PoseGraph, fraction: f64, seed: u64) -> (PoseGraph, 
         if i.abs_diff(j) <= 1 {
             continue;
         }
-        let rotation =
-            so3::exp(&(Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize() * rng.uniform(0.0, 3.14)));
+        let rotation = so3::exp(
+            &(Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize()
+                * rng.uniform(0.0, std::f64::consts::PI)),
+        );
         let t = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize() * rng.uniform(0.0, 5.0);
         let information = graph.edges[rng.below(graph.edges.len())].information;
         edges.push(GraphEdge { i, j, i_from_j: matrix_from_parts(&rotation, &t), information, uncertain: true });

@@ -64,23 +64,19 @@ pub fn information_at_source(at_target: &Matrix6<f64>, i_from_j: &Matrix4<f64>) 
     ad.transpose() * at_target * ad
 }
 
-/// Nodes reachable from node 0 over the edges whose `active` flag is set.
+/// Nodes reachable from node 0 over the edges whose `active` flag is set (breadth-first over adjacency lists:
+/// O(nodes + edges)).
 pub fn reachable_from_reference(n: usize, edges: &[GraphEdge], active: &[bool]) -> Vec<bool> {
     let mut seen = vec![false; n];
     if n == 0 {
         return seen;
     }
+    let incident = incident_edges(n, edges, |k| active.get(k).copied().unwrap_or(false));
     seen[0] = true;
     let mut queue = VecDeque::from([0usize]);
     while let Some(node) = queue.pop_front() {
-        for (e, _) in edges.iter().zip(active).filter(|(_, a)| **a) {
-            let other = if e.i == node {
-                e.j
-            } else if e.j == node {
-                e.i
-            } else {
-                continue;
-            };
+        for &k in &incident[node] {
+            let other = edges[k].i + edges[k].j - node;
             if !seen[other] {
                 seen[other] = true;
                 queue.push_back(other);
@@ -88,6 +84,16 @@ pub fn reachable_from_reference(n: usize, edges: &[GraphEdge], active: &[bool]) 
         }
     }
     seen
+}
+
+/// The indices of the edges (those `keep` accepts, joining nodes below `n`) at each node.
+fn incident_edges(n: usize, edges: &[GraphEdge], keep: impl Fn(usize) -> bool) -> Vec<Vec<usize>> {
+    let mut incident: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (k, e) in edges.iter().enumerate().filter(|(k, e)| keep(*k) && e.i < n && e.j < n) {
+        incident[e.i].push(k);
+        incident[e.j].push(k);
+    }
+    incident
 }
 
 /// Initial world_from_node for `n` nodes: node 0 at the identity, then a maximum spanning tree over the edges by
@@ -104,11 +110,10 @@ pub fn spanning_tree_poses(n: usize, edges: &[GraphEdge], strength: &[f64]) -> (
     // Candidate edges touching the tree, best first: (strength as ordered key, -index) in a set.
     let key = |k: usize| (ordered(strength.get(k).copied().unwrap_or(0.0)), std::cmp::Reverse(k));
     let mut frontier: BTreeSet<(i64, std::cmp::Reverse<usize>)> = BTreeSet::new();
+    let incident = incident_edges(n, edges, |_| true);
     let touching = |node: usize, frontier: &mut BTreeSet<_>| {
-        for (k, e) in edges.iter().enumerate() {
-            if e.i == node || e.j == node {
-                frontier.insert(key(k));
-            }
+        for &k in &incident[node] {
+            frontier.insert(key(k));
         }
     };
     touching(0, &mut frontier);

@@ -105,9 +105,9 @@ impl<'a> Linear<'a> {
     ) {
         let (bi, bj) = (self.block[i], self.block[j]);
         // Rows of the residual's Jacobian: J_i = −Mᵀ, J_j = I.
-        for col in 0..self.columns {
+        for (col, offset) in c.iter().enumerate() {
             // The constant part of the residual: fixed ends and the offset.
-            let mut constant = -c[col];
+            let mut constant = -offset;
             if bi.is_none() {
                 constant -= m.transpose() * known.0[col];
             }

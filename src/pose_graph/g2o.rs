@@ -125,8 +125,11 @@ fn parse_vertex(fields: &[&str]) -> std::result::Result<(u64, Matrix4<f64>), Str
     Ok((id, parse_pose(&fields[1..8])?))
 }
 
+/// Vertex ids, i_from_j and information of an edge line.
+type ParsedEdge = ((u64, u64), Matrix4<f64>, Matrix6<f64>);
+
 /// `i j x y z qx qy qz qw` and 21 information entries.
-fn parse_edge(fields: &[&str]) -> std::result::Result<((u64, u64), Matrix4<f64>, Matrix6<f64>), String> {
+fn parse_edge(fields: &[&str]) -> std::result::Result<ParsedEdge, String> {
     expect_count(EDGE_TAG, fields, 30)?;
     let ids = (parse_id(fields[0], "first vertex id")?, parse_id(fields[1], "second vertex id")?);
     let pose = parse_pose(&fields[2..9])?;
