@@ -339,6 +339,14 @@ fn pinned_reader_regressions() {
 }
 
 #[test]
+fn g2o_seed_reads_and_solves() {
+    let read = parse_g2o(std::path::Path::new("seed.g2o"), seed_g2o().as_bytes()).unwrap();
+    assert_eq!((read.graph.world_from_node.len(), read.graph.edges.len()), (5, 6));
+    let s = solve(&read.graph, &SolveOptions::default()).unwrap();
+    assert!(s.final_error < s.given_error, "{} -> {}", s.given_error, s.final_error);
+}
+
+#[test]
 fn mutate_applies_each_kind() {
     let base = b"ply 123\n".to_vec();
     assert_eq!(mutate(base.clone(), &[Mutation::Truncate(0.5)]), b"ply ");
