@@ -1,14 +1,18 @@
 //! Block-sparse symmetric positive definite systems H x = b solved with faer's sparse Cholesky (LLᵀ, AMD
-//! ordering, supernodal or simplicial as faer chooses). H is given by blocks: one B x B block per variable block
+//! ordering, supernodal: the 6 x 6 blocks make dense supernodes, which faer's automatic choice, simplicial on
+//! these graphs, left to scalar updates). H is given by blocks: one B x B block per variable block
 //! on the diagonal and one per coupled pair (a, b), a < b (duplicates are summed), so its storage and the
 //! factorisation's follow the graph's edges. The symbolic analysis is done once per pattern and reused for every
 //! numeric factorisation (each Levenberg-Marquardt trial).
 
 use crate::error::{Error, Result};
-use faer::Side;
-use faer::linalg::solvers::Solve;
-use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::sparse::linalg::SupernodalThreshold;
+use faer::sparse::linalg::cholesky::{
+    CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering, factorize_symbolic_cholesky,
+};
 use faer::sparse::{Argsort, Pair, SparseColMat, SymbolicSparseColMat};
+use faer::{Conj, Par, Side};
 
 /// The sparsity pattern of a block system and its symbolic factorisation.
 pub struct BlockPattern {
@@ -22,12 +26,13 @@ pub struct BlockPattern {
     symbolic: SymbolicSparseColMat<usize>,
     argsort: Argsort<usize>,
     /// Elimination ordering and supernodes, shared by every numeric factorisation.
-    llt: SymbolicLlt<usize>,
+    llt: SymbolicCholesky<usize>,
 }
 
 /// A numeric factorisation of one matrix of a [`BlockPattern`].
-pub struct Factor {
-    llt: Llt<usize, f64>,
+pub struct Factor<'a> {
+    symbolic: &'a SymbolicCholesky<usize>,
+    values: Vec<f64>,
 }
 
 impl BlockPattern {
@@ -56,7 +61,11 @@ impl BlockPattern {
         let n = blocks * block;
         let (symbolic, argsort) = SymbolicSparseColMat::try_new_from_indices(n, n, &entries)
             .map_err(|e| Error::invalid(format!("sparse system: cannot build the pattern: {e:?}")))?;
-        let llt = SymbolicLlt::try_new(symbolic.as_ref(), Side::Upper)
+        let params = CholeskySymbolicParams {
+            supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
+            ..CholeskySymbolicParams::default()
+        };
+        let llt = factorize_symbolic_cholesky(symbolic.as_ref(), Side::Upper, SymmetricOrdering::Amd, params)
             .map_err(|e| Error::invalid(format!("sparse system: symbolic factorisation failed: {e:?}")))?;
         Ok(BlockPattern { block, blocks, pairs, symbolic, argsort, llt })
     }
@@ -69,7 +78,7 @@ impl BlockPattern {
     /// Factors the matrix with diagonal blocks `diagonal[a]` plus `damping[a * B + r]` on their diagonals, and
     /// off-diagonal blocks `off[p]` (rows of block `pairs[p].0`, columns of `pairs[p].1`); blocks are row-major
     /// B x B slices. `None` when the matrix is not positive definite.
-    pub fn factor(&self, diagonal: &[f64], damping: &[f64], off: &[f64]) -> Result<Option<Factor>> {
+    pub fn factor(&self, diagonal: &[f64], damping: &[f64], off: &[f64]) -> Result<Option<Factor<'_>>> {
         let b = self.block;
         debug_assert_eq!(diagonal.len(), self.blocks * b * b);
         debug_assert_eq!(off.len(), self.pairs.len() * b * b);
@@ -91,11 +100,23 @@ impl BlockPattern {
         }
         let matrix = SparseColMat::new_from_argsort(self.symbolic.clone(), &self.argsort, &values)
             .map_err(|e| Error::invalid(format!("sparse system: {e:?}")))?;
-        match Llt::try_new_with_symbolic(self.llt.clone(), matrix.as_ref(), Side::Upper) {
-            Ok(llt) => Ok(Some(Factor { llt })),
-            Err(faer::sparse::linalg::LltError::Numeric(_)) => Ok(None),
-            Err(e) => Err(Error::invalid(format!("sparse system: factorisation failed: {e:?}"))),
-        }
+        let mut values = vec![0.0; self.llt.len_val()];
+        let scratch = self.llt.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default());
+        let mut memory = MemBuffer::try_new(scratch).map_err(|_| Error::invalid("sparse system: out of memory"))?;
+        // The only failure left once the scratch memory is allocated is a non-positive pivot.
+        let positive_definite = self
+            .llt
+            .factorize_numeric_llt(
+                &mut values,
+                matrix.as_ref(),
+                Side::Upper,
+                Default::default(),
+                Par::Seq,
+                MemStack::new(&mut memory),
+                Default::default(),
+            )
+            .is_ok();
+        Ok(positive_definite.then_some(Factor { symbolic: &self.llt, values }))
     }
 
     /// The coupled pairs, in value order.
@@ -104,12 +125,18 @@ impl BlockPattern {
     }
 }
 
-impl Factor {
+impl Factor<'_> {
     /// Solves H X = B for the columns of `rhs` (`columns` of them, each of length dim, stored one after another).
     pub fn solve(&self, rhs: &[f64], columns: usize) -> Vec<f64> {
         let n = rhs.len() / columns.max(1);
         let mut x = faer::Mat::from_fn(n, columns, |r, c| rhs[c * n + r]);
-        self.llt.solve_in_place(x.as_mut());
+        let mut memory = MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(columns, Par::Seq));
+        LltRef::new(self.symbolic, &self.values).solve_in_place_with_conj(
+            Conj::No,
+            x.as_mut(),
+            Par::Seq,
+            MemStack::new(&mut memory),
+        );
         (0..columns).flat_map(|c| (0..n).map(move |r| (r, c))).map(|(r, c)| x[(r, c)]).collect()
     }
 }
