@@ -45,6 +45,7 @@ pub mod model;
 pub mod multiway;
 pub mod pipeline;
 pub mod pose;
+pub mod pose_graph;
 pub mod preprocess;
 pub mod result;
 pub mod rng;

@@ -40,6 +40,7 @@ fn small_args() -> Args {
         json: true,
         peak_tflops: Some(2.5),
         pair_points: 3000,
+        pose_graph: None,
     }
 }
 

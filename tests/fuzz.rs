@@ -1,7 +1,8 @@
-//! Mutation fuzzing on stable Rust (proptest): valid PLY (ascii and binary), PCD (ascii and binary), XYZ,
-//! weights, trajectory (.log and poses.txt), gt.info and scan-list files are mutated (bytes flipped, set, inserted, removed, truncated, ranges duplicated) and fed to
-//! the readers, and random registration settings to the pipeline. Nothing may panic; what reads must be a
-//! valid cloud. Each target runs a fixed number of cases (`FUZZ_CASES`, default 1000), about 2 s in all in
+//! Mutation fuzzing on stable Rust (proptest): valid PLY (ascii and binary), PCD (ascii and binary), XYZ, g2o
+//! pose-graph, weights, trajectory (.log and poses.txt), gt.info and scan-list files are mutated (bytes flipped,
+//! set, inserted, removed, truncated, ranges duplicated) and fed to the readers (a g2o graph that reads is also
+//! optimised), and random registration settings to the pipeline. Nothing may panic; what reads must be a
+//! valid cloud or graph. Each target runs a fixed number of cases (`FUZZ_CASES`, default 1000), about 2 s in all in
 //! release builds, well under the 2 minutes CI allows in total. The generator is seeded (`FUZZ_SEED`, fixed by
 //! default; `FUZZ_SEED=random` explores new inputs), so CI runs the same cases every time. Failing inputs are kept by proptest in
 //! `tests/fuzz.proptest-regressions` and replayed first; inputs that once failed are also pinned below as
@@ -13,6 +14,8 @@ use dpr_gpu::eval::gtlog::{InfoRecord, format_info, parse_info};
 use dpr_gpu::io::{LoadOptions, ZeroPoints, list_text, parse_scan_list, read_cloud};
 use dpr_gpu::model::{ModelConfig, Weights};
 use dpr_gpu::multiway::Trajectory;
+use dpr_gpu::pose_graph::g2o::parse_g2o;
+use dpr_gpu::pose_graph::{Init, SolveOptions, solve};
 use dpr_gpu::{PointCloud, Registrar, RegistrationSettings};
 use proptest::prelude::*;
 use proptest::test_runner::RngSeed;
@@ -116,6 +119,22 @@ fn mutate(mut bytes: Vec<u8>, mutations: &[Mutation]) -> Vec<u8> {
     bytes
 }
 
+/// A valid g2o graph of five poses: a chain and two loop closures.
+fn seed_g2o() -> &'static str {
+    "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\n\
+     VERTEX_SE3:QUAT 1 1 0 0 0 0 0.0998 0.995\n\
+     VERTEX_SE3:QUAT 2 2 0.2 0 0 0 0.198 0.980\n\
+     VERTEX_SE3:QUAT 3 3 0.5 0.1 0 0.01 0.295 0.955\n\
+     VERTEX_SE3:QUAT 4 4 1 0 0 0 0.389 0.921\n\
+     EDGE_SE3:QUAT 0 1 1 0 0 0 0 0.0998 0.995 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 4 0 0 4 0 4\n\
+     EDGE_SE3:QUAT 1 2 1 0.1 0 0 0 0.0998 0.995 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 4 0 0 4 0 4\n\
+     EDGE_SE3:QUAT 2 3 1 0.1 0 0 0 0.0998 0.995 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 4 0 0 4 0 4\n\
+     EDGE_SE3:QUAT 3 4 1 0.1 0 0 0 0.0998 0.995 2 0.1 0 0 0 0 2 0 0 0 0 2 0 0 0 4 0 0 4 0 4\n\
+     # a comment\n\
+     EDGE_SE3:QUAT 0 4 4 1 0 0 0 0.389 0.921 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 4 0 0 4 0 4\n\
+     EDGE_SE3:QUAT 4 1 -3 0 0 0 0 -0.295 0.955 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 4 0 0 4 0 4\n"
+}
+
 /// A small cloud with normals.
 fn seed_cloud() -> PointCloud {
     let mut c = common::room_corner(1, 40);
@@ -194,6 +213,20 @@ proptest! {
     ) {
         let (ext, bytes) = &seeds()[which];
         read_must_not_panic(ext, &mutate(bytes.clone(), &mutations));
+    }
+
+    #[test]
+    fn g2o_reader_and_solver_survive_mutated_files(mutations in proptest::collection::vec(mutation(), 1..6)) {
+        let bytes = mutate(seed_g2o().as_bytes().to_vec(), &mutations);
+        if let Ok(read) = parse_g2o(std::path::Path::new("fuzz.g2o"), &bytes) {
+            read.graph.validate().unwrap();
+            assert_eq!(read.ids.len(), read.graph.world_from_node.len());
+            for init in [Init::Chordal, Init::File] {
+                if let Ok(s) = solve(&read.graph, &SolveOptions { init, ..SolveOptions::default() }) {
+                    assert!(s.world_from_node.iter().all(|w| w.iter().all(|v| v.is_finite())));
+                }
+            }
+        }
     }
 
     #[test]
@@ -364,6 +397,14 @@ fn pinned_reader_regressions() {
     for (ext, bytes) in cases {
         read_must_not_panic(ext, bytes);
     }
+}
+
+#[test]
+fn g2o_seed_reads_and_solves() {
+    let read = parse_g2o(std::path::Path::new("seed.g2o"), seed_g2o().as_bytes()).unwrap();
+    assert_eq!((read.graph.world_from_node.len(), read.graph.edges.len()), (5, 6));
+    let s = solve(&read.graph, &SolveOptions::default()).unwrap();
+    assert!(s.final_error < s.given_error, "{} -> {}", s.given_error, s.final_error);
 }
 
 #[test]

@@ -11,6 +11,7 @@ use dpr_gpu::multiway::graph::{GraphEdge, PoseGraph};
 use dpr_gpu::multiway::optimize::{GlobalOptimizationOption, optimize};
 use dpr_gpu::pose::so3;
 use dpr_gpu::pose::{matrix_from_parts, rotation_error_deg, translation_error};
+use dpr_gpu::pose_graph::g2o::read_g2o;
 use dpr_gpu::rng::Rng;
 use dpr_gpu::synth::camera::CameraModel;
 use dpr_gpu::synth::{SynthSettings, write_dataset};
@@ -244,7 +245,9 @@ fn multiway_cli_recovers_a_small_scene_and_resumes_to_the_same_trajectory() {
     let (scene_s, out_s) = (scene.to_str().unwrap(), out.to_str().unwrap());
     let options =
         ["--pairs", "all", "--keypoints", "500", "--voxel", "0.025", "--estimator", "ransac", "--fused", "0.05"];
-    let first = dpr(&[&["multiway", scene_s, "--out", out_s][..], &options].concat());
+    let graph_path = scene.parent().unwrap().join("graph.g2o");
+    let graph_s = graph_path.to_str().unwrap();
+    let first = dpr(&[&["multiway", scene_s, "--out", out_s, "--graph-out", graph_s][..], &options].concat());
     assert!(first.contains("4 described, 0 pairs reused"), "{first}");
     let trajectory = Trajectory::read_log(&out.join("trajectory.log")).unwrap();
     let truth = Trajectory::read_poses(&scene.join("poses.txt")).unwrap();
@@ -261,6 +264,16 @@ fn multiway_cli_recovers_a_small_scene_and_resumes_to_the_same_trajectory() {
     for name in ["trajectory.log", "edges.json", "scans.txt", "fused.ply"] {
         assert!(wrote.contains(&out.join(name).display().to_string()), "{name} not in: {wrote}");
     }
+    // --graph-out: the optimised poses (scan ids 0..4) and the edges that entered the graph, with weights.
+    let graph = read_g2o(&graph_path).unwrap();
+    assert_eq!(graph.ids, [0, 1, 2, 3]);
+    for (g2o, log) in graph.graph.world_from_node.iter().zip(&trajectory.world_from_scan) {
+        assert!((g2o - log).abs().max() < 1e-6, "{g2o} vs {log}");
+    }
+    let in_graph = edges["edges"].as_array().unwrap().iter().filter(|e| e["in_graph"] == true).count();
+    assert_eq!(graph.graph.edges.len(), in_graph);
+    let text = std::fs::read_to_string(&graph_path).unwrap();
+    assert_eq!(text.matches("# EDGE_WEIGHT").count(), in_graph);
 
     // Resume after losing two pair files: only their scans are described again, and the result is identical.
     let log = std::fs::read(out.join("trajectory.log")).unwrap();

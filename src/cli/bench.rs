@@ -65,6 +65,9 @@ pub struct Args {
     /// Points per scan of the synthetic pair registered end to end (per-pair bytes and times); 0 skips it.
     #[arg(long, default_value_t = 20_000)]
     pub pair_points: usize,
+    /// Time the pose-graph optimiser on this g2o file instead (reading, chordal start, Levenberg-Marquardt).
+    #[arg(long, value_name = "FILE")]
+    pub pose_graph: Option<PathBuf>,
 }
 
 /// Which clock a device time comes from.
@@ -464,6 +467,9 @@ fn check_bounds(args: &Args) -> anyhow::Result<()> {
 
 /// Runs `dpr-gpu bench`: the table, or with `--json` the [`Report`] on stdout.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if let Some(path) = &args.pose_graph {
+        return super::bench_pose_graph::run(path, args.repeat, args.json);
+    }
     let report = measure_all(&args)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);

@@ -3,9 +3,11 @@
 use clap::{Parser, Subcommand};
 
 pub mod bench;
+pub mod bench_pose_graph;
 pub mod eval;
 pub mod eval_trajectory;
 pub mod multiway;
+pub mod pose_graph;
 pub mod register;
 pub mod synopsis;
 pub mod synth;
@@ -42,6 +44,8 @@ pub enum Command {
     Multiway(multiway::Args),
     /// Compare a trajectory with ground truth: ATE, rotation errors, loop closures kept.
     EvalTrajectory(eval_trajectory::Args),
+    /// Optimise a g2o pose graph (sparse Levenberg-Marquardt, chordal start, optional robust kernel).
+    PoseGraph(pose_graph::Args),
 }
 
 /// Runs the CLI; returns the process exit code. Errors are printed as one line.
@@ -61,6 +65,7 @@ pub fn main() -> std::process::ExitCode {
         Command::Train(args) => train::run(args),
         Command::Multiway(args) => multiway::run(args).map(|placed| untrusted = !placed),
         Command::EvalTrajectory(args) => eval_trajectory::run(args),
+        Command::PoseGraph(args) => pose_graph::run(args),
     };
     match outcome {
         Ok(()) if untrusted => std::process::ExitCode::from(register::EXIT_UNTRUSTED),

@@ -54,6 +54,10 @@ pub struct Args {
     /// Line-process preference: larger keeps more loop closures (Open3D's preference_loop_closure).
     #[arg(long, default_value_t = 1.0)]
     pub loop_preference: f64,
+    /// Also write the pose graph as g2o (optimised poses, the edges in the graph and their final weights as
+    /// comments), in the scans' registration frames, for GTSAM or g2o (`dpr-gpu pose-graph` reads it).
+    #[arg(long, value_name = "GRAPH.g2o")]
+    pub graph_out: Option<PathBuf>,
 }
 
 /// Orders names with digit runs compared as numbers (`cloud_bin_2` < `cloud_bin_10`).
@@ -291,6 +295,7 @@ fn prepare_outputs(args: &Args, paths: &[PathBuf], weights: Option<&Path>) -> an
     if args.fused.is_some() {
         outputs.push(("--fused", &files.fused));
     }
+    outputs.extend(args.graph_out.as_deref().map(|p| ("--graph-out", p)));
     check_outputs(&inputs, &outputs)?;
     Ok(files)
 }
@@ -422,6 +427,9 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
             .collect(),
     };
     trajectory.write_log(trajectory_path)?;
+    if let Some(path) = &args.graph_out {
+        result.write_g2o(path)?;
+    }
     let edges = EdgesFile {
         scans: paths.len(),
         line_process_weight: result.line_process_weight,

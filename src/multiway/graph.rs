@@ -15,8 +15,10 @@ pub struct GraphEdge {
     pub j: usize,
     /// The measurement x_i = T x_j.
     pub i_from_j: Matrix4<f64>,
-    /// 6x6 information matrix, rows and columns ordered translation then rotation (the gt.info convention), of
-    /// the error [t; ω] of E = world_from_i⁻¹ world_from_j i_from_j⁻¹ acting on points of frame i.
+    /// 6x6 information matrix of the edge error e = Log(i_from_j⁻¹ world_from_i⁻¹ world_from_j) = [ρ; φ]
+    /// (translation first, as g2o's; see [`crate::pose_graph`]). A registration's information matrix, which
+    /// acts on the error of world_from_i⁻¹ world_from_j i_from_j⁻¹ in frame i, is moved here by
+    /// [`information_at_source`].
     pub information: Matrix6<f64>,
     /// Whether a line process may switch the edge off (loop closures); certain edges (trusted odometry) always
     /// count in full.
@@ -54,23 +56,27 @@ impl PoseGraph {
     }
 }
 
-/// Nodes reachable from node 0 over the edges whose `active` flag is set.
+/// The information matrix of an edge's error in frame j (the pose graph's convention) from `at_target`, the
+/// information of the error [t; ω] of E_i = world_from_i⁻¹ world_from_j i_from_j⁻¹ in frame i (the gt.info and
+/// registration convention). E_i = Z E_j Z⁻¹, so e_i = Ad(Z) e_j to first order and Ω_j = Ad(Z)ᵀ Ω_i Ad(Z).
+pub fn information_at_source(at_target: &Matrix6<f64>, i_from_j: &Matrix4<f64>) -> Matrix6<f64> {
+    let ad = crate::pose_graph::se3::adjoint(i_from_j);
+    ad.transpose() * at_target * ad
+}
+
+/// Nodes reachable from node 0 over the edges whose `active` flag is set (breadth-first over adjacency lists:
+/// O(nodes + edges)).
 pub fn reachable_from_reference(n: usize, edges: &[GraphEdge], active: &[bool]) -> Vec<bool> {
     let mut seen = vec![false; n];
     if n == 0 {
         return seen;
     }
+    let incident = incident_edges(n, edges, |k| active.get(k).copied().unwrap_or(false));
     seen[0] = true;
     let mut queue = VecDeque::from([0usize]);
     while let Some(node) = queue.pop_front() {
-        for (e, _) in edges.iter().zip(active).filter(|(_, a)| **a) {
-            let other = if e.i == node {
-                e.j
-            } else if e.j == node {
-                e.i
-            } else {
-                continue;
-            };
+        for &k in &incident[node] {
+            let other = edges[k].i + edges[k].j - node;
             if !seen[other] {
                 seen[other] = true;
                 queue.push_back(other);
@@ -78,6 +84,16 @@ pub fn reachable_from_reference(n: usize, edges: &[GraphEdge], active: &[bool]) 
         }
     }
     seen
+}
+
+/// The indices of the edges (those `keep` accepts, joining nodes below `n`) at each node.
+fn incident_edges(n: usize, edges: &[GraphEdge], keep: impl Fn(usize) -> bool) -> Vec<Vec<usize>> {
+    let mut incident: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (k, e) in edges.iter().enumerate().filter(|(k, e)| keep(*k) && e.i < n && e.j < n) {
+        incident[e.i].push(k);
+        incident[e.j].push(k);
+    }
+    incident
 }
 
 /// Initial world_from_node for `n` nodes: node 0 at the identity, then a maximum spanning tree over the edges by
@@ -94,11 +110,10 @@ pub fn spanning_tree_poses(n: usize, edges: &[GraphEdge], strength: &[f64]) -> (
     // Candidate edges touching the tree, best first: (strength as ordered key, -index) in a set.
     let key = |k: usize| (ordered(strength.get(k).copied().unwrap_or(0.0)), std::cmp::Reverse(k));
     let mut frontier: BTreeSet<(i64, std::cmp::Reverse<usize>)> = BTreeSet::new();
+    let incident = incident_edges(n, edges, |_| true);
     let touching = |node: usize, frontier: &mut BTreeSet<_>| {
-        for (k, e) in edges.iter().enumerate() {
-            if e.i == node || e.j == node {
-                frontier.insert(key(k));
-            }
+        for &k in &incident[node] {
+            frontier.insert(key(k));
         }
     };
     touching(0, &mut frontier);

@@ -24,7 +24,7 @@ use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::pipeline::{Registrar, ScanFeatures};
 use crate::settings::RegistrationSettings;
-use graph::{GraphEdge, PoseGraph, spanning_tree_poses};
+use graph::{GraphEdge, PoseGraph, information_at_source, spanning_tree_poses};
 pub use optimize::GlobalOptimizationOption;
 pub use pair::{InformationSettings, PairResult};
 pub use pairs::PairSelection;
@@ -288,13 +288,7 @@ pub fn optimize_pairs(n: usize, results: &[PairResult], option: &GlobalOptimizat
         edge_of_result.push(Some(edges.len()));
         let certain = odometry && r.trusted;
         strength.push(if certain { 1e12 } else { 0.0 } + if r.trusted { 1e9 } else { 0.0 } + r.inliers as f64);
-        edges.push(GraphEdge {
-            i: r.i,
-            j: r.j,
-            i_from_j: r.transform(),
-            information: r.information_matrix(),
-            uncertain: !certain,
-        });
+        edges.push(graph_edge(r, !certain));
     }
     let (initial, _) = spanning_tree_poses(n, &edges, &strength);
     let graph = PoseGraph { world_from_node: initial, edges };
@@ -334,6 +328,31 @@ pub fn optimize_pairs(n: usize, results: &[PairResult], option: &GlobalOptimizat
         reused_pairs: 0,
         scale: None,
     })
+}
+
+/// The pose-graph edge of a registered pair (its information moved to the graph's convention).
+fn graph_edge(r: &PairResult, uncertain: bool) -> GraphEdge {
+    let i_from_j = r.transform();
+    let information = information_at_source(&r.information_matrix(), &i_from_j);
+    GraphEdge { i: r.i, j: r.j, i_from_j, information, uncertain }
+}
+
+impl MultiwayResult {
+    /// The optimised pose graph (the trajectory and the edges that entered the graph) and each edge's final
+    /// weight (its line process; 0 when pruned).
+    pub fn pose_graph(&self) -> (PoseGraph, Vec<f64>) {
+        let in_graph: Vec<&EdgeRecord> = self.edges.iter().filter(|e| e.in_graph).collect();
+        let edges = in_graph.iter().map(|e| graph_edge(&e.pair, e.uncertain)).collect();
+        let weights = in_graph.iter().map(|e| if e.survived { e.line_process } else { 0.0 }).collect();
+        (PoseGraph { world_from_node: self.trajectory.world_from_scan.clone(), edges }, weights)
+    }
+
+    /// Writes [`Self::pose_graph`] to `path` as g2o (vertex ids = scan numbers; weights as comments), atomically.
+    pub fn write_g2o(&self, path: &std::path::Path) -> Result<()> {
+        let (graph, weights) = self.pose_graph();
+        let ids: Vec<u64> = (0..graph.world_from_node.len() as u64).collect();
+        crate::pose_graph::write_g2o(path, &graph, &ids, Some(&weights))
+    }
 }
 
 /// All scans in the world frame of `trajectory`, merged and voxel-downsampled (one point per `voxel` cell).
