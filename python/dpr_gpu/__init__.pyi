@@ -20,6 +20,7 @@ from ._dpr_gpu import _Settings
 from ._dpr_gpu import choose_radius as choose_radius
 from ._dpr_gpu import multiway_origin as multiway_origin
 from ._dpr_gpu import optimize_pairs as optimize_pairs
+from ._dpr_gpu import pose_graph as pose_graph
 from ._dpr_gpu import read_cloud as read_cloud
 from ._dpr_gpu import scan_size as scan_size
 from ._dpr_gpu import select_pairs as select_pairs
@@ -37,6 +38,7 @@ __all__ = [
     "choose_radius",
     "multiway_origin",
     "optimize_pairs",
+    "pose_graph",
     "read_cloud",
     "register",
     "scan_size",

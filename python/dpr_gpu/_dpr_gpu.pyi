@@ -21,6 +21,7 @@ __all__ = [
     "scan_size",
     "choose_radius",
     "optimize_pairs",
+    "pose_graph",
     "read_cloud",
     "select_pairs",
     "_described_scan_from_state",
@@ -368,6 +369,27 @@ def optimize_pairs(
     origin: Tuple[int, int, int] = (0, 0, 0),
 ) -> MultiwayResult:
     """The robust pose graph of ``multiway`` over registered pairs."""
+
+class _PoseGraphResult(TypedDict):
+    world_from_node: npt.NDArray[np.float64]
+    ids: list[int]
+    weights: npt.NDArray[np.float64]
+    given_error: float
+    initial_error: float
+    final_error: float
+    iterations: int
+
+def pose_graph(
+    graph: Union[_PathLike, Sequence[Tuple[int, int, Any, Any]]],
+    *,
+    poses: Optional[Any] = None,
+    robust: Literal["none", "geman-mcclure"] = "none",
+    robust_scale: float = 1.0,
+    prune_below: float = 0.25,
+    init: Optional[Literal["chordal", "file"]] = None,
+    out: Optional[_PathLike] = None,
+) -> _PoseGraphResult:
+    """Optimises a pose graph (a g2o file or ``(i, j, i_from_j, information)`` edges), node 0 fixed."""
 
 def _described_scan_from_state(state: bytes) -> DescribedScan: ...
 def _pair_result_from_state(state: bytes) -> PairResult: ...

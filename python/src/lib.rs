@@ -6,6 +6,7 @@ mod arrays;
 mod described;
 mod errors;
 mod multiway;
+mod pose_graph;
 mod registrar;
 mod result;
 mod settings;
@@ -69,6 +70,7 @@ fn _dpr_gpu(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(multiway::scan_size, m)?)?;
     m.add_function(wrap_pyfunction!(multiway::choose_radius, m)?)?;
     m.add_function(wrap_pyfunction!(multiway::optimize_pairs, m)?)?;
+    m.add_function(wrap_pyfunction!(pose_graph::pose_graph, m)?)?;
     m.add_function(wrap_pyfunction!(described::_described_scan_from_state, m)?)?;
     m.add_function(wrap_pyfunction!(described::_pair_result_from_state, m)?)?;
     m.add_function(wrap_pyfunction!(settings::_library_defaults, m)?)?;
