@@ -23,7 +23,14 @@ calls (``multiway_origin``, ``Registrar.describe_scan``, ``select_pairs``, ``Reg
 
 from __future__ import annotations
 
+import os as _os
 from typing import Any, Optional, Sequence
+
+# Without a desktop session (no XDG_RUNTIME_DIR: servers, containers, ssh), Mesa's Vulkan device-select layer
+# prints "error: XDG_RUNTIME_DIR is invalid or not set" while the backend looks for an adapter; it only reorders
+# adapters, so it is switched off there (NODEVICE_SELECT=1, its manifest's switch) as the command line does.
+if not _os.path.isdir(_os.environ.get("XDG_RUNTIME_DIR") or "/nonexistent") and "NODEVICE_SELECT" not in _os.environ:
+    _os.environ["NODEVICE_SELECT"] = "1"
 
 from ._dpr_gpu import (
     DescribedScan,

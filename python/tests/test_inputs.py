@@ -131,3 +131,17 @@ def test_bad_normals_raise_value_error(room_pair):
     registrar = dpr_gpu.Registrar(**QUICK)
     with pytest.raises(ValueError, match="points: the array is empty"):
         registrar.describe(np.zeros((0, 3)))
+
+
+def test_looking_for_an_adapter_without_a_session_prints_no_error():
+    # Servers and containers have no XDG_RUNTIME_DIR; Mesa's device-select layer would print "error: ..." twice.
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("XDG_RUNTIME_DIR", "NODEVICE_SELECT")}
+    code = "import dpr_gpu; print(dpr_gpu.Registrar(backend='auto', keypoints=100).backend)"
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip(), "no backend named"
+    assert "error" not in done.stderr.lower(), done.stderr
