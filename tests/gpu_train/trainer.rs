@@ -187,7 +187,8 @@ pub fn train_cli_on_the_device_matches_the_cpu_and_resumes() {
             assert!(close, "step {}, column {k}: cpu {} vs gpu {}", c[0], c[k], g[k]);
         }
     }
-    let (half_out, half_ckpt, resumed) = (path("half.safetensors"), path("half.ckpt"), path("resumed.safetensors"));
+    let (half_out, half_ckpt, resumed) =
+        (path("half.safetensors"), path("half.ckpt.safetensors"), path("resumed.safetensors"));
     train("gpu run to step 2", &["--backend", "gpu", "--out", &half_out, "--checkpoint", &half_ckpt, "--steps", "2"]);
     let resume = ["train", "--resume", &half_ckpt, "--out", &resumed, "--steps", "4", "--backend", "gpu"];
     dpr("resumed gpu run", &resume);
