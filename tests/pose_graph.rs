@@ -125,6 +125,21 @@ fn chordal_start_escapes_the_drift_that_traps_the_odometry_start() {
     assert!(solved < 0.25 * drifted, "{solved} m from the truth; the odometry chain is {drifted} m off");
 }
 
+#[test]
+fn chordal_start_keeps_poses_that_already_start_lower() {
+    // Poses at the optimum start lower than any relaxation: the chordal start falls back to them, says so, and
+    // LM stays at the optimum; from the drifted odometry the relaxation is taken.
+    let (_, graph) = helix(3, 6, 0.05);
+    let first = solve(&graph, &plain(Init::Chordal)).unwrap();
+    assert_eq!((first.start, first.start_note.as_deref()), (Init::Chordal, None));
+    let optimised = PoseGraph { world_from_node: first.world_from_node.clone(), edges: graph.edges.clone() };
+    let again = solve(&optimised, &plain(Init::Chordal)).unwrap();
+    assert_eq!(again.start, Init::File);
+    assert!(again.start_note.as_deref().is_some_and(|n| n.contains("start lower")), "{:?}", again.start_note);
+    assert!((again.initial_error - first.final_error).abs() <= 1e-12 * first.final_error.max(1.0));
+    assert!(again.final_error <= first.final_error * (1.0 + 1e-9), "{} vs {}", again.final_error, first.final_error);
+}
+
 /// `graph` with round(`fraction` x edges) false loop closures: random non-adjacent pairs, random relative poses
 /// up to 5 m and any rotation, information copied from real edges.
 fn with_false_loops(graph: &PoseGraph, fraction: f64, seed: u64) -> (PoseGraph, usize) {

@@ -378,6 +378,8 @@ class _PoseGraphResult(TypedDict):
     initial_error: float
     final_error: float
     iterations: int
+    start: Literal["chordal", "file"]
+    start_note: Optional[str]
 
 def pose_graph(
     graph: Union[_PathLike, Sequence[Tuple[int, int, Any, Any]]],

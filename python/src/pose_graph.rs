@@ -6,7 +6,7 @@ use dpr_gpu::io::check_outputs;
 use dpr_gpu::pose_graph::{GraphEdge, Init, PoseGraph, Solution, SolveOptions, read_g2o, solve, write_g2o};
 use nalgebra::{Matrix4, Matrix6};
 use numpy::ndarray::Array3;
-use numpy::{IntoPyArray, PyArray1, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{IntoPyArray, PyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 use std::path::PathBuf;
@@ -95,6 +95,8 @@ fn solution_dict<'py>(py: Python<'py>, solution: Solution, ids: Vec<u64>) -> PyR
     d.set_item("initial_error", solution.initial_error)?;
     d.set_item("final_error", solution.final_error)?;
     d.set_item("iterations", solution.iterations)?;
+    d.set_item("start", if solution.start == Init::Chordal { "chordal" } else { "file" })?;
+    d.set_item("start_note", solution.start_note)?;
     Ok(d)
 }
 
@@ -111,7 +113,9 @@ fn solution_dict<'py>(py: Python<'py>, solution: Solution, ids: Vec<u64>) -> PyR
 ///
 /// Returns a dict: ``world_from_node`` (N, 4, 4), ``ids`` (the vertex id of each node), ``weights`` (each edge's
 /// final weight; 0 for pruned edges), ``given_error``, ``initial_error`` and ``final_error`` (GTSAM's
-/// 0.5 sum e^T Omega e at the given poses, after the initialisation, and at the end) and ``iterations``.
+/// 0.5 sum e^T Omega e at the given poses, after the initialisation, and at the end), ``iterations``, ``start``
+/// (``"chordal"`` or ``"file"``: a chordal start falls back to the given poses when the relaxation fails or starts
+/// higher than they do) and ``start_note`` (why it fell back, or None).
 #[pyfunction]
 #[pyo3(signature = (graph, *, poses = None, robust = "none".to_string(), robust_scale = 1.0, prune_below = 0.25,
     init = None, out = None),

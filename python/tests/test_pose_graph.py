@@ -93,6 +93,10 @@ def test_exact_edges_bring_a_perturbed_start_back_to_the_true_poses():
     # Without poses the start is chordal (every node at the identity before it): the same optimum.
     chordal = dpr_gpu.pose_graph(edges)
     _assert_at(chordal["world_from_node"], truth, 1e-4, 1e-8)
+    assert (result["start"], chordal["start"], chordal["start_note"]) == ("file", "chordal", None)
+    # Started at the optimum, a chordal start keeps the given poses (they start lower) and says why.
+    again = dpr_gpu.pose_graph(edges, poses=result["world_from_node"], init="chordal")
+    assert again["start"] == "file" and "start lower" in again["start_note"]
 
 
 def test_a_g2o_file_gives_the_edges_result_and_what_the_command_line_writes(tmp_path):

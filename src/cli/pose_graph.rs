@@ -48,6 +48,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let (nodes, edges) = (read.graph.world_from_node.len(), read.graph.edges.len());
     eprintln!("{nodes} poses, {edges} edges; optimising ({:?} start, kernel {})", options.init, args.robust);
     let solution = solve(&read.graph, &options)?;
+    if let Some(note) = &solution.start_note {
+        eprintln!("starting from the file's poses: {note}");
+    }
     let graph = crate::pose_graph::PoseGraph { world_from_node: solution.world_from_node, edges: read.graph.edges };
     write_g2o(&args.out, &graph, &read.ids, Some(&solution.weights))?;
     let kept = solution.weights.iter().filter(|&&w| w > 0.0).count();
@@ -57,7 +60,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         solution.iterations,
         solution.given_error,
         solution.initial_error,
-        if options.init == Init::Chordal { "chordal" } else { "file" },
+        if solution.start == Init::Chordal { "chordal" } else { "file" },
         solution.final_error,
         started.elapsed().as_secs_f64(),
         args.out.display()

@@ -14,7 +14,9 @@ use nalgebra::Matrix4;
 pub enum Init {
     /// The graph's own poses (a g2o file's vertices, usually chained odometry).
     File,
-    /// Chordal relaxation of the rotations, then the translations.
+    /// Chordal relaxation of the rotations, then the translations; the graph's own poses instead where the
+    /// relaxation fails (a singular system) or starts at a higher error than they do (poses already near an
+    /// optimum). [`Solution::start`] says which was used.
     Chordal,
 }
 
@@ -101,6 +103,10 @@ pub struct Solution {
     pub final_error: f64,
     /// Levenberg-Marquardt steps tried (all passes).
     pub iterations: usize,
+    /// The start used: [`Init::File`] also when [`Init::Chordal`] was asked for and fell back (see `start_note`).
+    pub start: Init,
+    /// Why a chordal start fell back to the graph's poses.
+    pub start_note: Option<String>,
 }
 
 /// Initialises and optimises `graph` (node 0 fixed).
@@ -110,10 +116,7 @@ pub fn solve(graph: &PoseGraph, options: &SolveOptions) -> Result<Solution> {
         return Err(Error::invalid("the pose graph has no nodes"));
     }
     let given_error = cost(&graph.edges, &graph.world_from_node);
-    let start = match options.init {
-        Init::File => graph.world_from_node.clone(),
-        Init::Chordal => chordal_poses(&graph.world_from_node, &graph.edges, &vec![true; graph.edges.len()])?,
-    };
+    let (start, start_used, start_note) = start_poses(graph, options.init, given_error);
     let initial_error = cost(&graph.edges, &start);
     let (mu, prune, robust) = match options.kernel {
         Kernel::None => (1.0, 0.0, false),
@@ -138,5 +141,28 @@ pub fn solve(graph: &PoseGraph, options: &SolveOptions) -> Result<Solution> {
         given_error,
         initial_error,
         iterations: report.lm_iterations,
+        start: start_used,
+        start_note,
     })
+}
+
+/// The starting poses for `init`, the start used and why a chordal start fell back to the graph's poses.
+fn start_poses(graph: &PoseGraph, init: Init, given_error: f64) -> (Vec<Matrix4<f64>>, Init, Option<String>) {
+    if init == Init::File {
+        return (graph.world_from_node.clone(), Init::File, None);
+    }
+    match chordal_poses(&graph.world_from_node, &graph.edges, &vec![true; graph.edges.len()]) {
+        Err(e) => (graph.world_from_node.clone(), Init::File, Some(format!("the chordal relaxation failed: {e}"))),
+        Ok(poses) => {
+            let chordal_error = cost(&graph.edges, &poses);
+            if chordal_error.is_finite() && chordal_error <= given_error {
+                (poses, Init::Chordal, None)
+            } else {
+                let note = format!(
+                    "the graph's poses start lower ({given_error:.6}) than the chordal ones ({chordal_error:.6})"
+                );
+                (graph.world_from_node.clone(), Init::File, Some(note))
+            }
+        }
+    }
 }
