@@ -12,6 +12,7 @@ import argparse
 import numpy as np
 
 import gtsam
+from g2o_text import write_g2o
 
 
 def main():
@@ -41,15 +42,9 @@ def main():
 
     def pose(p):
         q, t = p.rotation().toQuaternion(), p.translation()
-        return " ".join(f"{float(v):.17g}" for v in [t[0], t[1], t[2], q.x(), q.y(), q.z(), q.w()])
+        return [t[0], t[1], t[2], q.x(), q.y(), q.z(), q.w()]
 
-    info = "100 0 0 0 0 0 100 0 0 0 0 100 0 0 0 400 0 0 400 0 400"
-    with open(args.out, "w") as f:
-        for k, p in enumerate(start):
-            f.write(f"VERTEX_SE3:QUAT {k} {pose(p)}\n")
-        for i, j, z in edges:
-            f.write(f"EDGE_SE3:QUAT {i} {j} {pose(z)} {info}\n")
-
+    write_g2o(args.out, [pose(p) for p in start], [(i, j, pose(z)) for i, j, z in edges])
 
 if __name__ == "__main__":
     main()

@@ -16,6 +16,8 @@ import argparse
 
 import numpy as np
 
+from g2o_text import write_g2o
+
 
 def exp_so3(w):
     """Rotation matrix of the rotation vector w."""
@@ -98,14 +100,9 @@ def main():
             start.append(start[i] @ z)
 
     def pose(p):
-        return " ".join(f"{float(v):.17g}" for v in [*p[:3, 3], *quaternion_xyzw(p[:3, :3])])
+        return [*p[:3, 3], *quaternion_xyzw(p[:3, :3])]
 
-    info = "100 0 0 0 0 0 100 0 0 0 0 100 0 0 0 400 0 0 400 0 400"
-    with open(args.out, "w") as f:
-        for k, p in enumerate(start):
-            f.write(f"VERTEX_SE3:QUAT {k} {pose(p)}\n")
-        for i, j, z in edges:
-            f.write(f"EDGE_SE3:QUAT {i} {j} {pose(z)} {info}\n")
+    write_g2o(args.out, [pose(p) for p in start], [(i, j, pose(z)) for i, j, z in edges])
     print(f"{args.scans} poses, {len(edges)} edges ({len(edges) - (args.scans - 1)} loop closures)")
 
 
