@@ -4,8 +4,10 @@
 use crate::errors::value_error;
 use dpr_gpu::PointCloud;
 use dpr_gpu::io::{LoadOptions, LoadReport, cloud_from_rows};
-use numpy::ndarray::Array2;
-use numpy::{Element, IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
+use numpy::ndarray::{Array2, Array3};
+use numpy::{
+    Element, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods,
+};
 use pyo3::prelude::*;
 
 /// The rows of an (N, 3) float array as `f64` (exact for float32 and float64 input), read through the array's
@@ -90,6 +92,11 @@ pub(crate) fn vectors<'py>(py: Python<'py>, vectors: &[[f32; 3]]) -> Bound<'py, 
 /// A 4x4 matrix as a (4, 4) float64 array.
 pub(crate) fn matrix<'py>(py: Python<'py>, m: &nalgebra::Matrix4<f64>) -> Bound<'py, PyArray2<f64>> {
     Array2::from_shape_fn((4, 4), |(r, c)| m[(r, c)]).into_pyarray(py)
+}
+
+/// 4x4 poses as an (N, 4, 4) float64 array.
+pub(crate) fn matrices<'py>(py: Python<'py>, poses: &[nalgebra::Matrix4<f64>]) -> Bound<'py, PyArray3<f64>> {
+    Array3::from_shape_fn((poses.len(), 4, 4), |(k, r, c)| poses[k][(r, c)]).into_pyarray(py)
 }
 
 /// Index pairs as a (K, 2) int64 array.

@@ -2,7 +2,7 @@
 //! separate calls for schedulers (`dpr_gpu.distributed`): `multiway_origin`, `select_pairs` and
 //! `optimize_pairs`, whose `MultiwayResult` is the single-process result, written as `dpr-gpu multiway` writes it.
 
-use crate::arrays::{cloud_from_arrays, matrix};
+use crate::arrays::{cloud_from_arrays, matrices, matrix};
 use crate::errors::{to_py_err, value_error};
 use dpr_gpu::io::{LoadOptions, OriginShift, ZeroPoints, write_atomic};
 use dpr_gpu::multiway::pairs::select_pairs as library_select_pairs;
@@ -11,8 +11,7 @@ use dpr_gpu::multiway::{
     PairSelection, Trajectory, multiway_detailed, optimize_pairs as library_optimize_pairs,
 };
 use dpr_gpu::pose::unshift_pose;
-use numpy::ndarray::Array3;
-use numpy::{IntoPyArray, PyArray2, PyArray3, PyArrayMethods, PyUntypedArrayMethods};
+use numpy::{PyArray2, PyArray3, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use serde::Serialize;
@@ -253,8 +252,7 @@ impl MultiwayResult {
     }
 
     fn world_array<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray3<f64>> {
-        let poses = self.trajectory().world_from_scan;
-        Array3::from_shape_fn((poses.len(), 4, 4), |(k, r, c)| poses[k][(r, c)]).into_pyarray(py)
+        matrices(py, &self.trajectory().world_from_scan)
     }
 
     fn edge_list<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {

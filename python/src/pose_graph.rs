@@ -1,12 +1,12 @@
 //! `dpr_gpu.pose_graph`: the sparse pose-graph optimiser of `dpr-gpu pose-graph` on a g2o file or on edges given
 //! as arrays.
 
+use crate::arrays::matrices;
 use crate::errors::{to_py_err, value_error};
 use dpr_gpu::io::check_outputs;
 use dpr_gpu::pose_graph::{GraphEdge, Init, PoseGraph, Solution, SolveOptions, read_g2o, solve, write_g2o};
 use nalgebra::{Matrix4, Matrix6};
-use numpy::ndarray::Array3;
-use numpy::{IntoPyArray, PyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{PyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 use std::path::PathBuf;
@@ -83,12 +83,8 @@ fn graph_from_edges(edges: &Bound<'_, PyAny>, poses: Option<&Bound<'_, PyAny>>) 
 
 /// The solution as the dict documented on `pose_graph`.
 fn solution_dict<'py>(py: Python<'py>, solution: Solution, ids: Vec<u64>) -> PyResult<Bound<'py, PyDict>> {
-    let poses = &solution.world_from_node;
     let d = PyDict::new(py);
-    d.set_item(
-        "world_from_node",
-        Array3::from_shape_fn((poses.len(), 4, 4), |(k, r, c)| poses[k][(r, c)]).into_pyarray(py),
-    )?;
+    d.set_item("world_from_node", matrices(py, &solution.world_from_node))?;
     d.set_item("ids", ids)?;
     d.set_item("weights", PyArray1::from_vec(py, solution.weights))?;
     d.set_item("given_error", solution.given_error)?;
