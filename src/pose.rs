@@ -163,6 +163,18 @@ pub fn rigid_fit(source: &[[f32; 3]], target: &[[f32; 3]]) -> Option<Matrix4<f64
 /// [`rigid_fit`] in double precision (Kabsch / Umeyama without scale): the rigid `T` minimising
 /// sum |T source[i] - target[i]|^2. `None` with fewer than 3 pairs or a degenerate (collinear) configuration.
 pub fn rigid_fit_f64(source: &[Vector3<f64>], target: &[Vector3<f64>]) -> Option<Matrix4<f64>> {
+    orthogonal_fit(source, target, 1.0)
+}
+
+/// The reflection twin of [`rigid_fit_f64`]: the `T = [R t]` with det R = -1 (a rotation composed with a mirror)
+/// minimising sum |T source[i] - target[i]|^2, used to ask whether a mirror image explains the correspondences
+/// better than any motion (the verdict's handedness check). `None` as for [`rigid_fit_f64`].
+pub fn reflection_fit_f64(source: &[Vector3<f64>], target: &[Vector3<f64>]) -> Option<Matrix4<f64>> {
+    orthogonal_fit(source, target, -1.0)
+}
+
+/// The orthogonal `T` with det R = `determinant` (+1 or -1) fitting `source` onto `target` in least squares.
+fn orthogonal_fit(source: &[Vector3<f64>], target: &[Vector3<f64>], determinant: f64) -> Option<Matrix4<f64>> {
     let n = source.len().min(target.len());
     if n < 3 {
         return None;
@@ -181,7 +193,7 @@ pub fn rigid_fit_f64(source: &[Vector3<f64>], target: &[Vector3<f64>]) -> Option
         return None;
     }
     let mut d = Matrix3::identity();
-    if (v_t.transpose() * u.transpose()).determinant() < 0.0 {
+    if (v_t.transpose() * u.transpose()).determinant() * determinant < 0.0 {
         d[(2, 2)] = -1.0;
     }
     let r = v_t.transpose() * d * u.transpose();

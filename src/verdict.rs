@@ -1,10 +1,13 @@
 //! The success verdict: whether a registration result can be trusted, judged from its own support (never from
 //! ground truth). A pose is untrusted when it has too few inliers, too small a share of inliers among the
 //! correspondences, or inliers that are degenerate (nearly collinear, or all within a tiny region), since such
-//! support fixes no rotation.
+//! support fixes no rotation, or when a mirror image explains the correspondences better than the pose (one scan
+//! is a reflection of the other, which no rigid motion aligns).
 
 use crate::result::{Correspondence, PoseEstimate};
 use nalgebra::{Matrix3, Vector3};
+
+pub mod handedness;
 use serde::Serialize;
 
 /// Thresholds of the verdict. The defaults were validated on synthetic scans (`dpr-gpu synth --scenes 2
@@ -37,6 +40,10 @@ pub struct VerdictSettings {
     /// inliers on one line of a scan that is a line are still degenerate. 0 turns it off (the threshold rule
     /// alone).
     pub min_spread_over_scan: f64,
+    /// Most 3-point samples the handedness check ([`handedness::mirror_image`]) draws when looking for the
+    /// reflection (a rotation composed with a mirror) that explains most correspondences; fewer when that many
+    /// would find one explaining more than the pose with 99 % confidence. 0 turns the check off.
+    pub max_reflection_draws: usize,
 }
 
 impl Default for VerdictSettings {
@@ -46,6 +53,7 @@ impl Default for VerdictSettings {
             min_inlier_ratio: 0.055,
             min_spread_over_threshold: 2.0,
             min_spread_over_scan: 0.5,
+            max_reflection_draws: 20_000,
         }
     }
 }
@@ -96,7 +104,8 @@ impl Verdict {
 }
 
 /// Judges `estimate` from the `correspondences` it was computed from: inliers are the correspondences within
-/// `threshold` under the pose.
+/// `threshold` under the pose. A pose that passes is then asked whether a mirror image explains the scans better
+/// ([`handedness::mirror_image`], which needs the clouds).
 pub fn judge(
     estimate: &PoseEstimate,
     correspondences: &[Correspondence],

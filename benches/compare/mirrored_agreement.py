@@ -21,29 +21,12 @@ from scipy.spatial import cKDTree
 
 import dpr_gpu
 
+from mirrored_pairs import default_data, mirrored_source, pairs, rot_err
+
 CLI = sys.argv[1]
 WORK = Path(sys.argv[2])
-DATA = Path(sys.argv[3]) if len(sys.argv) > 3 else Path(__file__).resolve().parents[3] / "shared/data"
+DATA = Path(sys.argv[3]) if len(sys.argv) > 3 else default_data()
 WORK.mkdir(exist_ok=True)
-
-
-def pairs():
-    for folder in ("stanford_bunny", "3dmatch_redkitchen", "lidar_pair"):
-        for line in (DATA / folder / "pairs.txt").read_text().splitlines():
-            if line.strip() and not line.startswith("#"):
-                f = line.split()
-                yield folder, DATA / folder / f[0], DATA / folder / f[1], np.array([float(v) for v in f[2:18]]).reshape(4, 4)
-
-
-def write_ply(path, points, normals):
-    with open(path, "wb") as out:
-        has_n = normals is not None
-        header = "ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty float x\nproperty float y\nproperty float z\n" % len(points)
-        if has_n:
-            header += "property float nx\nproperty float ny\nproperty float nz\n"
-        out.write((header + "end_header\n").encode())
-        data = np.hstack([points, normals]) if has_n else points
-        out.write(data.astype("<f4").tobytes())
 
 
 def voxel(points, size):
@@ -78,19 +61,11 @@ def measure(source, target, pose, scale):
     return int(o.sum()), float((plane[o] < tau / 8).mean()), float((plane[o] < tau / 4).mean()), float((cos[o] > np.cos(np.radians(15))).mean())
 
 
-def rot_err(a, b):
-    r = a[:3, :3].T @ b[:3, :3]
-    return float(np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1))))
-
-
 rows = []
-for k, (folder, src, tgt, truth) in enumerate(pairs()):
-    points, normals = dpr_gpu.read_cloud(src)
-    target, _ = dpr_gpu.read_cloud(tgt)
-    mirrored = points * np.array([-1.0, 1, 1])
-    mnormals = None if normals is None else normals * np.array([-1.0, 1, 1])
+for k, (folder, src, tgt, truth) in enumerate(pairs(DATA)):
     mpath = WORK / f"mirrored_{k}.ply"
-    write_ply(mpath, mirrored, mnormals)
+    points, mirrored = mirrored_source(src, mpath)
+    target, _ = dpr_gpu.read_cloud(tgt)
     for kind, path, cloud in (("real", src, points), ("mirrored", mpath, mirrored)):
         out = subprocess.run([CLI, "register", str(path), str(tgt), "--json", "--backend", "cpu"], capture_output=True, text=True)
         r = json.loads(out.stdout)

@@ -161,7 +161,8 @@ impl RegistrationResult {
         &self.result.backend
     }
 
-    /// Whether the pose can be trusted, judged from its own support (inlier count, inlier ratio, spread).
+    /// Whether the pose can be trusted, judged from its own support (inlier count, inlier ratio, spread) and
+    /// its handedness (untrusted when a mirror image fits better).
     #[getter]
     fn success(&self) -> bool {
         self.result.success

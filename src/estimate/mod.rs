@@ -8,5 +8,5 @@ pub mod refine;
 pub mod visibility;
 
 pub use icp::icp_point_to_plane;
-pub use ransac::{ransac, ransac_candidates};
+pub use ransac::{ransac, ransac_candidates, required_iterations};
 pub use refine::{evaluate, inlier_set, refine};

@@ -16,6 +16,8 @@ use crate::preprocess::select_keypoints;
 use crate::rng::Rng;
 use crate::scale::{ScaleChoice, ScaleReport};
 use crate::settings::*;
+use crate::verdict::Verdict;
+use crate::verdict::handedness::mirror_image;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
@@ -538,6 +540,18 @@ impl Registrar {
         correspondences: &[Correspondence],
         estimator: Estimator,
     ) -> Result<PoseEstimate> {
+        Ok(self.estimate_judged(source, target, correspondences, estimator)?.0)
+    }
+
+    /// [`Registrar::estimate`], with the verdict on the estimate when choosing it took one (so it is not judged
+    /// twice).
+    fn estimate_judged(
+        &self,
+        source: &ScanFeatures,
+        target: &ScanFeatures,
+        correspondences: &[Correspondence],
+        estimator: Estimator,
+    ) -> Result<(PoseEstimate, Option<Verdict>)> {
         if correspondences.len() < MIN_CORRESPONDENCES {
             let weights = weights_file(&self.settings)
                 .map_or_else(|| "the built-in weights".to_string(), |p| format!("the weights {}", p.display()));
@@ -593,8 +607,12 @@ impl Registrar {
         };
         // The estimator's choice as today; the others compete only when the verdict does not trust it.
         let first = finish(candidates.first().ok_or_else(|| Error::invalid("no hypotheses to verify"))?)?;
-        if candidates.len() == 1 || self.judge(&first, correspondences).success {
-            return Ok(first);
+        if candidates.len() == 1 {
+            return Ok((first, None));
+        }
+        let verdict = self.judge((source, target), &first, correspondences);
+        if verdict.success {
+            return Ok((first, Some(verdict)));
         }
         let views = PairViews::new(
             (&source.cloud.points, source.viewpoint),
@@ -605,8 +623,8 @@ impl Registrar {
         let mut candidates = candidates;
         candidates[0] = first.clone();
         match candidates::choose(&candidates, &views) {
-            0 => Ok(first),
-            k => finish(&candidates[k]),
+            0 => Ok((first, Some(verdict))),
+            k => Ok((finish(&candidates[k])?, None)),
         }
     }
 
@@ -629,9 +647,25 @@ impl Registrar {
         self.backend.refine_icp(source, target, initial, &problem)
     }
 
-    /// Whether `estimate` (computed from `correspondences`) can be trusted, by the settings' verdict thresholds.
-    pub fn judge(&self, estimate: &PoseEstimate, correspondences: &[Correspondence]) -> crate::verdict::Verdict {
-        crate::verdict::judge(estimate, correspondences, self.inlier_threshold(), &self.settings.verdict)
+    /// Whether `estimate` (computed from `correspondences` between `source` and `target`) can be trusted: the
+    /// settings' verdict thresholds, then the handedness check on the clouds.
+    pub fn judge(
+        &self,
+        (source, target): (&ScanFeatures, &ScanFeatures),
+        estimate: &PoseEstimate,
+        correspondences: &[Correspondence],
+    ) -> Verdict {
+        let (threshold, settings) = (self.inlier_threshold(), &self.settings.verdict);
+        let verdict = crate::verdict::judge(estimate, correspondences, threshold, settings);
+        if !verdict.success {
+            return verdict;
+        }
+        let clouds = (source.cloud.points.as_slice(), target.cloud.points.as_slice());
+        let draws = settings.max_reflection_draws;
+        match mirror_image(estimate, correspondences, clouds, threshold, draws, self.settings.seed) {
+            Some(reason) => Verdict::fail(reason),
+            None => verdict,
+        }
     }
 
     /// The keypoint counts of the progressive schedule (see [`keypoint_stages`]).
@@ -671,9 +705,9 @@ impl Registrar {
                 .prepare_pose_features(t, &correspondences.iter().map(|c| c.target_index).collect::<Vec<_>>())?;
         }
         clock.lap("pc_encoder");
-        let estimate = self.estimate(source, target, &correspondences, estimator)?;
+        let (estimate, verdict) = self.estimate_judged(source, target, &correspondences, estimator)?;
         clock.lap("estimation");
-        let verdict = self.judge(&estimate, &correspondences);
+        let verdict = verdict.unwrap_or_else(|| self.judge((source, target), &estimate, &correspondences));
         Ok(Round { keypoints, correspondences, estimate, verdict })
     }
 
