@@ -2,8 +2,8 @@
 //! point pair features are blind to it (distances and angles survive a mirror), so a mirrored scan still finds
 //! correspondences, and some motion among them may gather enough inliers to pass the other rules.
 //!
-//! Seeded 3-point samples of the correspondences, each fitted both as a motion and as a reflection (det -1),
-//! give the reflection that explains most correspondences. A mirror-symmetric object (the Stanford bunny seen
+//! Seeded 3-point samples of the correspondences, each fitted as a reflection (det -1), give the reflection
+//! that explains most correspondences. A mirror-symmetric object (the Stanford bunny seen
 //! from above, a yard of boxes) makes left-right twins agree as a reflection too, and a reflection can lay a
 //! part of the source the target never saw onto its symmetric twin, so neither the inlier counts nor one
 //! overlap share tells them apart. So the pose and that reflection are each refined on the clouds by the same
@@ -30,17 +30,6 @@ const ON_TARGET_OVER_THRESHOLD: [f32; 5] = [0.125, 0.25, 0.5, 1.0, 2.0];
 /// The random stream of the samples under the registration's seed.
 const REFLECTION_STREAM: u64 = 0x6d69_7272_6f72; // "mirror"
 
-/// What the samples found.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Handedness {
-    /// The most correspondences one motion explains (at least the pose's).
-    pub rotation: usize,
-    /// The most correspondences one reflection explains.
-    pub reflection: usize,
-    /// That reflection refined on the correspondences it explains (`None` when no sample fitted).
-    pub reflection_pose: Option<Matrix4<f64>>,
-}
-
 /// Why `estimate` is untrusted for a mirror image of the scans, or `None` (also when no sample fits a
 /// reflection). `source_points` and `target_points` are the preprocessed clouds the correspondences' points
 /// come from; `threshold` the inlier threshold; `max_draws` and `seed` as for [`sample`].
@@ -55,8 +44,8 @@ pub fn mirror_image(
     let (source, target): (Vec<_>, Vec<_>) =
         correspondences.iter().map(|c| (v3(c.source_point), v3(c.target_point))).unzip();
     let pose_inliers = estimate.inliers.min(source.len());
-    let found = sample(&source, &target, f64::from(threshold), pose_inliers, max_draws, seed);
-    let reflection = found.reflection_pose?;
+    let (explained, reflection) =
+        best_reflection(&source, &target, f64::from(threshold), pose_inliers, max_draws, seed)?;
     let target_index = PointIndex::new(target_points).ok()?;
     let stride = source_points.len().div_ceil(MAX_DENSE_POINTS).max(1);
     let moved: Vec<[f32; 3]> = source_points.iter().step_by(stride).copied().collect();
@@ -70,32 +59,29 @@ pub fn mirror_image(
     dominates.then(|| {
         format!(
             "mirror image: a reflection lays more of the source on the target than the pose at every distance from \
-             1/8 to 2 inlier thresholds ({:.0} % against {:.0} % within 1/8; it explains {} correspondences, a \
-             motion {}): is one scan mirrored, an axis flipped?",
+             1/8 to 2 inlier thresholds ({:.0} % against {:.0} % within 1/8; it explains {explained} \
+             correspondences, the pose {pose_inliers}): is one scan mirrored, an axis flipped?",
             100.0 * mirror[0],
             100.0 * motion[0],
-            found.reflection,
-            found.rotation,
         )
     })
 }
 
-/// The best motion's and the best reflection's inliers (within `threshold`) among seeded 3-point samples of the
-/// correspondences `source[i] -> target[i]`, each sample fitted both ways; `pose_inliers` counts as a motion's.
-/// As many samples as find, with 99 % confidence, a reflection with more inliers than the pose, at most
-/// `max_draws` (0: none). On planar support a reflection across the plane ties with a motion.
-pub fn sample(
+/// The reflection explaining most correspondences `source[i] -> target[i]` (within `threshold`) among seeded
+/// 3-point samples, with that count, refitted on the correspondences it explains; `None` when no sample fits
+/// (fewer than 3 correspondences, `max_draws` 0, or all collinear). As many samples as find, with 99 %
+/// confidence, a reflection explaining more than the pose's `pose_inliers`, at most `max_draws`.
+pub fn best_reflection(
     source: &[Vector3<f64>],
     target: &[Vector3<f64>],
     threshold: f64,
     pose_inliers: usize,
     max_draws: usize,
     seed: u64,
-) -> Handedness {
-    let mut best = Handedness { rotation: pose_inliers, reflection: 0, reflection_pose: None };
+) -> Option<(usize, Matrix4<f64>)> {
     let n = source.len().min(target.len());
     if n < 3 || max_draws == 0 {
-        return best;
+        return None;
     }
     let inliers = |m: &Matrix4<f64>| -> Vec<usize> {
         let (r, t) = (m.fixed_view::<3, 3>(0, 0), m.fixed_view::<3, 1>(0, 3));
@@ -103,27 +89,21 @@ pub fn sample(
     };
     let draws = required_iterations(0.99, (pose_inliers + 1).min(n) as f64 / n as f64, max_draws);
     let mut rng = Rng::derived(seed, REFLECTION_STREAM);
-    let mut best_sample = None;
+    let mut best: Option<(usize, Matrix4<f64>)> = None;
     for _ in 0..draws {
         let idx = rng.sample_without_replacement(n, 3);
         let s: Vec<_> = idx.iter().map(|&i| source[i]).collect();
         let t: Vec<_> = idx.iter().map(|&i| target[i]).collect();
-        if let Some(m) = rigid_fit_f64(&s, &t) {
-            best.rotation = best.rotation.max(inliers(&m).len());
-        }
-        if let Some(m) = reflection_fit_f64(&s, &t) {
-            let count = inliers(&m).len();
-            if count > best.reflection {
-                best.reflection = count;
-                best_sample = Some(m);
-            }
+        let Some(m) = reflection_fit_f64(&s, &t) else { continue };
+        let count = inliers(&m).len();
+        if best.is_none_or(|(most, _)| count > most) {
+            best = Some((count, m));
         }
     }
-    best.reflection_pose = best_sample.map(|m| {
+    best.map(|(count, m)| {
         let (s, t): (Vec<_>, Vec<_>) = inliers(&m).iter().map(|&i| (source[i], target[i])).unzip();
-        reflection_fit_f64(&s, &t).unwrap_or(m)
-    });
-    best
+        (count, reflection_fit_f64(&s, &t).unwrap_or(m))
+    })
 }
 
 /// A least-squares fit of one handedness ([`rigid_fit_f64`] or [`reflection_fit_f64`]).
@@ -233,25 +213,40 @@ mod tests {
         // the clouds the reflection leaves the box off the target and the pose does not.
         let target = scene(true);
         let c = correspondences(&target, 30, 80);
-        let found = sample(
+        let (explained, _) = best_reflection(
             &c.iter().map(|c| v3(c.source_point)).collect::<Vec<_>>(),
             &c.iter().map(|c| v3(c.target_point)).collect::<Vec<_>>(),
             0.1,
             30,
             20_000,
             0,
-        );
-        assert!(found.reflection >= 80 && found.reflection > found.rotation, "{found:?}");
+        )
+        .unwrap();
+        assert!(explained >= 80, "the reflection explains {explained}, the pose 30");
         assert_eq!(mirror_image(&identity(30), &c, (&target, &target), 0.1, 20_000, 0), None);
     }
 
     #[test]
-    fn a_reflection_no_better_than_a_motion_is_not_looked_at() {
-        // A planar scene: every reflection across the plane has a motion twin, so they tie.
-        let plane: Vec<Vector3<f64>> =
-            (0..50).map(|i| Vector3::new(f64::from(i % 10) * 0.1, f64::from(i / 10) * 0.1, 0.0)).collect();
-        let flipped: Vec<Vector3<f64>> = plane.iter().map(|p| Vector3::new(-p.x, p.y, p.z)).collect();
-        let found = sample(&plane, &flipped, 0.01, 0, 500, 1);
-        assert_eq!((found.rotation, found.reflection), (50, 50));
+    fn a_planar_scene_is_not_a_mirror_image() {
+        // Every reflection across the plane has a motion twin: the twins (x -> -x) make a reflection explain all
+        // 50 correspondences and the pose (identity) none, yet on the clouds both lay the whole source on the
+        // target, so the reflection is not ahead at every distance.
+        let plane: Vec<[f32; 3]> = (0..50).map(|i| [(i % 10) as f32 * 0.1, (i / 10) as f32 * 0.1, 0.0]).collect();
+        let twins: Vec<Correspondence> = plane
+            .iter()
+            .enumerate()
+            .map(|(i, &p)| Correspondence {
+                source_index: i as u32,
+                target_index: i as u32,
+                source_point: p,
+                target_point: mirrored(p),
+                feature_distance: 0.0,
+            })
+            .collect();
+        let (source, target): (Vec<_>, Vec<_>) = plane.iter().map(|&p| (v3(p), v3(mirrored(p)))).unzip();
+        assert_eq!(best_reflection(&source, &target, 0.01, 0, 500, 1).map(|(n, _)| n), Some(50));
+        let mirrored_plane: Vec<[f32; 3]> = plane.iter().map(|&p| mirrored(p)).collect();
+        let both: Vec<[f32; 3]> = plane.iter().chain(&mirrored_plane).copied().collect();
+        assert_eq!(mirror_image(&identity(0), &twins, (&both, &both), 0.01, 500, 1), None);
     }
 }
