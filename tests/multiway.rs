@@ -223,7 +223,7 @@ fn small_scene(name: &str) -> (common::TestDir, std::path::PathBuf) {
     let settings = SynthSettings {
         fragments: 4,
         frames_per_fragment: 6,
-        camera: CameraModel { width: 128, height: 96, ..CameraModel::default() },
+        camera: CameraModel::default().with_size(128, 96),
         ..SynthSettings::default()
     };
     write_dataset(&dir, 7, 1, &settings, false, |_| {}).unwrap();

@@ -24,7 +24,7 @@ fn tiny(fragments: usize) -> SynthSettings {
     SynthSettings {
         fragments,
         frames_per_fragment: 4,
-        camera: CameraModel { width: 64, height: 48, ..CameraModel::default() },
+        camera: CameraModel::default().with_size(64, 48),
         ..SynthSettings::default()
     }
 }

@@ -64,33 +64,18 @@ class _Settings(TypedDict, total=False):
     pose_candidates: int
 
 @final
-class Features:
-    """One described scan: keypoints, their normals and their learned descriptors (kept opaque)."""
-
-    @property
-    def keypoints(self) -> npt.NDArray[np.float64]:
-        """Keypoint positions (scan frame), shape (K, 3)."""
-    @property
-    def keypoint_normals(self) -> npt.NDArray[np.float64]:
-        """Unit normals at the keypoints (scan frame), shape (K, 3)."""
-    @property
-    def empty_patches(self) -> int:
-        """Keypoints dropped because no other point lay within the patch radius."""
-    @property
-    def stream(self) -> int:
-        """The random stream the scan was described with."""
-    @property
-    def timings(self) -> dict[str, float]:
-        """Wall time per description stage in seconds."""
-    def __len__(self) -> int: ...
-
-@final
 class DescribedScan:
-    """One scan of a collection described once (``Registrar.describe_scan``); picklable, bit for bit."""
+    """One described scan (``Registrar.describe`` or ``Registrar.describe_scan``); picklable, bit for bit."""
 
     @property
     def index(self) -> int:
         """The scan's index in the collection (and its random stream)."""
+    @property
+    def stream(self) -> int:
+        """The random stream the scan was described with (its index)."""
+    @property
+    def empty_patches(self) -> int:
+        """Keypoints dropped because no other point lay within the patch radius."""
     @property
     def origin(self) -> Tuple[int, int, int]:
         """The whole-unit origin subtracted from the scan's coordinates."""
@@ -111,6 +96,9 @@ class DescribedScan:
         """Wall time per description stage in seconds."""
     def __len__(self) -> int: ...
     def __reduce__(self) -> Tuple[Any, Tuple[bytes]]: ...
+
+# The name ``Registrar.describe``'s scans had before they became ``DescribedScan``s.
+Features = DescribedScan
 
 @final
 class PairResult:
@@ -281,14 +269,14 @@ class Registrar:
     @property
     def inlier_threshold(self) -> float:
         """The inlier threshold in use (cloud units)."""
-    def describe(self, points: _Points, normals: Optional[_Points] = None, *, stream: int = 0) -> Features:
+    def describe(self, points: _Points, normals: Optional[_Points] = None, *, stream: int = 0) -> DescribedScan:
         """Describes one scan: normals, keypoints and their learned descriptors."""
-    def correspond(self, source: Features, target: Features) -> npt.NDArray[np.int64]:
+    def correspond(self, source: DescribedScan, target: DescribedScan) -> npt.NDArray[np.int64]:
         """Correspondences between two described scans as (K, 2) keypoint indices."""
     def estimate(
         self,
-        source: Features,
-        target: Features,
+        source: DescribedScan,
+        target: DescribedScan,
         correspondences: npt.ArrayLike,
         *,
         estimator: Optional[Literal["relativenet", "ransac"]] = None,

@@ -1,7 +1,8 @@
-//! The pieces of a multiway registration as values that travel between processes (pickle): a `DescribedScan`
-//! (one scan described once, with its pooled codeword) and a `PairResult` (one registered pair). They let a
-//! scheduler such as `dpr_gpu.distributed` run the describe and pair stages of `Registrar.multiway` anywhere and
-//! feed the results to the same pose graph ([`crate::multiway`]).
+//! Described scans and registered pairs as values that travel between processes (pickle): a `DescribedScan`
+//! (one scan described once, by `Registrar.describe` for the step-by-step pipeline or `Registrar.describe_scan`
+//! for a collection) and a `PairResult` (one registered pair). They let a scheduler such as
+//! `dpr_gpu.distributed` run the describe and pair stages of `Registrar.multiway` anywhere and feed the results
+//! to the same pose graph ([`crate::multiway`]).
 
 use crate::arrays::{cloud_from_arrays, matrix, positions, vectors};
 use crate::errors::{to_py_err, value_error};
@@ -36,26 +37,67 @@ pub(crate) fn description_key(settings: &RegistrationSettings) -> u64 {
     text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3))
 }
 
-/// One scan of a collection described once (``Registrar.describe_scan``): its preprocessed points, keypoints,
-/// learned descriptors and pooled codeword, and its index in the collection. Picklable (bit for bit), so it can
-/// be described in one process and registered in another by a ``Registrar`` with the same settings and weights.
+/// One described scan (``Registrar.describe`` or ``Registrar.describe_scan``): its preprocessed points,
+/// keypoints, their normals and learned descriptors (kept opaque), and its random stream (its index in a
+/// collection). Picklable (bit for bit), so it can be described in one process and used in another by a
+/// ``Registrar`` with the same settings and weights.
 #[pyclass(frozen, module = "dpr_gpu")]
 pub struct DescribedScan {
     /// The library's description (points in the collection's shifted frame).
     pub(crate) features: Arc<ScanFeatures>,
-    /// The scan's index in the collection (also its random stream).
+    /// The scan's random stream: its index in a collection.
     pub(crate) index: usize,
     /// The whole-unit origin subtracted from the scan (the collection's, from scan 0).
     pub(crate) origin: [i64; 3],
     /// [`description_key`] of the describing registrar.
     pub(crate) key: u64,
-    /// The pooled codeword used by retrieval.
-    pub(crate) pooled: Vec<f32>,
+    /// The pooled codeword used by retrieval, computed on first use.
+    pooled: OnceLock<Vec<f32>>,
     /// The points indexed for the information matrices, built on first use in this process.
     prepared: OnceLock<(f64, Arc<PreparedFragment>)>,
 }
 
 impl DescribedScan {
+    pub(crate) fn new(features: ScanFeatures, index: usize, origin: [i64; 3], key: u64) -> DescribedScan {
+        DescribedScan {
+            features: Arc::new(features),
+            index,
+            origin,
+            key,
+            pooled: OnceLock::new(),
+            prepared: OnceLock::new(),
+        }
+    }
+
+    /// The unit-length mean of the keypoints' unit codewords (read back once).
+    pub(crate) fn pooled(&self) -> PyResult<&[f32]> {
+        if let Some(p) = self.pooled.get() {
+            return Ok(p);
+        }
+        let codewords = self.features.read_codewords().map_err(to_py_err)?;
+        let pooled = pooled_codeword(&codewords, self.features.rows.codeword());
+        Ok(self.pooled.get_or_init(|| pooled))
+    }
+
+    /// Refuses a scan described with other settings or weights than `registrar`'s (`what` names the argument):
+    /// their descriptors do not match.
+    pub(crate) fn check_described_by(&self, registrar: &dpr_gpu::Registrar, what: &str) -> PyResult<()> {
+        if self.key != description_key(&registrar.settings) {
+            return Err(value_error(format!(
+                "{what} (scan {}) was described with other settings or weights than this Registrar's",
+                self.index
+            )));
+        }
+        Ok(())
+    }
+
+    /// The description with its rows on `registrar`'s backend: pickled scans hold host rows and a scan described
+    /// by another registrar holds that one's, so the backend takes them over (kept as they are when it
+    /// described them itself).
+    pub(crate) fn adopted_by(&self, registrar: &dpr_gpu::Registrar) -> Result<ScanFeatures, Error> {
+        registrar.adopt(&self.features)
+    }
+
     /// The scan's points indexed for information matrices at `distance` (cached for the first distance asked).
     fn prepared(&self, distance: f64) -> Arc<PreparedFragment> {
         let (d, p) =
@@ -88,7 +130,7 @@ impl DescribedScan {
             w.f64(f64::from(c.weight));
             write_rows(&mut w, c.rows.as_ref())?;
         }
-        w.f32s(&self.pooled);
+        w.f32s(self.pooled()?);
         w.u64(f.timings.len() as u64);
         for t in &f.timings {
             w.str(&t.stage);
@@ -169,7 +211,9 @@ impl DescribedScan {
             held_points: None,
             timings,
         };
-        Ok(DescribedScan { features: Arc::new(features), index, origin, key, pooled, prepared: OnceLock::new() })
+        let scan = DescribedScan::new(features, index, origin, key);
+        scan.pooled.get_or_init(|| pooled);
+        Ok(scan)
     }
 }
 
@@ -179,6 +223,19 @@ impl DescribedScan {
     #[getter]
     fn index(&self) -> usize {
         self.index
+    }
+
+    /// The random stream the scan was described with: its index (``register`` uses 0 for the source, 1 for the
+    /// target).
+    #[getter]
+    fn stream(&self) -> usize {
+        self.index
+    }
+
+    /// Keypoints dropped because no other point lay within the patch radius.
+    #[getter]
+    fn empty_patches(&self) -> usize {
+        self.features.empty_patches
     }
 
     /// The whole-unit origin subtracted from the scan's coordinates before the float32 conversion (zeros unless
@@ -209,8 +266,8 @@ impl DescribedScan {
     /// The unit-length mean of the keypoints' unit PPF-FoldNet codewords, a (D,) float32 array: retrieval ranks
     /// scan pairs by the dot product of these.
     #[getter]
-    fn pooled_codeword<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f32>> {
-        self.pooled.clone().into_pyarray(py)
+    fn pooled_codeword<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f32>>> {
+        Ok(self.pooled()?.to_vec().into_pyarray(py))
     }
 
     /// Wall time per description stage in seconds (dict, in pipeline order).
@@ -430,16 +487,7 @@ pub(crate) fn describe_scan(
     let (cloud, _) = cloud_from_arrays(points, normals, &format!("scan {index}"), &options)?;
     let features =
         py.detach(|| registrar.describe(&cloud, index as u64)).map_err(|e| to_py_err(scan_error(index, e)))?;
-    let codewords = features.read_codewords().map_err(to_py_err)?;
-    let pooled = pooled_codeword(&codewords, registrar.backend().model().config.codeword());
-    Ok(DescribedScan {
-        features: Arc::new(features),
-        index,
-        origin,
-        key: description_key(&registrar.settings),
-        pooled,
-        prepared: OnceLock::new(),
-    })
+    Ok(DescribedScan::new(features, index, origin, description_key(&registrar.settings)))
 }
 
 /// `Registrar.register_described`: registers `source` (scan j) onto `target` (scan i), i < j, with the edge
@@ -451,15 +499,8 @@ pub(crate) fn register_described(
     source: &DescribedScan,
     information_distance: Option<f64>,
 ) -> PyResult<PairResult> {
-    let key = description_key(&registrar.settings);
-    for (what, scan) in [("target", target), ("source", source)] {
-        if scan.key != key {
-            return Err(value_error(format!(
-                "{what} (scan {}) was described with other settings or weights than this Registrar's",
-                scan.index
-            )));
-        }
-    }
+    target.check_described_by(registrar, "target")?;
+    source.check_described_by(registrar, "source")?;
     let (i, j) = (target.index, source.index);
     if i >= j {
         return Err(value_error(format!("the target's index must be below the source's, got target {i}, source {j}")));
@@ -482,9 +523,7 @@ pub(crate) fn register_described(
     let result = py
         .detach(|| {
             let (pt, ps) = (target.prepared(distance), source.prepared(distance));
-            // Unpickled scans hold host rows: the registrar's backend takes them over (kept as they are when it
-            // described them itself).
-            let (tf, sf) = (registrar.adopt(&target.features)?, registrar.adopt(&source.features)?);
+            let (tf, sf) = (target.adopted_by(registrar)?, source.adopted_by(registrar)?);
             Ok::<_, Error>(register_pair(registrar, (i, j), &tf, &sf, &pt, &ps, &information))
         })
         .map_err(to_py_err)?;

@@ -58,10 +58,11 @@ fn read_cloud<'py>(
 fn _dpr_gpu(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_class::<registrar::Registrar>()?;
-    m.add_class::<registrar::Features>()?;
     m.add_class::<result::RegistrationResult>()?;
     m.add_class::<result::PoseEstimate>()?;
     m.add_class::<described::DescribedScan>()?;
+    // The name `Registrar.describe`'s scans had before they became `DescribedScan`s.
+    m.add("Features", m.getattr("DescribedScan")?)?;
     m.add_class::<described::PairResult>()?;
     m.add_class::<multiway::MultiwayResult>()?;
     m.add_function(wrap_pyfunction!(read_cloud, m)?)?;

@@ -1,9 +1,9 @@
 //! `Registrar`: the pipeline with its model and backend loaded once, and the scan features it describes.
 
-use crate::arrays::{cloud_from_arrays, index_pairs, positions, vectors};
-use crate::described::{DescribedScan, PairResult};
+use crate::arrays::{cloud_from_arrays, index_pairs};
+use crate::described::{DescribedScan, PairResult, description_key};
 use crate::errors::{to_py_err, value_error};
-use crate::result::{PoseEstimate, RegistrationResult, SnapshotInputs, timings_dict};
+use crate::result::{PoseEstimate, RegistrationResult, SnapshotInputs};
 use crate::settings::{ESTIMATORS, SettingsArgs, default_context_radii, settings_dict};
 use dpr_gpu::io::{LoadOptions, OriginShift};
 use dpr_gpu::pipeline::{ScanFeatures, load_weights};
@@ -14,70 +14,6 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
-
-/// Source of `Registrar` identities, so features are only combined by the registrar that described them.
-static NEXT_REGISTRAR: AtomicU64 = AtomicU64::new(0);
-
-/// One described scan: keypoints, their normals and their learned descriptors (kept opaque).
-///
-/// Made by ``Registrar.describe``; pass two of them to ``Registrar.correspond`` and ``Registrar.estimate``.
-#[pyclass(frozen, module = "dpr_gpu")]
-pub struct Features {
-    /// The library's description of the scan.
-    features: Arc<ScanFeatures>,
-    /// The registrar that described it.
-    registrar: u64,
-    /// The random stream the scan was described with.
-    stream: u64,
-}
-
-#[pymethods]
-impl Features {
-    /// Keypoint positions (scan frame) as a (K, 3) float64 array: keypoints whose patch had neighbours.
-    #[getter]
-    fn keypoints<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        positions(py, &self.features.keypoints, [0; 3])
-    }
-
-    /// Unit normals at the keypoints (scan frame) as a (K, 3) float64 array.
-    #[getter]
-    fn keypoint_normals<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        vectors(py, &self.features.keypoint_normals)
-    }
-
-    /// Keypoints dropped because no other point lay within the patch radius.
-    #[getter]
-    fn empty_patches(&self) -> usize {
-        self.features.empty_patches
-    }
-
-    /// The random stream the scan was described with (``register`` uses 0 for the source, 1 for the target).
-    #[getter]
-    fn stream(&self) -> u64 {
-        self.stream
-    }
-
-    /// Wall time per description stage in seconds (dict, in pipeline order).
-    #[getter]
-    fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        timings_dict(py, &self.features.timings)
-    }
-
-    /// Number of keypoints.
-    fn __len__(&self) -> usize {
-        self.features.keypoints.len()
-    }
-
-    fn __repr__(&self) -> String {
-        format!(
-            "Features(keypoints={}, empty_patches={}, stream={})",
-            self.features.keypoints.len(),
-            self.features.empty_patches,
-            self.stream
-        )
-    }
-}
 
 /// The registration pipeline with its weights, model and compute backend loaded once: reuse one ``Registrar``
 /// for many pairs.
@@ -123,18 +59,14 @@ impl Features {
 pub struct Registrar {
     /// The library's pipeline.
     inner: Arc<dpr_gpu::Registrar>,
-    /// Identity for [`Features::registrar`].
-    id: u64,
 }
 
 impl Registrar {
-    /// `features`' description, checked to come from this registrar.
-    fn own<'a>(&self, features: &'a Bound<'_, Features>, what: &str) -> PyResult<&'a Arc<ScanFeatures>> {
-        let f = features.get();
-        if f.registrar != self.id {
-            return Err(value_error(format!("{what}: these features were described by another Registrar")));
-        }
-        Ok(&f.features)
+    /// `scan`'s description on this registrar's backend, checked to fit its settings and weights.
+    fn own(&self, py: Python<'_>, scan: &Bound<'_, DescribedScan>, what: &str) -> PyResult<ScanFeatures> {
+        let scan = scan.get();
+        scan.check_described_by(&self.inner, what)?;
+        py.detach(|| scan.adopted_by(&self.inner)).map_err(to_py_err)
     }
 
     /// The load options for arrays given to this registrar.
@@ -244,7 +176,7 @@ impl Registrar {
         let loaded = py.detach(|| load_weights(&probe)).map_err(to_py_err)?;
         let settings = args.to_settings()?;
         let inner = py.detach(|| dpr_gpu::Registrar::with_weights(&settings, &loaded)).map_err(to_py_err)?;
-        Ok(Registrar { inner: Arc::new(inner), id: NEXT_REGISTRAR.fetch_add(1, Ordering::Relaxed) })
+        Ok(Registrar { inner: Arc::new(inner) })
     }
 
     /// The settings in effect, as a dict of the keyword arguments (defaults resolved where the library resolves
@@ -289,12 +221,12 @@ impl Registrar {
         py: Python<'_>,
         points: &Bound<'_, PyAny>,
         normals: Option<&Bound<'_, PyAny>>,
-        stream: u64,
-    ) -> PyResult<Features> {
+        stream: usize,
+    ) -> PyResult<DescribedScan> {
         let (cloud, _) = cloud_from_arrays(points, normals, "points", &self.load_options(OriginShift::None))?;
         let inner = &self.inner;
-        let features = py.detach(|| inner.describe(&cloud, stream)).map_err(to_py_err)?;
-        Ok(Features { features: Arc::new(features), registrar: self.id, stream })
+        let features = py.detach(|| inner.describe(&cloud, stream as u64)).map_err(to_py_err)?;
+        Ok(DescribedScan::new(features, stream, [0; 3], description_key(&inner.settings)))
     }
 
     /// Correspondences between two described scans (matching rule from the settings), as a (K, 2) int64 array
@@ -302,12 +234,12 @@ impl Registrar {
     fn correspond<'py>(
         &self,
         py: Python<'py>,
-        source: &Bound<'py, Features>,
-        target: &Bound<'py, Features>,
+        source: &Bound<'py, DescribedScan>,
+        target: &Bound<'py, DescribedScan>,
     ) -> PyResult<Bound<'py, PyArray2<i64>>> {
-        let (s, t) = (self.own(source, "source")?, self.own(target, "target")?);
+        let (s, t) = (self.own(py, source, "source")?, self.own(py, target, "target")?);
         let inner = &self.inner;
-        let found = py.detach(|| inner.correspond(s, t)).map_err(to_py_err)?;
+        let found = py.detach(|| inner.correspond(&s, &t)).map_err(to_py_err)?;
         Ok(index_pairs(py, found.iter().map(|c| [c.source_index, c.target_index])))
     }
 
@@ -319,20 +251,20 @@ impl Registrar {
     fn estimate(
         &self,
         py: Python<'_>,
-        source: &Bound<'_, Features>,
-        target: &Bound<'_, Features>,
+        source: &Bound<'_, DescribedScan>,
+        target: &Bound<'_, DescribedScan>,
         correspondences: &Bound<'_, PyAny>,
         estimator: Option<String>,
     ) -> PyResult<PoseEstimate> {
-        let (s, t) = (self.own(source, "source")?, self.own(target, "target")?);
+        let (s, t) = (self.own(py, source, "source")?, self.own(py, target, "target")?);
         let estimator = match estimator {
             Some(name) => crate::settings::choose("estimator", &name, ESTIMATORS)?,
             None => self.inner.settings.estimator,
         };
         let pairs = index_rows(correspondences)?;
-        let list = correspondences_between(s, t, &pairs)?;
+        let list = correspondences_between(&s, &t, &pairs)?;
         let inner = &self.inner;
-        let estimate = py.detach(|| inner.estimate(s, t, &list, estimator)).map_err(to_py_err)?;
+        let estimate = py.detach(|| inner.estimate(&s, &t, &list, estimator)).map_err(to_py_err)?;
         Ok(PoseEstimate { estimate })
     }
 

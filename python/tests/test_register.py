@@ -3,6 +3,7 @@ independent recomputation, the step-by-step API reproducing register, and the GI
 
 from __future__ import annotations
 
+import pickle
 import sys
 import threading
 import time
@@ -86,10 +87,16 @@ def test_the_steps_refuse_foreign_features_and_bad_indices(room_pair):
     source, target, _ = room_pair
     registrar = dpr_gpu.Registrar(**QUICK)
     a, b = registrar.describe(source), registrar.describe(target, stream=1)
-    other = dpr_gpu.Registrar(**QUICK)
-    with pytest.raises(ValueError, match="another Registrar"):
-        other.correspond(a, b)
     pairs = registrar.correspond(a, b)
+    # Scans described with other settings have descriptors that do not match: refused. A registrar with the same
+    # settings takes them (as it takes pickled ones) and finds the same correspondences.
+    other = dpr_gpu.Registrar(**{**QUICK, "keypoints": QUICK["keypoints"] + 1})
+    with pytest.raises(ValueError, match="other settings or weights"):
+        other.correspond(a, b)
+    np.testing.assert_array_equal(dpr_gpu.Registrar(**QUICK).correspond(a, b), pairs)
+    # One wrapper for every described scan: the steps' scans pickle like the collection's.
+    assert isinstance(a, dpr_gpu.DescribedScan) and dpr_gpu.Features is dpr_gpu.DescribedScan
+    np.testing.assert_array_equal(registrar.correspond(pickle.loads(pickle.dumps(a)), b), pairs)
     bad = pairs.copy()
     bad[0, 1] = len(b)
     with pytest.raises(ValueError, match="out of range"):

@@ -113,7 +113,7 @@ fn check_bounds(args: &Args) -> anyhow::Result<()> {
     // combine with.
     let defaults = SynthSettings::default();
     let (width, frames) =
-        (args.width.unwrap_or(defaults.camera.width), args.frames.unwrap_or(defaults.frames_per_fragment));
+        (args.width.unwrap_or(defaults.camera.image.width), args.frames.unwrap_or(defaults.frames_per_fragment));
     let rays = width * (width * 3 / 4) * frames;
     if rays > MAX_RAYS_PER_FRAGMENT {
         bail!(
@@ -146,12 +146,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bail!("--max-overlap must be between --min-overlap ({min_overlap}) and 1, got {max_overlap}");
     }
     let defaults = SynthSettings::default();
-    let width = args.width.unwrap_or(defaults.camera.width);
+    let width = args.width.unwrap_or(defaults.camera.image.width);
     let settings = SynthSettings {
         fragments: args.fragments,
         frames_per_fragment: args.frames.unwrap_or(defaults.frames_per_fragment),
         voxel: args.voxel.unwrap_or(defaults.voxel),
-        camera: CameraModel { width, height: width * 3 / 4, ..CameraModel::default() },
+        camera: CameraModel::default().with_size(width, width * 3 / 4),
         ground_truth: GroundTruthRule { min_overlap, max_overlap, ..GroundTruthRule::default() },
         style: args.style,
         overrides: Overrides {

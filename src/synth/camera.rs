@@ -8,9 +8,10 @@ use crate::rng::Rng;
 use nalgebra::{Matrix3, Matrix4, Vector3};
 use serde::Serialize;
 
-/// Depth camera intrinsics and error model.
+/// The image of a pinhole depth sensor ([`CameraModel`] and [`super::sensor::Sensor`] share it): its rays, fields
+/// of view, the depth range that returns and the largest incidence angle that does.
 #[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct CameraModel {
+pub struct PinholeImage {
     /// Rays per row.
     pub width: usize,
     /// Rays per column.
@@ -19,15 +20,23 @@ pub struct CameraModel {
     pub hfov_deg: f64,
     /// Vertical field of view (degrees).
     pub vfov_deg: f64,
-    /// Returns closer than this depth are missing (metres).
+    /// Returns closer than this depth are missing (metres, or scene units).
     pub min_depth: f64,
-    /// Returns farther than this depth are missing (metres).
+    /// Returns farther than this depth are missing (metres, or scene units).
     pub max_depth: f64,
-    /// Probability that a return is randomly missing.
-    pub dropout: f64,
     /// Returns whose incidence angle (between the ray and the surface normal) exceeds this are missing
     /// (degrees).
     pub max_incidence_deg: f64,
+}
+
+/// Depth camera intrinsics and error model.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct CameraModel {
+    /// Rays, fields of view and the range that returns.
+    #[serde(flatten)]
+    pub image: PinholeImage,
+    /// Probability that a return is randomly missing.
+    pub dropout: f64,
     /// Depth noise sigma(z) = `noise[0] + noise[1] (z - noise[2])^2` metres, along the ray (Kinect-like).
     pub noise: [f64; 3],
 }
@@ -35,20 +44,27 @@ pub struct CameraModel {
 impl Default for CameraModel {
     fn default() -> Self {
         CameraModel {
-            width: 160,
-            height: 120,
-            hfov_deg: 57.0,
-            vfov_deg: 43.0,
-            min_depth: 0.5,
-            max_depth: 4.5,
+            image: PinholeImage {
+                width: 160,
+                height: 120,
+                hfov_deg: 57.0,
+                vfov_deg: 43.0,
+                min_depth: 0.5,
+                max_depth: 4.5,
+                max_incidence_deg: 75.0,
+            },
             dropout: 0.03,
-            max_incidence_deg: 75.0,
             noise: [0.0012, 0.0019, 0.4],
         }
     }
 }
 
 impl CameraModel {
+    /// The camera with `width` x `height` rays (fields of view unchanged).
+    pub fn with_size(self, width: usize, height: usize) -> CameraModel {
+        CameraModel { image: PinholeImage { width, height, ..self.image }, ..self }
+    }
+
     /// Depth noise standard deviation at depth `z`.
     pub fn sigma(&self, z: f64) -> f64 {
         self.noise[0] + self.noise[1] * (z - self.noise[2]).powi(2)
@@ -64,13 +80,7 @@ impl CameraModel {
         out_from_camera: &Matrix4<f64>,
         rng: &mut Rng,
     ) -> Vec<([f64; 3], [f64; 3])> {
-        let image = PinholeImage {
-            size: (self.width, self.height),
-            fov_deg: (self.hfov_deg, self.vfov_deg),
-            depth: (self.min_depth, self.max_depth),
-            max_incidence_deg: self.max_incidence_deg,
-        };
-        let rays = PinholeRays::new(&image, world_from_camera, out_from_camera);
+        let rays = PinholeRays::new(&self.image, world_from_camera, out_from_camera);
         let pixel = |rng: &mut Rng, u: usize, v: usize| {
             let (ju, jv) = (rng.unit_f64(), rng.unit_f64());
             Some(([u as f64 + ju, v as f64 + jv], ()))
@@ -83,15 +93,6 @@ impl CameraModel {
         };
         rays.scan(objects, rng, pixel, measure)
     }
-}
-
-/// The image of a pinhole depth sensor: rays per row and column, fields of view (degrees), the depth range
-/// that returns (metres, or scene units) and the largest incidence angle that does (degrees).
-pub(super) struct PinholeImage {
-    pub size: (usize, usize),
-    pub fov_deg: (f64, f64),
-    pub depth: (f64, f64),
-    pub max_incidence_deg: f64,
 }
 
 /// A ray of a [`PinholeRays`] image that hit a surface within the depth range and incidence limit.
@@ -125,17 +126,17 @@ pub(super) struct PinholeRays {
 
 impl PinholeRays {
     pub fn new(image: &PinholeImage, world_from_camera: &Matrix4<f64>, out_from_camera: &Matrix4<f64>) -> PinholeRays {
-        let (w, h) = (image.size.0 as f64, image.size.1 as f64);
+        let (w, h) = (image.width as f64, image.height as f64);
         PinholeRays {
             world_from_camera: *world_from_camera,
             out_from_camera: *out_from_camera,
-            size: image.size,
+            size: (image.width, image.height),
             focal: (
-                w / 2.0 / (image.fov_deg.0.to_radians() / 2.0).tan(),
-                h / 2.0 / (image.fov_deg.1.to_radians() / 2.0).tan(),
+                w / 2.0 / (image.hfov_deg.to_radians() / 2.0).tan(),
+                h / 2.0 / (image.vfov_deg.to_radians() / 2.0).tan(),
             ),
             center: (w / 2.0, h / 2.0),
-            depth: image.depth,
+            depth: (image.min_depth, image.max_depth),
             cos_max: image.max_incidence_deg.to_radians().cos(),
         }
     }
@@ -458,7 +459,7 @@ mod tests {
         // A big wall 2 m in front of a camera at the origin looking along +x.
         let wall =
             Object::new("wall", vec![Primitive::cuboid(Vector3::new(2.5, 0.0, 0.0), Vector3::new(0.5, 5.0, 5.0), 0.0)]);
-        let cam = CameraModel { width: 40, height: 30, ..CameraModel::default() };
+        let cam = CameraModel::default().with_size(40, 30);
         let pose = look_pose(Vector3::zeros(), 0.0, 0.0, 0.0);
         let pts = cam.scan(&[wall], &pose, &Matrix4::identity(), &mut Rng::new(1));
         assert!(pts.len() > 1000 && pts.len() <= 1200, "{}", pts.len());
@@ -474,7 +475,7 @@ mod tests {
             "floor",
             vec![Primitive::cuboid(Vector3::new(0.0, 0.0, -0.35), Vector3::new(20.0, 20.0, 0.05), 0.0)],
         );
-        let cam = CameraModel { width: 40, height: 30, dropout: 0.0, ..CameraModel::default() };
+        let cam = CameraModel { dropout: 0.0, ..CameraModel::default().with_size(40, 30) };
         let pose = look_pose(Vector3::zeros(), 0.0, 0.0, 0.0);
         let pts = cam.scan(std::slice::from_ref(&floor), &pose, &Matrix4::identity(), &mut Rng::new(2));
         // The floor is 0.3 m below the camera: camera y ("down") is 0.3 and the cosine of the incidence angle

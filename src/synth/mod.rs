@@ -155,7 +155,7 @@ pub fn generate_scene(seed: u64, settings: &SynthSettings) -> Result<Scene> {
     if !(settings.voxel > 0.0 && settings.voxel.is_finite()) {
         return Err(Error::invalid(format!("synth: voxel size must be positive, got {}", settings.voxel)));
     }
-    if settings.camera.width == 0 || settings.camera.height == 0 {
+    if settings.camera.image.width == 0 || settings.camera.image.height == 0 {
         return Err(Error::invalid("synth: the camera needs at least one ray per row and column"));
     }
     let room = room::generate_room(&mut Rng::derived(seed, STREAM_ROOM));
@@ -362,7 +362,7 @@ mod tests {
         SynthSettings {
             fragments: 3,
             frames_per_fragment: 4,
-            camera: CameraModel { width: 64, height: 48, ..CameraModel::default() },
+            camera: CameraModel::default().with_size(64, 48),
             voxel: 0.01,
             ..SynthSettings::default()
         }

@@ -87,22 +87,11 @@ impl DepthNoise {
 /// A pinhole depth sensor and its error model.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Sensor {
-    /// Rays per row.
-    pub width: usize,
-    /// Rays per column.
-    pub height: usize,
-    /// Horizontal field of view (degrees).
-    pub hfov_deg: f64,
-    /// Vertical field of view (degrees).
-    pub vfov_deg: f64,
-    /// Returns closer than this depth are missing.
-    pub min_depth: f64,
-    /// Returns farther than this depth are missing.
-    pub max_depth: f64,
+    /// Rays, fields of view and the range that returns.
+    #[serde(flatten)]
+    pub image: PinholeImage,
     /// Probability that a return is randomly missing.
     pub dropout: f64,
-    /// Returns whose incidence angle exceeds this are missing (degrees).
-    pub max_incidence_deg: f64,
     /// The depth error.
     pub noise: DepthNoise,
     /// Each frame has `0..=max_holes` elliptic holes (missing returns) at random places in the image.
@@ -140,14 +129,8 @@ impl Sensor {
         out_from_camera: &Matrix4<f64>,
         rng: &mut Rng,
     ) -> Vec<([f64; 3], [f64; 3])> {
-        let image = PinholeImage {
-            size: (self.width, self.height),
-            fov_deg: (self.hfov_deg, self.vfov_deg),
-            depth: (self.min_depth, self.max_depth),
-            max_incidence_deg: self.max_incidence_deg,
-        };
-        let rays = PinholeRays::new(&image, world_from_camera, out_from_camera);
-        let (w, h) = (self.width as f64, self.height as f64);
+        let rays = PinholeRays::new(&self.image, world_from_camera, out_from_camera);
+        let (w, h) = (self.image.width as f64, self.image.height as f64);
         let holes: Vec<Hole> = (0..rng.below(self.max_holes + 1))
             .map(|_| Hole {
                 center: [rng.uniform(0.0, w), rng.uniform(0.0, h)],
@@ -199,7 +182,7 @@ impl Sensor {
         let (du, dv) = (rng.uniform(-0.5, 0.5) * footprint, rng.uniform(-0.5, 0.5) * footprint);
         let mix = rng.unit_f64();
         let (_, len2, dir2) = rays.ray([hit.pixel[0] + du, hit.pixel[1] + dv]);
-        let far = self.max_depth * len2 * 2.0;
+        let far = self.image.max_depth * len2 * 2.0;
         match cast_ray_object(objects, &rays.origin(), &dir2, far) {
             Some((hit2, _)) if (hit2.t / len2 - hit.z).abs() > MIXED_PIXEL_EDGE => {
                 mix * hit.z + (1.0 - mix) * hit2.t / len2
@@ -235,14 +218,16 @@ mod tests {
 
     fn sensor(noise: DepthNoise) -> Sensor {
         Sensor {
-            width: 40,
-            height: 30,
-            hfov_deg: 60.0,
-            vfov_deg: 45.0,
-            min_depth: 0.3,
-            max_depth: 6.0,
+            image: PinholeImage {
+                width: 40,
+                height: 30,
+                hfov_deg: 60.0,
+                vfov_deg: 45.0,
+                min_depth: 0.3,
+                max_depth: 6.0,
+                max_incidence_deg: 80.0,
+            },
             dropout: 0.0,
-            max_incidence_deg: 80.0,
             noise,
             max_holes: 0,
             hole_radius: [0.05, 0.1],

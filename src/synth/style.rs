@@ -7,7 +7,7 @@
 //! is written next to the fragments as `style.json`.
 
 use super::attic::{AtticRecord, camera_room, generate_attic};
-use super::camera::{MotionModel, OrbitModel, look_pose, plan_trajectory};
+use super::camera::{MotionModel, OrbitModel, PinholeImage, look_pose, plan_trajectory};
 use super::heldout::{HallRecord, generate_hall};
 use super::object::{ObjectFamily, generate_object};
 use super::room::{Room, RoomShape, RoomSpec, generate_room_with};
@@ -178,6 +178,20 @@ fn aspect_height(width: usize, hfov_deg: f64, vfov_deg: f64) -> usize {
     ((width as f64 * ratio).round() as usize).max(1)
 }
 
+/// A pinhole image `width` rays wide with fields of view `fov_deg` (horizontal, vertical), as many rows as
+/// keep square pixels, returning depths in `depth` at incidence angles up to `max_incidence_deg`.
+fn aspect_image(width: usize, fov_deg: (f64, f64), depth: (f64, f64), max_incidence_deg: f64) -> PinholeImage {
+    PinholeImage {
+        width,
+        height: aspect_height(width, fov_deg.0, fov_deg.1),
+        hfov_deg: fov_deg.0,
+        vfov_deg: fov_deg.1,
+        min_depth: depth.0,
+        max_depth: depth.1,
+        max_incidence_deg,
+    }
+}
+
 /// The randomized style's sensor, before resolution and range are fitted to the scene kind.
 fn randomized_sensor(rng: &mut Rng, object: bool) -> Sensor {
     let hfov = rng.uniform(45.0, 90.0);
@@ -196,15 +210,12 @@ fn randomized_sensor(rng: &mut Rng, object: bool) -> Sensor {
         },
     };
     let small_hole = rng.uniform(0.02, 0.05);
+    // Drawn in this order (the generator's streams depend on it).
+    let (min_depth, max_depth, dropout, max_incidence_deg) =
+        (rng.uniform(0.2, 0.6), rng.uniform(3.0, 8.0), rng.uniform(0.0, 0.12), rng.uniform(65.0, 85.0));
     Sensor {
-        width,
-        height: aspect_height(width, hfov, vfov),
-        hfov_deg: hfov,
-        vfov_deg: vfov,
-        min_depth: rng.uniform(0.2, 0.6),
-        max_depth: rng.uniform(3.0, 8.0),
-        dropout: rng.uniform(0.0, 0.12),
-        max_incidence_deg: rng.uniform(65.0, 85.0),
+        image: aspect_image(width, (hfov, vfov), (min_depth, max_depth), max_incidence_deg),
+        dropout,
         noise,
         max_holes: rng.below(5),
         hole_radius: [small_hole, small_hole + rng.uniform(0.02, 0.1)],
@@ -221,15 +232,12 @@ fn heldout_sensor(rng: &mut Rng) -> Sensor {
     let width = 128 + rng.below(65);
     let native_width = [640.0, 848.0, 1280.0][rng.below(3)];
     let baseline = rng.uniform(0.05, 0.09);
+    // Drawn in this order (the generator's streams depend on it).
+    let (min_depth, max_depth, dropout, max_incidence_deg) =
+        (rng.uniform(0.4, 0.6), rng.uniform(4.0, 6.0), rng.uniform(0.01, 0.04), rng.uniform(70.0, 80.0));
     Sensor {
-        width,
-        height: aspect_height(width, hfov, vfov),
-        hfov_deg: hfov,
-        vfov_deg: vfov,
-        min_depth: rng.uniform(0.4, 0.6),
-        max_depth: rng.uniform(4.0, 6.0),
-        dropout: rng.uniform(0.01, 0.04),
-        max_incidence_deg: rng.uniform(70.0, 80.0),
+        image: aspect_image(width, (hfov, vfov), (min_depth, max_depth), max_incidence_deg),
+        dropout,
         noise: DepthNoise::Disparity {
             focal_px: native_width / 2.0 / (hfov.to_radians() / 2.0).tan(),
             baseline,
@@ -249,15 +257,12 @@ fn tof_sensor(rng: &mut Rng) -> Sensor {
     let aspect = [1.0, 5.0 / 4.0, 4.0 / 3.0][rng.below(3)];
     let vfov = 2.0 * ((hfov / 2.0f64).to_radians().tan() / aspect).atan().to_degrees();
     let width = 112 + rng.below(81);
+    // Drawn in this order (the generator's streams depend on it).
+    let (min_depth, max_depth, dropout, max_incidence_deg) =
+        (rng.uniform(0.25, 0.4), rng.uniform(3.5, 5.5), rng.uniform(0.005, 0.03), rng.uniform(75.0, 85.0));
     Sensor {
-        width,
-        height: aspect_height(width, hfov, vfov),
-        hfov_deg: hfov,
-        vfov_deg: vfov,
-        min_depth: rng.uniform(0.25, 0.4),
-        max_depth: rng.uniform(3.5, 5.5),
-        dropout: rng.uniform(0.005, 0.03),
-        max_incidence_deg: rng.uniform(75.0, 85.0),
+        image: aspect_image(width, (hfov, vfov), (min_depth, max_depth), max_incidence_deg),
+        dropout,
         noise: DepthNoise::TimeOfFlight {
             sigma_at_1m: rng.uniform(0.0015, 0.004),
             wiggle_amplitude: rng.uniform(0.003, 0.01),
@@ -296,7 +301,7 @@ fn object_poses(
     sensor: &Sensor,
 ) -> (Vec<Matrix4<f64>>, Vec<f64>, Vec<f64>, Vec<f64>) {
     let radius = size * 0.75;
-    let half_fov = sensor.hfov_deg.min(sensor.vfov_deg).to_radians() / 2.0;
+    let half_fov = sensor.image.hfov_deg.min(sensor.image.vfov_deg).to_radians() / 2.0;
     let az0 = rng.uniform(0.0, 360.0);
     let step = 360.0 / fragments as f64 * rng.uniform(0.6, 1.0);
     let sense = if rng.below(2) == 0 { 1.0 } else { -1.0 };
@@ -366,8 +371,8 @@ pub fn generate_styled_scene(
     let frames =
         overrides.frames_per_fragment.unwrap_or(frames_range[0] + rng.below(frames_range[1] - frames_range[0] + 1));
     if let Some(w) = overrides.width {
-        sensor.height = aspect_height(w, sensor.hfov_deg, sensor.vfov_deg);
-        sensor.width = w;
+        sensor.image.height = aspect_height(w, sensor.image.hfov_deg, sensor.image.vfov_deg);
+        sensor.image.width = w;
     }
     let (dark_probability, dark_dropout) = match style {
         Style::Heldout => (0.0, 0.0),
@@ -471,8 +476,8 @@ fn object_layout(streams: &mut LayoutStreams, sensor: &mut Sensor) -> Layout {
     let (poses, distance, azimuth_deg, elevation_deg) =
         object_poses(&mut streams.poses, streams.fragments, streams.frames, size, sensor);
     let far = distance.iter().fold(0.0f64, |m, &d| m.max(d));
-    sensor.min_depth = 0.2;
-    sensor.max_depth = far + size;
+    sensor.image.min_depth = 0.2;
+    sensor.image.max_depth = far + size;
     let room = Room { polygon: Vec::new(), height: 0.0, kernel_center: [0.0, 0.0], objects, footprints: Vec::new() };
     let record = ObjectRecord { family, size, distance, azimuth_deg, elevation_deg };
     Layout { room, poses, kind: "object".to_string(), room_record: None, hall: None, attic: None, object: Some(record) }
