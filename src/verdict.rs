@@ -44,6 +44,11 @@ pub struct VerdictSettings {
     /// reflection (a rotation composed with a mirror) that explains most correspondences; fewer when that many
     /// would find one explaining more than the pose with 99 % confidence. 0 turns the check off.
     pub max_reflection_draws: usize,
+    /// Distrust a pose that puts more of the points in space the other scan saw empty (from its viewpoint,
+    /// [`crate::estimate::visibility`]) than the scans' own views leave unexplained
+    /// ([`crate::estimate::visibility::PairViews::occluded_share`]). Off for clouds whose viewpoint means
+    /// nothing (a shared world frame).
+    pub free_space_check: bool,
 }
 
 impl Default for VerdictSettings {
@@ -54,6 +59,7 @@ impl Default for VerdictSettings {
             min_spread_over_threshold: 2.0,
             min_spread_over_scan: 0.5,
             max_reflection_draws: 20_000,
+            free_space_check: true,
         }
     }
 }

@@ -20,6 +20,7 @@ fn a_trusted_result_is_the_estimators_choice_whatever_the_candidates() {
         min_spread_over_threshold: 0.0,
         min_spread_over_scan: 0.0,
         max_reflection_draws: 0,
+        free_space_check: false,
     };
     for estimator in [Estimator::RelativeNet, Estimator::Ransac] {
         let base = RegistrationSettings {

@@ -55,6 +55,7 @@ fn early_stopping_pair() -> (PointCloud, PointCloud, RegistrationSettings) {
         min_spread_over_threshold: 0.0,
         min_spread_over_scan: 0.0,
         max_reflection_draws: 0,
+        free_space_check: false,
     };
     let settings = RegistrationSettings {
         keypoints: 320,

@@ -59,6 +59,7 @@ class _Settings(TypedDict, total=False):
     min_inliers: int
     min_inlier_ratio: float
     min_spread_over_threshold: float
+    free_space_check: bool
     context_radii: Sequence[tuple[float, float]]
     context_when: Literal["untrusted", "always"]
     pose_candidates: int
@@ -253,6 +254,7 @@ class Registrar:
         min_inliers: int = 12,
         min_inlier_ratio: float = 0.055,
         min_spread_over_threshold: float = 2.0,
+        free_space_check: bool = True,
         context_radii: Sequence[tuple[float, float]] = [(2.0, 1.0)],
         context_when: Literal["untrusted", "always"] = "untrusted",
         pose_candidates: int = 16,

@@ -490,6 +490,7 @@ def _arguments() -> argparse.ArgumentParser:
     reg.add_argument("--min-inliers", type=int, default=12)
     reg.add_argument("--min-inlier-ratio", type=float, default=0.055)
     reg.add_argument("--min-inlier-spread", type=float, default=2.0)
+    reg.add_argument("--no-free-space-check", action="store_true", help="skip the verdict's free-space check")
     reg.add_argument(
         "--context-radius",
         action="append",
@@ -551,6 +552,7 @@ def _settings_of(a: argparse.Namespace) -> Dict[str, Any]:
         "min_inliers": a.min_inliers,
         "min_inlier_ratio": a.min_inlier_ratio,
         "min_spread_over_threshold": a.min_inlier_spread,
+        "free_space_check": not a.no_free_space_check,
         "context_radii": _context_radii(a.context_radius),
         "context_when": a.context_when,
         **({} if a.pose_candidates is None else {"pose_candidates": a.pose_candidates}),

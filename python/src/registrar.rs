@@ -43,6 +43,9 @@ use std::sync::Arc;
 /// - ``seed``: seed for every random choice (same inputs and seed, same result).
 /// - ``backend``: ``"auto"`` (a GPU when one exists, else the CPU with a warning), ``"cpu"`` or ``"gpu"``.
 /// - ``min_inliers``, ``min_inlier_ratio``, ``min_spread_over_threshold``: thresholds of the success verdict.
+///   ``free_space_check``: the verdict also distrusts a pose that puts more points in space the other scan saw
+///   empty from ``viewpoint`` than the scans' own views leave unexplained (False for clouds in a shared world
+///   frame).
 /// - ``context_radii``: ``(factor, weight)`` pairs: each keypoint is also described with a patch ``factor``
 ///   times the radius (1..8), and matching reads the unit codewords of every radius side by side, this one's
 ///   weighted by ``weight`` (the main radius's by 1); ``[]`` for the main radius alone. ``context_when``:
@@ -103,6 +106,7 @@ impl Registrar {
         min_inliers = 12,
         min_inlier_ratio = 0.055,
         min_spread_over_threshold = 2.0,
+        free_space_check = true,
         context_radii = default_context_radii(),
         context_when = "untrusted".to_string(),
         pose_candidates = 16,
@@ -113,7 +117,7 @@ impl Registrar {
         inlier_threshold=None, ransac_iterations=100000, ransac_confidence=0.999, icp=True, \
         icp_max_correspondence_distance=None, icp_max_iterations=30, drop_zero_points=None, seed=0, \
         backend='auto', min_inliers=12, min_inlier_ratio=0.055, min_spread_over_threshold=2.0, \
-        context_radii=[(2.0, 1.0)], context_when='untrusted', pose_candidates=16)")]
+        free_space_check=True, context_radii=[(2.0, 1.0)], context_when='untrusted', pose_candidates=16)")]
     #[expect(clippy::too_many_arguments, reason = "one keyword argument per setting, as Python callers expect")]
     fn new(
         py: Python<'_>,
@@ -140,6 +144,7 @@ impl Registrar {
         min_inliers: i64,
         min_inlier_ratio: f64,
         min_spread_over_threshold: f64,
+        free_space_check: bool,
         context_radii: Vec<(f32, f32)>,
         context_when: String,
         pose_candidates: i64,
@@ -168,6 +173,7 @@ impl Registrar {
             min_inliers,
             min_inlier_ratio,
             min_spread_over_threshold,
+            free_space_check,
             context_radii,
             context_when,
             pose_candidates,

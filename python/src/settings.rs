@@ -41,6 +41,7 @@ pub(crate) struct SettingsArgs {
     pub min_inliers: i64,
     pub min_inlier_ratio: f64,
     pub min_spread_over_threshold: f64,
+    pub free_space_check: bool,
     pub context_radii: Vec<(f32, f32)>,
     pub context_when: String,
     pub pose_candidates: i64,
@@ -116,6 +117,7 @@ impl SettingsArgs {
                 min_inliers: count("min_inliers", self.min_inliers)?,
                 min_inlier_ratio: self.min_inlier_ratio,
                 min_spread_over_threshold: self.min_spread_over_threshold,
+                free_space_check: self.free_space_check,
                 ..VerdictSettings::default()
             },
             context_radii: self
@@ -164,6 +166,7 @@ pub(crate) fn settings_dict<'py>(py: Python<'py>, s: &RegistrationSettings) -> P
     d.set_item("min_inliers", s.verdict.min_inliers)?;
     d.set_item("min_inlier_ratio", s.verdict.min_inlier_ratio)?;
     d.set_item("min_spread_over_threshold", s.verdict.min_spread_over_threshold)?;
+    d.set_item("free_space_check", s.verdict.free_space_check)?;
     let context: Vec<(f32, f32)> = s.context_radii.iter().map(|c| (c.factor, c.weight)).collect();
     d.set_item("context_radii", context)?;
     d.set_item("context_when", name_of(s.context_when, CONTEXT_WHEN))?;

@@ -107,6 +107,11 @@ pub struct RegisterOptions {
     /// Verdict: smallest spread of the inliers across their main axis, in multiples of the inlier threshold.
     #[arg(long, default_value_t = crate::verdict::VerdictSettings::default().min_spread_over_threshold)]
     pub min_inlier_spread: f64,
+    /// Verdict: skip the free-space check (a pose that puts more points in space the other scan saw empty from
+    /// its sensor, each scan's frame origin, than the scans' own views leave unexplained is not trusted); for
+    /// clouds in a shared world frame.
+    #[arg(long)]
+    pub no_free_space_check: bool,
 }
 
 /// Parses `relativenet` / `ransac`.
@@ -185,6 +190,7 @@ impl RegisterOptions {
             min_inliers: self.min_inliers,
             min_inlier_ratio: self.min_inlier_ratio,
             min_spread_over_threshold: self.min_inlier_spread,
+            free_space_check: !self.no_free_space_check,
             ..crate::verdict::VerdictSettings::default()
         };
         s.icp = (!self.no_icp).then_some(IcpSettings {

@@ -62,11 +62,27 @@ impl RangeImage {
         }
         RangeImage { viewpoint, nearest }
     }
+
+    /// The share of `points` (the image's own, strided to [`MAX_CHECKED_POINTS`]) that lie behind the nearest
+    /// surface in their direction by more than `tolerance`: how far the scan is from one view seen from the
+    /// viewpoint. Near 0 for a depth image or a LiDAR sweep seen from its sensor; higher for fragments fused
+    /// from a moving camera, and for scans whose sensor was elsewhere (the viewpoint then explains less).
+    pub fn occluded_share(&self, points: &[[f32; 3]], tolerance: f32) -> f64 {
+        let stride = points.len().div_ceil(MAX_CHECKED_POINTS).max(1);
+        let (mut checked, mut behind) = (0usize, 0usize);
+        for &p in points.iter().step_by(stride) {
+            checked += 1;
+            if let Some((bin, range)) = bin_of(minus(p, self.viewpoint)) {
+                behind += usize::from(range > self.nearest[bin] + tolerance);
+            }
+        }
+        if checked == 0 { 0.0 } else { behind as f64 / checked as f64 }
+    }
 }
 
 /// Shares of checked points (of all checked, seen or not) that a pose puts on the other scan's first surface
 /// and in its seen-empty space.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct Consistency {
     /// Within the tolerance of the nearest range in their direction.
     pub agree: f64,
@@ -138,6 +154,13 @@ impl<'a> PairViews<'a> {
         let a = consistency(self.source, target_from_source, &self.target_image, self.tolerance);
         let b = consistency(self.target, &source_from_target, &self.source_image, self.tolerance);
         Consistency { agree: (a.agree + b.agree) / 2.0, violate: (a.violate + b.violate) / 2.0 }
+    }
+
+    /// The larger of the two scans' [`RangeImage::occluded_share`]s: how much the viewpoints leave unexplained,
+    /// so how much seen-empty space a right pose may still put points in.
+    pub fn occluded_share(&self) -> f64 {
+        let source = self.source_image.occluded_share(self.source, self.tolerance);
+        source.max(self.target_image.occluded_share(self.target, self.tolerance))
     }
 
     /// The score a pose is chosen by: agreeing share minus [`VIOLATION_WEIGHT`] times the violating share.
@@ -225,5 +248,22 @@ pub(crate) mod tests {
         assert_eq!(c, Consistency { agree: 0.0, violate: 1.0 });
         let far = consistency(&[[0.5, 0.0, 0.0]], &Matrix4::identity(), &image, 0.1);
         assert_eq!(far, Consistency::default(), "behind the viewpoint: no return in that direction");
+    }
+
+    #[test]
+    fn a_room_seen_from_inside_hides_nothing_and_from_outside_half() {
+        // Every wall of a box room is the first surface seen from its centre; from outside the room (a viewpoint
+        // that is not the sensor's) the far walls hide behind the near ones.
+        let world = room([2.0, 1.5, 1.0], 0.05);
+        assert_eq!(RangeImage::new(&world, [0.0; 3]).occluded_share(&world, 0.05), 0.0);
+        let outside = RangeImage::new(&world, [6.0, 0.3, 0.2]).occluded_share(&world, 0.05);
+        assert!(outside > 0.3, "seen from outside: {outside}");
+        // One wall in front of a second: the second's points behind the first count.
+        let near: Vec<[f32; 3]> =
+            (0..100).map(|i| [1.0, -0.5 + (i % 10) as f32 * 0.1, -0.5 + (i / 10) as f32 * 0.1]).collect();
+        let far: Vec<[f32; 3]> = near.iter().map(|p| [2.0, p[1] * 2.0, p[2] * 2.0]).collect();
+        let both: Vec<[f32; 3]> = near.iter().chain(&far).copied().collect();
+        let share = RangeImage::new(&both, [0.0; 3]).occluded_share(&both, 0.05);
+        assert!((share - 0.5).abs() < 0.05, "half the points behind the near wall: {share}");
     }
 }

@@ -16,6 +16,7 @@ use super::score::{
 };
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
+use crate::estimate::visibility::PairViews;
 use crate::io::LoadOptions;
 use crate::pipeline::{Registrar, ScanFeatures};
 use crate::pose::is_identity_angle;
@@ -507,6 +508,7 @@ impl ViewRun<'_> {
             run.correspondences = r.correspondences.len();
             run.keypoints = r.keypoints;
             run.trusted = Some(r.verdict.success);
+            run.reason = r.verdict.reason;
             (r.estimate, r.correspondences)
         });
         let (p, used) = match pose {
@@ -524,6 +526,13 @@ impl ViewRun<'_> {
         }
         run.hypotheses = p.hypotheses_scored;
         run.estimator_inliers = p.inliers;
+        let (s, t) = (&source.features, &target.features);
+        let views = PairViews::new(
+            (&s.cloud.points, s.viewpoint),
+            (&t.cloud.points, t.viewpoint),
+            registrar.inlier_threshold(),
+        );
+        run.free_space = Some(views.consistency(&p.target_from_source));
         let report = match (&target.index, &source.index) {
             (Some(ti), Some(si)) if opts.all_pairs => {
                 let overlap = estimated_overlap(ti, si, &p.target_from_source, opts.thresholds.overlap_distance);

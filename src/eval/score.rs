@@ -4,6 +4,7 @@
 use super::dataset::{GtEntry, SceneData};
 use super::gtlog::LogRecord;
 use crate::error::Result;
+use crate::estimate::visibility::Consistency;
 use crate::pose::{rotation_error_deg, translation_error};
 use crate::settings::StageTime;
 use nalgebra::Matrix4;
@@ -96,6 +97,12 @@ pub struct PairRun {
     pub error: Option<String>,
     /// The success verdict on the estimate (see [`crate::verdict`]), when a pose was produced.
     pub trusted: Option<bool>,
+    /// Why the verdict did not trust the estimate.
+    pub reason: Option<String>,
+    /// Where the pose puts each scan's points in the other scan's view from its viewpoint (shares of the checked
+    /// points, both ways averaged: on its first surface, and in the space it saw empty; see
+    /// [`crate::estimate::visibility`]).
+    pub free_space: Option<Consistency>,
 }
 
 /// One pair's outcome.

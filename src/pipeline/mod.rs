@@ -662,10 +662,23 @@ impl Registrar {
         }
         let clouds = (source.cloud.points.as_slice(), target.cloud.points.as_slice());
         let draws = settings.max_reflection_draws;
-        match mirror_image(estimate, correspondences, clouds, threshold, draws, self.settings.seed) {
-            Some(reason) => Verdict::fail(reason),
-            None => verdict,
+        if let Some(reason) = mirror_image(estimate, correspondences, clouds, threshold, draws, self.settings.seed) {
+            return Verdict::fail(reason);
         }
+        if settings.free_space_check {
+            let views = PairViews::new((clouds.0, source.viewpoint), (clouds.1, target.viewpoint), threshold);
+            let (violate, allowed) = (views.consistency(&estimate.target_from_source).violate, views.occluded_share());
+            if violate > allowed {
+                return Verdict::fail(format!(
+                    "the pose puts {:.1} % of the points in space the other scan saw empty, more than the {:.1} % \
+                     its views leave unexplained (repeated structure, or the sensors are not at the scans' \
+                     viewpoints)",
+                    100.0 * violate,
+                    100.0 * allowed
+                ));
+            }
+        }
+        verdict
     }
 
     /// The keypoint counts of the progressive schedule (see [`keypoint_stages`]).
