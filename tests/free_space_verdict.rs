@@ -7,30 +7,11 @@ mod common;
 use dpr_gpu::cloud::PointCloud;
 use dpr_gpu::model::Weights;
 use dpr_gpu::pose::{matrix_from_parts, transform_point};
+use dpr_gpu::settings::BackendKind;
+use dpr_gpu::synth::geometry::box_room_grid;
 use dpr_gpu::verdict::VerdictSettings;
 use dpr_gpu::{Correspondence, PoseEstimate, Registrar, RegistrationSettings};
 use nalgebra::{Matrix3, Matrix4, Rotation3, Vector3};
-
-/// Points on the inside of a box room centred on the origin (walls, floor, ceiling), `step` apart.
-fn box_room(half: [f32; 3], step: f32) -> Vec<[f32; 3]> {
-    let mut out = Vec::new();
-    for axis in 0..3 {
-        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-        let (nu, nv) = ((2.0 * half[u] / step) as i32, (2.0 * half[v] / step) as i32);
-        for side in [-1.0f32, 1.0] {
-            for i in 0..=nu {
-                for j in 0..=nv {
-                    let mut p = [0.0f32; 3];
-                    p[axis] = side * half[axis];
-                    p[u] = -half[u] + i as f32 * step;
-                    p[v] = -half[v] + j as f32 * step;
-                    out.push(p);
-                }
-            }
-        }
-    }
-    out
-}
 
 /// Correspondences between keypoints of the source and their images under `target_from_source` (every one an
 /// inlier of that pose).
@@ -51,7 +32,7 @@ fn agreeing(source_keypoints: &[[f32; 3]], target_from_source: &Matrix4<f64>) ->
 #[test]
 fn a_pose_that_moves_a_wall_into_seen_empty_space_is_not_trusted() {
     // One room seen from inside by two sensors, each scan in its sensor's frame (the viewpoint at the origin).
-    let world = box_room([3.0, 2.0, 1.5], 0.05);
+    let world = box_room_grid([3.0, 2.0, 1.5], 0.05);
     let source_from_world = matrix_from_parts(&Matrix3::identity(), &Vector3::new(0.4, -0.2, 0.1));
     let truth =
         matrix_from_parts(&Rotation3::from_euler_angles(0.05, -0.1, 0.9).into_inner(), &Vector3::new(0.3, 0.5, -0.1));
@@ -68,6 +49,7 @@ fn a_pose_that_moves_a_wall_into_seen_empty_space_is_not_trusted() {
         first_keypoints: None,
         verdict,
         context_radii: Vec::new(),
+        backend: BackendKind::Cpu,
         ..Default::default()
     };
     let weights = Weights::init(&common::tiny_config(), 3).unwrap();

@@ -113,7 +113,7 @@ mod tests {
     #[test]
     fn the_pose_consistent_with_both_views_wins_among_those_with_enough_inliers() {
         // One room scanned from two sensors; the wrong pose is the true one shifted by 0.8 m (a desk's pitch).
-        let world = crate::estimate::visibility::tests::room([3.0, 2.0, 1.5], 0.02);
+        let world = crate::synth::geometry::box_room_grid([3.0, 2.0, 1.5], 0.02);
         let truth =
             matrix_from_parts(&Rotation3::from_euler_angles(0.0, 0.1, 2.0).into_inner(), &Vector3::new(0.3, 0.2, 0.0));
         let target_from_world = matrix_from_parts(&Matrix3::identity(), &Vector3::new(-0.4, 0.1, 0.2));

@@ -175,31 +175,11 @@ impl<'a> PairViews<'a> {
 }
 
 #[cfg(test)]
-pub(crate) mod tests {
+mod tests {
     use super::*;
     use crate::pose::matrix_from_parts;
+    use crate::synth::geometry::box_room_grid as room;
     use nalgebra::{Matrix3, Rotation3, Vector3};
-
-    /// Points on the inside of an axis-aligned box room (walls, floor, ceiling) on a `step` grid.
-    pub(crate) fn room(half: [f32; 3], step: f32) -> Vec<[f32; 3]> {
-        let mut out = Vec::new();
-        let n = |h: f32| (2.0 * h / step) as i32;
-        for axis in 0..3 {
-            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-            for side in [-1.0f32, 1.0] {
-                for i in 0..=n(half[u]) {
-                    for j in 0..=n(half[v]) {
-                        let mut p = [0.0f32; 3];
-                        p[axis] = side * half[axis];
-                        p[u] = -half[u] + i as f32 * step;
-                        p[v] = -half[v] + j as f32 * step;
-                        out.push(p);
-                    }
-                }
-            }
-        }
-        out
-    }
 
     #[test]
     fn the_true_pose_agrees_and_a_shift_into_seen_space_violates() {

@@ -168,6 +168,29 @@ impl Primitive {
     }
 }
 
+/// Points on a `step` grid over the inside faces (walls, floor, ceiling) of an axis-aligned box centred on the
+/// origin with half extents `half`: a closed room as seen from its centre, for tests and examples of checks that
+/// reason about lines of sight.
+pub fn box_room_grid(half: [f32; 3], step: f32) -> Vec<[f32; 3]> {
+    let mut out = Vec::new();
+    let n = |h: f32| (2.0 * h / step) as i32;
+    for axis in 0..3 {
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        for side in [-1.0f32, 1.0] {
+            for i in 0..=n(half[u]) {
+                for j in 0..=n(half[v]) {
+                    let mut p = [0.0f32; 3];
+                    p[axis] = side * half[axis];
+                    p[u] = -half[u] + i as f32 * step;
+                    p[v] = -half[v] + j as f32 * step;
+                    out.push(p);
+                }
+            }
+        }
+    }
+    out
+}
+
 /// Rotation by `yaw` radians about the z axis.
 pub fn rot_z(yaw: f64) -> Matrix3<f64> {
     let (s, c) = yaw.sin_cos();
