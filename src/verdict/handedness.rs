@@ -6,11 +6,14 @@
 //! that explains most correspondences. A mirror-symmetric object (the Stanford bunny seen
 //! from above, a yard of boxes) makes left-right twins agree as a reflection too, and a reflection can lay a
 //! part of the source the target never saw onto its symmetric twin, so neither the inlier counts nor one
-//! overlap share tells them apart. So the pose and that reflection are each refined on the clouds by the same
-//! point-to-point ICP, keeping their handedness, and the pose is untrusted only when the reflection lays more
-//! of the source on the target at every distance from half the voxel pitch to twice the inlier threshold: the
-//! true alignment of a mirrored scan coincides with the target and covers its overlap, a symmetric twin at
-//! best one of the two. docs/experiments/mirrored-scans.md has the measurements.
+//! overlap share tells them apart. So the pose is untrusted only when that reflection explains more
+//! correspondences than the pose does and, refined on the clouds by the same point-to-point ICP as the pose
+//! (each keeping its handedness), lays more of the source on the target at every distance from half the voxel
+//! pitch to twice the inlier threshold: the true alignment of a mirrored scan coincides with the target and
+//! covers its overlap, a symmetric twin at best one of the two. The count comes first because at low overlap
+//! in a mirror-symmetric room a reflection can lay more of the source on the target than the true pose (whose
+//! overlap is small), while the correspondences still favour the pose. docs/experiments/mirrored-scans.md has
+//! the measurements.
 
 use crate::estimate::required_iterations;
 use crate::pose::{reflection_fit_f64, rigid_fit_f64, transform_point, v3};
@@ -46,6 +49,12 @@ pub fn mirror_image(
     let pose_inliers = estimate.inliers.min(source.len());
     let (explained, reflection) =
         best_reflection(&source, &target, f64::from(threshold), pose_inliers, max_draws, seed)?;
+    if explained <= pose_inliers {
+        // Point pair features cannot tell a part from its mirror twin, so in a mirror-symmetric scene some
+        // correspondences pair twins, and a reflection can lay more of a low-overlap source on the target than
+        // the true pose. A mirrored scan's correspondences are explained by the reflection first.
+        return None;
+    }
     let target_index = PointIndex::new(target_points).ok()?;
     let stride = source_points.len().div_ceil(MAX_DENSE_POINTS).max(1);
     let moved: Vec<[f32; 3]> = source_points.iter().step_by(stride).copied().collect();
@@ -204,6 +213,20 @@ mod tests {
         // The same seed gives the same answer; no draws, no check.
         assert_eq!(mirror_image(&identity(30), &c, (&source, &target), 0.1, 20_000, 0), reason);
         assert_eq!(mirror_image(&identity(30), &c, (&source, &target), 0.1, 0, 0), None);
+    }
+
+    #[test]
+    fn a_reflection_fewer_correspondences_support_than_the_pose_is_not_a_mirror_image() {
+        // The clouds of the mirrored-scan case, where the reflection lays all of the source on the target, but
+        // 80 correspondences support the pose and 30 the reflection (a low-overlap pair in a mirror-symmetric
+        // room: the twins' share of the clouds may favour the reflection, the correspondences do not).
+        let target = scene(false);
+        let source: Vec<[f32; 3]> = target.iter().map(|&p| mirrored(p)).collect();
+        let c = correspondences(&source, 80, 30);
+        assert_eq!(mirror_image(&identity(80), &c, (&source, &target), 0.1, 20_000, 0), None);
+        // With the counts the other way round the same clouds are a mirror image.
+        let c = correspondences(&source, 30, 80);
+        assert!(mirror_image(&identity(30), &c, (&source, &target), 0.1, 20_000, 0).is_some());
     }
 
     #[test]
