@@ -74,12 +74,11 @@ fn pack_rows(segments: &[(&[f32], usize)], rows: usize, out: &mut Vec<u32>) {
 /// [`bf16_dense_bound`].
 fn pack_pairs(row: &[f32], dst: &mut [u32]) {
     assert!(dst.len() >= row.len().div_ceil(2));
-    let mut done = 0;
     #[cfg(target_arch = "x86_64")]
-    if is_available() {
-        // SAFETY: the CPU has AVX-512F and AVX-512 BF16 (checked just above).
-        done = unsafe { x86::pack_pairs(row, dst) };
-    }
+    // SAFETY: the CPU has AVX-512F and AVX-512 BF16 (checked first).
+    let done = if is_available() { unsafe { x86::pack_pairs(row, dst) } } else { 0 };
+    #[cfg(not(target_arch = "x86_64"))]
+    let done = 0;
     for (q, w) in dst.iter_mut().enumerate().skip(done / 2) {
         *w = pair(row[2 * q], row.get(2 * q + 1).copied().unwrap_or(0.0));
     }
@@ -101,7 +100,9 @@ pub fn pack_weight(w_t: &[f32], k: usize, n: usize) -> Vec<u32> {
 }
 
 /// Rows per register tile and columns per register tile (two 16-lane vectors) of the SIMD kernel.
+#[cfg(target_arch = "x86_64")]
 const MR: usize = 8;
+#[cfg(target_arch = "x86_64")]
 const NR: usize = 32;
 
 thread_local! {
@@ -150,6 +151,7 @@ pub fn dense_bf16_packed(
 }
 
 /// The tile's starting values: the old output when accumulating, plus the group term.
+#[cfg(target_arch = "x86_64")]
 fn start_tile(
     shape: &DenseShape,
     group_term: &[f32],
@@ -175,6 +177,7 @@ fn start_tile(
 }
 
 /// Writes the tile, with ReLU when the layer has it.
+#[cfg(target_arch = "x86_64")]
 fn store_tile(
     shape: &DenseShape,
     acc: &[[f32; NR]; MR],
