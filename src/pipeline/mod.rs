@@ -610,7 +610,15 @@ impl Registrar {
         if candidates.len() == 1 {
             return Ok((first, None));
         }
-        let verdict = self.judge((source, target), &first, correspondences);
+        // The verdict, then whether another candidate is as good a reading of the correspondences.
+        let judged = |estimate: &PoseEstimate| {
+            let verdict = self.judge((source, target), estimate, correspondences);
+            match candidates::rival(estimate, &candidates, (&src, &tgt), threshold) {
+                Some(reason) if verdict.success => Verdict::fail(reason),
+                _ => verdict,
+            }
+        };
+        let verdict = judged(&first);
         if verdict.success {
             return Ok((first, Some(verdict)));
         }
@@ -620,11 +628,15 @@ impl Registrar {
             threshold,
         );
         // The others compete with the finished choice, the pose that would be returned.
-        let mut candidates = candidates;
-        candidates[0] = first.clone();
-        match candidates::choose(&candidates, &views) {
+        let mut contenders = candidates.clone();
+        contenders[0] = first.clone();
+        match candidates::choose(&contenders, &views) {
             0 => Ok((first, Some(verdict))),
-            k => Ok((finish(&candidates[k])?, None)),
+            k => {
+                let chosen = finish(&contenders[k])?;
+                let verdict = judged(&chosen);
+                Ok((chosen, Some(verdict)))
+            }
         }
     }
 
@@ -667,12 +679,13 @@ impl Registrar {
         }
         if settings.free_space_check {
             let views = PairViews::new((clouds.0, source.viewpoint), (clouds.1, target.viewpoint), threshold);
-            let (violate, allowed) = (views.consistency(&estimate.target_from_source).violate, views.occluded_share());
+            let (violate, allowed) =
+                (views.consistency(&estimate.target_from_source).violate, views.allowed_violation());
             if violate > allowed {
                 return Verdict::fail(format!(
                     "the pose puts {:.1} % of the points in space the other scan saw empty, more than the {:.1} % \
-                     its views leave unexplained (repeated structure, or the sensors are not at the scans' \
-                     viewpoints)",
+                     allowed (what the views leave unexplained, at least 3 %): repeated structure, or the sensors \
+                     are not at the scans' viewpoints",
                     100.0 * violate,
                     100.0 * allowed
                 ));
