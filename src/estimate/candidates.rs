@@ -11,7 +11,7 @@
 
 use super::refine::refine;
 use super::visibility::PairViews;
-use crate::pose::{rotation_error_deg, transform_point, translation_error};
+use crate::pose::{rotation_error_deg, translation_error};
 use crate::settings::PoseEstimate;
 use nalgebra::Matrix4;
 
@@ -78,61 +78,6 @@ pub fn choose(candidates: &[PoseEstimate], views: &PairViews<'_>) -> usize {
     best.map_or(0, |(_, k)| k)
 }
 
-/// Another candidate explaining at least this share of a pose's inliers makes the pose ambiguous ([`rival`]).
-pub const RIVAL_INLIER_SHARE: f64 = 0.7;
-
-/// A rival is another alignment, not the same one refined elsewhere, when it moves the pose's inliers by more
-/// than this many inlier thresholds on average: beyond the threshold and ICP's reach (half a threshold), short of
-/// the pitch of repeated furniture (4 thresholds and more at the default radius).
-pub const RIVAL_MIN_SHIFT_OVER_THRESHOLD: f64 = 3.0;
-
-/// How many of the correspondences (`source[i] -> target[i]`) lie within `threshold` under `pose`.
-fn inliers(pose: &Matrix4<f64>, (source, target): (&[[f32; 3]], &[[f32; 3]]), threshold: f32) -> Vec<[f32; 3]> {
-    let near = |s: [f32; 3], t: [f32; 3]| {
-        let m = transform_point(pose, s);
-        (0..3).map(|k| f64::from(m[k] - t[k]).powi(2)).sum::<f64>() < f64::from(threshold).powi(2)
-    };
-    source.iter().zip(target).filter(|&(&s, &t)| near(s, t)).map(|(&s, _)| s).collect()
-}
-
-/// Why `estimate` is ambiguous, or `None`: another of `candidates` (the estimator's distinct poses,
-/// [`distinct_refined`]) moves the estimate's inliers by more than [`RIVAL_MIN_SHIFT_OVER_THRESHOLD`] thresholds
-/// on average and explains at least [`RIVAL_INLIER_SHARE`] as many of the correspondences within `threshold`:
-/// two readings of the correspondences, a turn or a slide apart. At low overlap in repeated structure the
-/// correspondences cannot tell two copies apart, and a wrong copy passes every other rule; the right pose of such
-/// a pair is then reported untrusted too (docs/experiments/ambiguous-poses.md).
-pub fn rival(
-    estimate: &PoseEstimate,
-    candidates: &[PoseEstimate],
-    pair: (&[[f32; 3]], &[[f32; 3]]),
-    threshold: f32,
-) -> Option<String> {
-    let pose = &estimate.target_from_source;
-    let own = inliers(pose, pair, threshold);
-    let floor = RIVAL_INLIER_SHARE * own.len() as f64;
-    let shift = |other: &Matrix4<f64>| {
-        let moved = own.iter().map(|&p| {
-            let (a, b) = (transform_point(pose, p), transform_point(other, p));
-            (0..3).map(|k| f64::from(a[k] - b[k]).powi(2)).sum::<f64>().sqrt()
-        });
-        moved.sum::<f64>() / own.len().max(1) as f64
-    };
-    let readings = candidates.iter().filter_map(|c| {
-        let moved = shift(&c.target_from_source);
-        let count = inliers(&c.target_from_source, pair, threshold).len();
-        let far = moved > RIVAL_MIN_SHIFT_OVER_THRESHOLD * f64::from(threshold);
-        (far && count > 0 && count as f64 >= floor).then_some((count, moved, c))
-    });
-    let (count, moved, best) = readings.max_by_key(|(count, _, _)| *count)?;
-    Some(format!(
-        "ambiguous: another pose, {:.0} degrees away and moving this pose's inliers by {moved:.3} on average, \
-         explains {count} correspondences (this pose {}): repeated or symmetric structure the overlap cannot tell \
-         apart",
-        rotation_error_deg(pose, &best.target_from_source),
-        own.len()
-    ))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -187,46 +132,5 @@ mod tests {
         assert_eq!(pick(vec![estimate(near, 20), estimate(truth, 20)]), near, "no clear drop, no override");
         assert_eq!(pick(vec![estimate(wrong, 20)]), wrong, "one candidate: the estimator's choice");
         assert_eq!(choose(&[], &views), 0);
-    }
-
-    #[test]
-    fn another_reading_of_the_correspondences_a_slide_away_is_a_rival() {
-        // 20 correspondences fit the truth, 14 others (70 %) a pose `other`, 6 more neither; threshold 0.05.
-        let truth =
-            matrix_from_parts(&Rotation3::from_euler_angles(0.0, 0.1, 2.0).into_inner(), &Vector3::new(0.3, 0.2, 0.0));
-        let slid = |metres: f64| matrix_from_parts(&Matrix3::identity(), &Vector3::new(metres, 0.0, 0.0)) * truth;
-        let nowhere = Matrix4::zeros();
-        let source: Vec<[f32; 3]> =
-            (0..40).map(|i| [(i % 5) as f32 * 0.3, (i / 5 % 4) as f32 * 0.3, (i / 20) as f32 * 0.3]).collect();
-        let target_with = |other: &Matrix4<f64>, others: usize| -> Vec<[f32; 3]> {
-            let under = |i: usize| {
-                if i < 20 {
-                    &truth
-                } else if i < 20 + others {
-                    other
-                } else {
-                    &nowhere
-                }
-            };
-            source.iter().enumerate().map(|(i, &p)| transform_point(under(i), p)).collect()
-        };
-        let pose = estimate(truth, 20);
-        let slide = slid(0.8);
-        let target = target_with(&slide, 14);
-        let reason = rival(&pose, &[pose.clone(), estimate(slide, 14)], (&source, &target), 0.05);
-        assert!(
-            reason.is_some_and(|r| r.starts_with("ambiguous") && r.contains("explains 14")),
-            "a slide of 16 thresholds"
-        );
-        // The slide judged against the truth: the truth is its rival.
-        assert!(rival(&estimate(slide, 14), &[pose.clone()], (&source, &target), 0.05).is_some());
-        // 13 are under 70 %.
-        let target = target_with(&slide, 13);
-        assert_eq!(rival(&pose, &[estimate(slide, 13)], (&source, &target), 0.05), None);
-        // 2 thresholds away is the same alignment refined elsewhere, 4 another.
-        let target = target_with(&slid(0.1), 14);
-        assert_eq!(rival(&pose, &[estimate(slid(0.1), 14)], (&source, &target), 0.05), None);
-        let target = target_with(&slid(0.2), 14);
-        assert!(rival(&pose, &[estimate(slid(0.2), 14)], (&source, &target), 0.05).is_some());
     }
 }

@@ -610,15 +610,7 @@ impl Registrar {
         if candidates.len() == 1 {
             return Ok((first, None));
         }
-        // The verdict, then whether another candidate is as good a reading of the correspondences.
-        let judged = |estimate: &PoseEstimate| {
-            let verdict = self.judge((source, target), estimate, correspondences);
-            match candidates::rival(estimate, &candidates, (&src, &tgt), threshold) {
-                Some(reason) if verdict.success => Verdict::fail(reason),
-                _ => verdict,
-            }
-        };
-        let verdict = judged(&first);
+        let verdict = self.judge((source, target), &first, correspondences);
         if verdict.success {
             return Ok((first, Some(verdict)));
         }
@@ -628,15 +620,11 @@ impl Registrar {
             threshold,
         );
         // The others compete with the finished choice, the pose that would be returned.
-        let mut contenders = candidates.clone();
-        contenders[0] = first.clone();
-        match candidates::choose(&contenders, &views) {
+        let mut candidates = candidates;
+        candidates[0] = first.clone();
+        match candidates::choose(&candidates, &views) {
             0 => Ok((first, Some(verdict))),
-            k => {
-                let chosen = finish(&contenders[k])?;
-                let verdict = judged(&chosen);
-                Ok((chosen, Some(verdict)))
-            }
+            k => Ok((finish(&candidates[k])?, None)),
         }
     }
 
