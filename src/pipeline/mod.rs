@@ -672,10 +672,11 @@ impl Registrar {
             if violate > allowed {
                 return Verdict::fail(format!(
                     "the pose puts {:.1} % of the points in space the other scan saw empty, more than the {:.1} % \
-                     allowed (what the views leave unexplained, at least 3 %): repeated structure, or the sensors \
-                     are not at the scans' viewpoints",
+                     allowed (what the views leave unexplained, at least {:.0} %): repeated structure, or the \
+                     sensors are not at the scans' viewpoints",
                     100.0 * violate,
-                    100.0 * allowed
+                    100.0 * allowed,
+                    100.0 * crate::estimate::visibility::MIN_ALLOWED_VIOLATION
                 ));
             }
         }
