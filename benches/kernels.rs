@@ -66,7 +66,9 @@ fn patch_features(c: &mut Criterion) {
     if let Some(dev) = gpu() {
         let (mut ppf, mut pc) = (vec![0.0; p * n * 4], vec![0.0; p * n * 3]);
         g.bench_function(BenchmarkId::new("gpu", p * n), |b| {
-            b.iter(|| gpu::patch_features::run(&dev, &patches, n, 0.3, frame, &mut ppf, &mut pc).unwrap())
+            b.iter(|| {
+                dpr_gpu::block_on(gpu::patch_features::run(&dev, &patches, n, 0.3, frame, &mut ppf, &mut pc)).unwrap()
+            })
         });
     }
     g.finish();
@@ -95,7 +97,7 @@ fn dense(c: &mut Criterion) {
     });
     if let Some(dev) = gpu() {
         g.bench_function(BenchmarkId::new("gpu", rows), |b| {
-            b.iter(|| gpu::dense::run(&dev, &shape, &x, &w, &bias, &mut out).unwrap())
+            b.iter(|| dpr_gpu::block_on(gpu::dense::run(&dev, &shape, &x, &w, &bias, &mut out)).unwrap())
         });
     }
     g.finish();
@@ -112,7 +114,7 @@ fn max_pool(c: &mut Criterion) {
     });
     if let Some(dev) = gpu() {
         g.bench_function(BenchmarkId::new("gpu", p * n * ch), |b| {
-            b.iter(|| gpu::max_pool::run(&dev, &x, p, n, ch, &mut out).unwrap())
+            b.iter(|| dpr_gpu::block_on(gpu::max_pool::run(&dev, &x, p, n, ch, &mut out)).unwrap())
         });
     }
     g.finish();
@@ -130,7 +132,7 @@ fn matching(c: &mut Criterion) {
     });
     if let Some(dev) = gpu() {
         g.bench_function(BenchmarkId::new("gpu", k), |b| {
-            b.iter(|| gpu::codeword_distance::run(&dev, &s, &t, dim, &mut out).unwrap())
+            b.iter(|| dpr_gpu::block_on(gpu::codeword_distance::run(&dev, &s, &t, dim, &mut out)).unwrap())
         });
     }
     g.finish();
@@ -139,7 +141,7 @@ fn matching(c: &mut Criterion) {
     g.bench_function(BenchmarkId::new("cpu", k), |b| b.iter(|| black_box(cpu::mutual_knn::mutual_knn(&d, k, k, mode))));
     if let Some(dev) = gpu() {
         g.bench_function(BenchmarkId::new("gpu", k), |b| {
-            b.iter(|| gpu::mutual_knn::run(&dev, &d, k, k, mode).unwrap())
+            b.iter(|| dpr_gpu::block_on(gpu::mutual_knn::run(&dev, &d, k, k, mode)).unwrap())
         });
     }
     g.finish();
@@ -157,7 +159,7 @@ fn hypotheses_and_scores(c: &mut Criterion) {
     if let Some(dev) = gpu() {
         let mut out = hyps.clone();
         g.bench_function(BenchmarkId::new("gpu", k), |b| {
-            b.iter(|| gpu::hypotheses::run(&dev, &q, &ps, &pt, &mut out).unwrap())
+            b.iter(|| dpr_gpu::block_on(gpu::hypotheses::run(&dev, &q, &ps, &pt, &mut out)).unwrap())
         });
     }
     g.finish();
@@ -168,7 +170,7 @@ fn hypotheses_and_scores(c: &mut Criterion) {
     if let Some(dev) = gpu() {
         let mut out = vec![HypothesisScore::default(); k];
         g.bench_function(BenchmarkId::new("gpu", k), |b| {
-            b.iter(|| gpu::score_hypotheses::run(&dev, &hyps, &ps, &pt, 0.1, &mut out).unwrap())
+            b.iter(|| dpr_gpu::block_on(gpu::score_hypotheses::run(&dev, &hyps, &ps, &pt, 0.1, &mut out)).unwrap())
         });
     }
     g.finish();
@@ -185,12 +187,12 @@ fn encode(c: &mut Criterion) {
     let cpu_b = CpuBackend::new(model.clone());
     let mut g = c.benchmark_group("encode");
     g.bench_function(BenchmarkId::new("cpu", p * n), |b| {
-        b.iter(|| black_box(cpu_b.encode(Net::Ppf, &input, p).unwrap()))
+        b.iter(|| black_box(dpr_gpu::block_on(cpu_b.encode(Net::Ppf, &input, p)).unwrap()))
     });
     if let Some(dev) = gpu() {
         let gpu_b = GpuBackend::with_gpu(dev, model).unwrap();
         g.bench_function(BenchmarkId::new("gpu", p * n), |b| {
-            b.iter(|| black_box(gpu_b.encode(Net::Ppf, &input, p).unwrap()))
+            b.iter(|| black_box(dpr_gpu::block_on(gpu_b.encode(Net::Ppf, &input, p)).unwrap()))
         });
     }
     g.finish();

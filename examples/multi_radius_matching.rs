@@ -163,7 +163,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             for (k, weights) in weight_sets.iter().enumerate() {
                 let (s, dim) = matching_rows(source, &source_ranks, weights);
                 let (t, _) = matching_rows(target, &target_ranks, weights);
-                let matches = registrars[0].backend().match_codewords(&s, &t, dim, MatchMode::Mutual(1))?;
+                let matches =
+                    dpr_gpu::block_on(registrars[0].backend().match_codewords(&s, &t, dim, MatchMode::Mutual(1)))?;
                 let inliers = count_feature_inliers(
                     matches.iter().map(|m| {
                         (

@@ -31,7 +31,10 @@ fn main(
     let g = i / channels;
     let c = i % channels;
     let first = g * params.rows_per_group;
-    var m = bitcast<f32>(0xff800000u); // -inf, the twin's starting value
+    // -inf, the twin's starting value: read from a variable, since a constant infinity is invalid WGSL (Tint rejects
+    // it; naga let it through).
+    var neg_inf_bits = 0xff800000u;
+    var m = bitcast<f32>(neg_inf_bits);
     for (var r = 0u; r < params.rows_per_group; r++) {
         m = max(m, x[(first + r) * channels + c]);
     }

@@ -132,7 +132,8 @@ fn normal_of(p: vec3<f32>, base: u32, k: u32) -> vec3<f32> {
     let n = vec3<f32>(v[0][imin], v[1][imin], v[2][imin]);
     let len = sqrt(n.x * n.x + n.y * n.y + n.z * n.z);
     // Not (len > 0 and finite): the twin's fallback.
-    if !(len > 0.0 && len <= 3.4028235e38) {
+    // 0x7f7fffff is the largest finite f32 (the literal 3.4028235e38 lies above it, which Tint rejects).
+    if !(len > 0.0 && len <= bitcast<f32>(0x7f7fffffu)) {
         return fallback(to_view);
     }
     let u = n / len;

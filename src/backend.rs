@@ -68,6 +68,16 @@ impl RotationInputs<'_> {
     }
 }
 
+/// What a backend's step or stage returns: a future of its result. The pipeline awaits it (in a browser a GPU
+/// readback completes on the page's event loop); natively [`crate::block_on`] runs it. A CPU step is computed
+/// when called and its future is ready ([`ready`]).
+pub type StepFuture<'a, T> = std::pin::Pin<Box<dyn std::future::Future<Output = Result<T>> + 'a>>;
+
+/// `result` as an already completed [`StepFuture`] (what the host computes synchronously).
+pub fn ready<'a, T: 'a>(result: Result<T>) -> StepFuture<'a, T> {
+    Box::pin(std::future::ready(result))
+}
+
 /// The steps and stages a backend implements. Every method is deterministic for given inputs.
 ///
 /// The steps (`new_scan_rows`, `describe`, `correspond`, `pose_features`, `verify`) keep a scan's rows where
@@ -84,13 +94,13 @@ pub trait Backend: Send + Sync {
     /// Prepares a validated `cloud` for description on this backend: the preprocessed cloud on the host (what
     /// the pipeline keeps of the scan) and the backend's [`ScanCloud`], which describes keypoints of it. The
     /// provided version is the host's ([`host_start_scan`]); `lap` marks the `downsample` and `index` stages.
-    fn start_scan(
-        &self,
-        cloud: &crate::cloud::PointCloud,
-        settings: &ScanSettings,
-        lap: Lap<'_>,
-    ) -> Result<(crate::cloud::PointCloud, Box<dyn ScanCloud>)> {
-        host_start_scan(cloud, settings, lap)
+    fn start_scan<'a>(
+        &'a self,
+        cloud: &'a crate::cloud::PointCloud,
+        settings: &'a ScanSettings,
+        lap: Lap<'a>,
+    ) -> StepFuture<'a, (crate::cloud::PointCloud, Box<dyn ScanCloud>)> {
+        ready(host_start_scan(cloud, settings, lap))
     }
 
     /// An empty store for a scan's rows; `capacity` rows (the scan's whole keypoint order) are expected.
@@ -109,81 +119,94 @@ pub trait Backend: Send + Sync {
     /// `rows` as a store of this backend: the same store when this backend made it (or it is on the host and
     /// this backend keeps host rows), else a copy restored from a readback (e.g. unpickled host rows moved to
     /// a GPU).
-    fn adopt_rows(&self, rows: &Arc<dyn ScanRows>) -> Result<Arc<dyn ScanRows>> {
-        if rows.as_any().is::<HostScanRows>() {
-            return Ok(Arc::clone(rows));
-        }
-        self.restore_scan_rows(rows.read_codewords()?, rows.read_pose_rows()?, rows.rows())
+    fn adopt_rows<'a>(&'a self, rows: &'a Arc<dyn ScanRows>) -> StepFuture<'a, Arc<dyn ScanRows>> {
+        Box::pin(async move {
+            if rows.as_any().is::<HostScanRows>() {
+                return Ok(Arc::clone(rows));
+            }
+            self.restore_scan_rows(rows.read_codewords().await?, rows.read_pose_rows().await?, rows.rows())
+        })
     }
 
     /// Appends the rows of `batch` to `rows`: patch features, PPF-FoldNet codewords, PC-FoldNet's inputs kept.
-    fn describe(&self, batch: PatchBatch<'_>, rows: &dyn ScanRows) -> Result<()> {
-        host_describe(self, batch, rows)
+    fn describe<'a>(&'a self, batch: PatchBatch<'a>, rows: &'a dyn ScanRows) -> StepFuture<'a, ()> {
+        Box::pin(host_describe(self, batch, rows))
     }
 
     /// Correspondences between the first rows of two scans.
-    fn correspond(&self, request: RowMatch<'_>) -> Result<Vec<Match>> {
-        host_correspond(self, request)
+    fn correspond<'a>(&'a self, request: RowMatch<'a>) -> StepFuture<'a, Vec<Match>> {
+        Box::pin(host_correspond(self, request))
     }
 
     /// The pose features of rows `which` of a scan, in that order (`which.len() x codeword`, a readback);
     /// rows not computed before run through PC-FoldNet now, once.
-    fn pose_features(&self, rows: &dyn ScanRows, which: &[u32]) -> Result<Vec<f32>> {
-        host_pose_features(self, rows, which)
+    fn pose_features<'a>(&'a self, rows: &'a dyn ScanRows, which: &'a [u32]) -> StepFuture<'a, Vec<f32>> {
+        Box::pin(host_pose_features(self, rows, which))
     }
 
     /// Computes the pose features of rows `which` that are missing, keeping them in the store (nothing is
     /// read back from a device store).
-    fn prepare_pose_features(&self, rows: &dyn ScanRows, which: &[u32]) -> Result<()> {
-        self.pose_features(rows, which).map(drop)
+    fn prepare_pose_features<'a>(&'a self, rows: &'a dyn ScanRows, which: &'a [u32]) -> StepFuture<'a, ()> {
+        Box::pin(async move { self.pose_features(rows, which).await.map(drop) })
     }
 
     /// RelativeNet's hypothesize-and-verify on matched rows: the missing pose features, a rotation per
     /// correspondence, a hypothesis per rotation, every hypothesis scored over the correspondences; only the
     /// best hypotheses and their scores come back (the rotations too when asked).
-    fn verify(&self, request: MatchedRows<'_>) -> Result<Verified> {
-        host_verify(self, request)
+    fn verify<'a>(&'a self, request: MatchedRows<'a>) -> StepFuture<'a, Verified> {
+        Box::pin(host_verify(self, request))
     }
 
     /// Point-to-plane ICP of `source` onto `target` from `initial` (target_from_source): the target's
     /// downsampled copy, its normals and the per-iteration normal equations where this backend keeps the
     /// scans; the solves and stopping rules of [`crate::estimate::icp::iterate`]. The provided version runs
     /// on the host clouds ([`crate::estimate::icp::refine_on_host`]).
-    fn refine_icp(
-        &self,
-        source: &ScanFeatures,
-        target: &ScanFeatures,
+    fn refine_icp<'a>(
+        &'a self,
+        source: &'a ScanFeatures,
+        target: &'a ScanFeatures,
         initial: nalgebra::Matrix4<f64>,
-        problem: &crate::estimate::icp::IcpProblem,
-    ) -> Result<nalgebra::Matrix4<f64>> {
-        crate::estimate::icp::refine_on_host(&source.cloud, &target.cloud, initial, problem)
+        problem: &'a crate::estimate::icp::IcpProblem,
+    ) -> StepFuture<'a, nalgebra::Matrix4<f64>> {
+        ready(crate::estimate::icp::refine_on_host(&source.cloud, &target.cloud, initial, problem))
     }
 
     /// PPF (P x N x 4) and PC (P x N x 3) network inputs of gathered patches.
-    fn patch_features(&self, patches: &GatheredPatches, radius: f32) -> Result<(Vec<f32>, Vec<f32>)>;
+    fn patch_features<'a>(&'a self, patches: &'a GatheredPatches, radius: f32) -> StepFuture<'a, (Vec<f32>, Vec<f32>)>;
 
     /// Codewords (P x codeword) of `patches` patches of `points_per_patch` rows each.
-    fn encode(&self, net: Net, input: &[f32], patches: usize) -> Result<Vec<f32>>;
+    fn encode<'a>(&'a self, net: Net, input: &'a [f32], patches: usize) -> StepFuture<'a, Vec<f32>>;
 
     /// Correspondences between source and target codewords (rows of width `dim`).
-    fn match_codewords(&self, source: &[f32], target: &[f32], dim: usize, mode: MatchMode) -> Result<Vec<Match>>;
+    fn match_codewords<'a>(
+        &'a self,
+        source: &'a [f32],
+        target: &'a [f32],
+        dim: usize,
+        mode: MatchMode,
+    ) -> StepFuture<'a, Vec<Match>>;
 
     /// RelativeNet's rotations target_from_source (row-major, fragment frames) for rows of [source | target]
     /// pose features, given the keypoint normals of each row's source and target patch (the normal frames of
     /// `PoseFrame::Normal`): `rotation_output.candidates()` consecutive rotations per row.
-    fn predict_rotations(&self, pose: RotationInputs<'_>) -> Result<Vec<[f32; 9]>>;
+    fn predict_rotations<'a>(&'a self, pose: RotationInputs<'a>) -> StepFuture<'a, Vec<[f32; 9]>>;
 
     /// One hypothesis per correspondence from its rotation.
-    fn hypotheses(&self, rotations: &[[f32; 9]], source: &[[f32; 3]], target: &[[f32; 3]]) -> Result<Vec<Hypothesis>>;
+    fn hypotheses<'a>(
+        &'a self,
+        rotations: &'a [[f32; 9]],
+        source: &'a [[f32; 3]],
+        target: &'a [[f32; 3]],
+    ) -> StepFuture<'a, Vec<Hypothesis>>;
 
     /// Inlier count and residual sum of every hypothesis over every correspondence.
-    fn score_hypotheses(
-        &self,
-        hypotheses: &[Hypothesis],
-        source: &[[f32; 3]],
-        target: &[[f32; 3]],
+    fn score_hypotheses<'a>(
+        &'a self,
+        hypotheses: &'a [Hypothesis],
+        source: &'a [[f32; 3]],
+        target: &'a [[f32; 3]],
         threshold: f32,
-    ) -> Result<Vec<HypothesisScore>>;
+    ) -> StepFuture<'a, Vec<HypothesisScore>>;
 }
 
 /// Checks of the stage inputs, shared by every backend so that none divides by zero or truncates on lengths
@@ -268,47 +291,70 @@ impl Backend for CpuBackend {
         &self.model
     }
 
-    fn patch_features(&self, patches: &GatheredPatches, radius: f32) -> Result<(Vec<f32>, Vec<f32>)> {
+    fn patch_features<'a>(&'a self, patches: &'a GatheredPatches, radius: f32) -> StepFuture<'a, (Vec<f32>, Vec<f32>)> {
         let c = &self.model.config;
-        PatchBatch::new(patches, c.points_per_patch, radius)?;
-        Ok(patches.features(c.points_per_patch, radius, c.pose_frame))
+        ready(
+            PatchBatch::new(patches, c.points_per_patch, radius)
+                .map(|_| patches.features(c.points_per_patch, radius, c.pose_frame)),
+        )
     }
 
-    fn encode(&self, net: Net, input: &[f32], patches: usize) -> Result<Vec<f32>> {
+    fn encode<'a>(&'a self, net: Net, input: &'a [f32], patches: usize) -> StepFuture<'a, Vec<f32>> {
         let n = self.model.config.points_per_patch;
-        check::encode_input(input, patches, n, net.io_width())?;
-        Ok(match net {
-            Net::Ppf => self.model.ppf.encode_at(self.precision, input, patches, n),
-            Net::Pc => self.model.pc.encode_at(self.precision, input, patches, n),
-        })
+        let foldnet = match net {
+            Net::Ppf => &self.model.ppf,
+            Net::Pc => &self.model.pc,
+        };
+        ready(
+            check::encode_input(input, patches, n, net.io_width())
+                .map(|_| foldnet.encode_at(self.precision, input, patches, n)),
+        )
     }
 
-    fn match_codewords(&self, source: &[f32], target: &[f32], dim: usize, mode: MatchMode) -> Result<Vec<Match>> {
-        check::codeword_rows(source, target, dim)?;
-        let d = codeword_distance(source, target, dim);
-        Ok(mutual_knn(&d, source.len() / dim, target.len() / dim, mode))
+    fn match_codewords<'a>(
+        &'a self,
+        source: &'a [f32],
+        target: &'a [f32],
+        dim: usize,
+        mode: MatchMode,
+    ) -> StepFuture<'a, Vec<Match>> {
+        ready(check::codeword_rows(source, target, dim).map(|_| {
+            let d = codeword_distance(source, target, dim);
+            mutual_knn(&d, source.len() / dim, target.len() / dim, mode)
+        }))
     }
 
-    fn predict_rotations(&self, pose: RotationInputs<'_>) -> Result<Vec<[f32; 9]>> {
+    fn predict_rotations<'a>(&'a self, pose: RotationInputs<'a>) -> StepFuture<'a, Vec<[f32; 9]>> {
         let c = &self.model.config;
-        pose.validate(c.codeword())?;
         let RotationInputs { source, target, source_normals, target_normals, rows } = pose;
-        Ok(self.model.relative.predict(c, source, target, source_normals, target_normals, rows))
+        ready(
+            pose.validate(c.codeword())
+                .map(|_| self.model.relative.predict(c, source, target, source_normals, target_normals, rows)),
+        )
     }
 
-    fn hypotheses(&self, rotations: &[[f32; 9]], source: &[[f32; 3]], target: &[[f32; 3]]) -> Result<Vec<Hypothesis>> {
-        check::hypothesis_inputs(rotations.len(), source.len(), target.len())?;
-        Ok(hypotheses(rotations, source, target))
+    fn hypotheses<'a>(
+        &'a self,
+        rotations: &'a [[f32; 9]],
+        source: &'a [[f32; 3]],
+        target: &'a [[f32; 3]],
+    ) -> StepFuture<'a, Vec<Hypothesis>> {
+        ready(
+            check::hypothesis_inputs(rotations.len(), source.len(), target.len())
+                .map(|_| hypotheses(rotations, source, target)),
+        )
     }
 
-    fn score_hypotheses(
-        &self,
-        hypotheses: &[Hypothesis],
-        source: &[[f32; 3]],
-        target: &[[f32; 3]],
+    fn score_hypotheses<'a>(
+        &'a self,
+        hypotheses: &'a [Hypothesis],
+        source: &'a [[f32; 3]],
+        target: &'a [[f32; 3]],
         threshold: f32,
-    ) -> Result<Vec<HypothesisScore>> {
-        check::correspondences(source.len(), target.len())?;
-        Ok(score_hypotheses(hypotheses, source, target, threshold))
+    ) -> StepFuture<'a, Vec<HypothesisScore>> {
+        ready(
+            check::correspondences(source.len(), target.len())
+                .map(|_| score_hypotheses(hypotheses, source, target, threshold)),
+        )
     }
 }

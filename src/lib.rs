@@ -58,6 +58,14 @@ pub mod train;
 pub mod verdict;
 
 pub use cloud::PointCloud;
+
+/// Runs a future of this crate to completion on the calling thread: the blocking entry points (`Registrar`'s
+/// methods, the command line, the Python package) over the async steps. A CPU backend's futures are ready when
+/// polled; natively a GPU readback polls the device to completion before it is awaited. In a browser, await the
+/// futures instead (a GPU readback there completes on the page's event loop).
+pub fn block_on<F: std::future::Future>(future: F) -> F::Output {
+    pollster::block_on(future)
+}
 pub use error::{Error, Result};
 pub use multiway::{MultiwaySettings, Trajectory, multiway};
 /// The linear-algebra crate of the public API (`target_from_source` is a [`Matrix4`]), re-exported so a

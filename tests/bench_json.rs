@@ -149,41 +149,52 @@ struct CountingScan {
 }
 
 impl ScanCloud for CountingScan {
-    fn describe_keypoints(
-        &mut self,
-        backend: &dyn Backend,
-        cloud: &mut dpr_gpu::PointCloud,
-        keypoints: (&[usize], f32),
+    fn describe_keypoints<'a>(
+        &'a mut self,
+        backend: &'a dyn Backend,
+        cloud: &'a mut dpr_gpu::PointCloud,
+        keypoints: (&'a [usize], f32),
         seed: u64,
-        rows: &dyn ScanRows,
-        lap: Lap<'_>,
-    ) -> dpr_gpu::Result<DescribedKeypoints> {
-        let out = self.inner.describe_keypoints(backend, cloud, keypoints, seed, rows, lap)?;
-        let (k, p) = (keypoints.0.len() as u64, out.kept.len() as u64);
-        let block = dpr_gpu::cpu::patch_sample::BLOCK_CELLS as u64;
-        let offsets = if p > 0 { 4 * block * k } else { 0 };
-        let mut b = self.bytes.lock().unwrap();
-        b.0 += 4 * k + offsets + 2 * 16 * p;
-        b.1 += 4 * block * k + 24 * p;
-        Ok(out)
+        rows: &'a dyn ScanRows,
+        lap: Lap<'a>,
+    ) -> dpr_gpu::backend::StepFuture<'a, DescribedKeypoints> {
+        Box::pin(async move {
+            let out = self.inner.describe_keypoints(backend, cloud, keypoints, seed, rows, lap).await?;
+            let (k, p) = (keypoints.0.len() as u64, out.kept.len() as u64);
+            let block = dpr_gpu::cpu::patch_sample::BLOCK_CELLS as u64;
+            let offsets = if p > 0 { 4 * block * k } else { 0 };
+            let mut b = self.bytes.lock().unwrap();
+            b.0 += 4 * k + offsets + 2 * 16 * p;
+            b.1 += 4 * block * k + 24 * p;
+            Ok(out)
+        })
     }
 
-    fn farthest_points(&self, cloud: &dpr_gpu::PointCloud, count: usize, start: usize) -> dpr_gpu::Result<Vec<usize>> {
-        let out = self.inner.farthest_points(cloud, count, start)?;
-        // The chosen indices: initialised up, read back.
-        let mut b = self.bytes.lock().unwrap();
-        b.0 += 4 * count as u64;
-        b.1 += 4 * count as u64;
-        Ok(out)
+    fn farthest_points<'a>(
+        &'a self,
+        cloud: &'a dpr_gpu::PointCloud,
+        count: usize,
+        start: usize,
+    ) -> dpr_gpu::backend::StepFuture<'a, Vec<usize>> {
+        Box::pin(async move {
+            let out = self.inner.farthest_points(cloud, count, start).await?;
+            // The chosen indices: initialised up, read back.
+            let mut b = self.bytes.lock().unwrap();
+            b.0 += 4 * count as u64;
+            b.1 += 4 * count as u64;
+            Ok(out)
+        })
     }
 
-    fn complete_normals(&mut self, cloud: &mut dpr_gpu::PointCloud) -> dpr_gpu::Result<()> {
-        let before = self.inner.normals_complete();
-        self.inner.complete_normals(cloud)?;
-        if !before && self.inner.normals_complete() {
-            self.bytes.lock().unwrap().1 += 12 * cloud.len() as u64;
-        }
-        Ok(())
+    fn complete_normals<'a>(&'a mut self, cloud: &'a mut dpr_gpu::PointCloud) -> dpr_gpu::backend::StepFuture<'a, ()> {
+        Box::pin(async move {
+            let before = self.inner.normals_complete();
+            self.inner.complete_normals(cloud).await?;
+            if !before && self.inner.normals_complete() {
+                self.bytes.lock().unwrap().1 += 12 * cloud.len() as u64;
+            }
+            Ok(())
+        })
     }
 
     fn normals_complete(&self) -> bool {
@@ -223,122 +234,168 @@ impl Backend for CountingBackend {
         self.inner.new_scan_rows(capacity)
     }
 
-    fn start_scan(
-        &self,
-        cloud: &dpr_gpu::PointCloud,
-        settings: &ScanSettings,
-        lap: Lap<'_>,
-    ) -> dpr_gpu::Result<(dpr_gpu::PointCloud, Box<dyn ScanCloud>)> {
-        assert!(settings.voxel.is_none(), "the count below is for scans that are not downsampled");
-        let (host, inner) = self.inner.start_scan(cloud, settings, lap)?;
-        let n = host.len();
-        // File normals go up with the points; estimated ones need a second cell table.
-        let (normals, tables) = if host.normals.is_some() { (12 * n, 1) } else { (0, 2) };
-        self.add(12 * n + normals + tables * (32 + 4), tables * (32 + 4));
-        Ok((host, Box::new(CountingScan { inner, bytes: Arc::clone(&self.bytes) })))
+    fn start_scan<'a>(
+        &'a self,
+        cloud: &'a dpr_gpu::PointCloud,
+        settings: &'a ScanSettings,
+        lap: Lap<'a>,
+    ) -> dpr_gpu::backend::StepFuture<'a, (dpr_gpu::PointCloud, Box<dyn ScanCloud>)> {
+        Box::pin(async move {
+            assert!(settings.voxel.is_none(), "the count below is for scans that are not downsampled");
+            let (host, inner) = self.inner.start_scan(cloud, settings, lap).await?;
+            let n = host.len();
+            // File normals go up with the points; estimated ones need a second cell table.
+            let (normals, tables) = if host.normals.is_some() { (12 * n, 1) } else { (0, 2) };
+            self.add(12 * n + normals + tables * (32 + 4), tables * (32 + 4));
+            Ok((host, Box::new(CountingScan { inner, bytes: Arc::clone(&self.bytes) }) as Box<dyn ScanCloud>))
+        })
     }
 
-    fn describe(&self, batch: PatchBatch<'_>, rows: &dyn ScanRows) -> dpr_gpu::Result<()> {
-        self.inner.describe(batch, rows)?;
-        let p = batch.patches();
-        self.add(24 * p.centers.len() + 24 * p.points.len(), 0);
-        Ok(())
+    fn describe<'a>(&'a self, batch: PatchBatch<'a>, rows: &'a dyn ScanRows) -> dpr_gpu::backend::StepFuture<'a, ()> {
+        Box::pin(async move {
+            self.inner.describe(batch, rows).await?;
+            let p = batch.patches();
+            self.add(24 * p.centers.len() + 24 * p.points.len(), 0);
+            Ok(())
+        })
     }
 
-    fn correspond(&self, request: RowMatch<'_>) -> dpr_gpu::Result<Vec<Match>> {
-        let out = self.inner.correspond(request)?;
-        let ((_, ns), (_, nt)) = (request.source(), request.target());
-        if ns > 0 && nt > 0 {
-            self.add(0, 3 * 4 * K_MAX * ns);
-        }
-        Ok(out)
+    fn correspond<'a>(&'a self, request: RowMatch<'a>) -> dpr_gpu::backend::StepFuture<'a, Vec<Match>> {
+        Box::pin(async move {
+            let out = self.inner.correspond(request).await?;
+            let ((_, ns), (_, nt)) = (request.source(), request.target());
+            if ns > 0 && nt > 0 {
+                self.add(0, 3 * 4 * K_MAX * ns);
+            }
+            Ok(out)
+        })
     }
 
-    fn prepare_pose_features(&self, rows: &dyn ScanRows, which: &[u32]) -> dpr_gpu::Result<()> {
-        self.inner.prepare_pose_features(rows, which)?;
-        self.add(4 * self.newly_computed(rows, which), 0);
-        Ok(())
+    fn prepare_pose_features<'a>(
+        &'a self,
+        rows: &'a dyn ScanRows,
+        which: &'a [u32],
+    ) -> dpr_gpu::backend::StepFuture<'a, ()> {
+        Box::pin(async move {
+            self.inner.prepare_pose_features(rows, which).await?;
+            self.add(4 * self.newly_computed(rows, which), 0);
+            Ok(())
+        })
     }
 
-    fn verify(&self, request: MatchedRows<'_>) -> dpr_gpu::Result<Verified> {
-        let out = self.inner.verify(request)?;
-        let (s, t) = (request.source(), request.target());
-        let missing = self.newly_computed(s.scan, s.rows) + self.newly_computed(t.scan, t.rows);
-        let (c, m) = (request.len(), self.inner.model().config.rotation_output.candidates());
-        let rotations = if request.wants_rotations() { 36 * c * m } else { 0 };
-        self.add(4 * missing + 12 * 2 * c * (2 + m), 8 * c * m + 4 * HYPOTHESIS_FLOATS * out.best.len() + rotations);
-        Ok(out)
+    fn verify<'a>(&'a self, request: MatchedRows<'a>) -> dpr_gpu::backend::StepFuture<'a, Verified> {
+        Box::pin(async move {
+            let out = self.inner.verify(request).await?;
+            let (s, t) = (request.source(), request.target());
+            let missing = self.newly_computed(s.scan, s.rows) + self.newly_computed(t.scan, t.rows);
+            let (c, m) = (request.len(), self.inner.model().config.rotation_output.candidates());
+            let rotations = if request.wants_rotations() { 36 * c * m } else { 0 };
+            self.add(
+                4 * missing + 12 * 2 * c * (2 + m),
+                8 * c * m + 4 * HYPOTHESIS_FLOATS * out.best.len() + rotations,
+            );
+            Ok(out)
+        })
     }
 
     /// ICP on the device: up, the grid words of two cell tables (the target's voxel copy and its ICP grid);
     /// down, the same words and the 28 sums of each iteration, whose count only the loop knows: checked to be
     /// that shape, at most `max_iterations` sums, and counted.
-    fn refine_icp(
-        &self,
-        source: &dpr_gpu::pipeline::ScanFeatures,
-        target: &dpr_gpu::pipeline::ScanFeatures,
+    fn refine_icp<'a>(
+        &'a self,
+        source: &'a dpr_gpu::pipeline::ScanFeatures,
+        target: &'a dpr_gpu::pipeline::ScanFeatures,
         initial: nalgebra::Matrix4<f64>,
-        problem: &dpr_gpu::estimate::icp::IcpProblem,
-    ) -> dpr_gpu::Result<nalgebra::Matrix4<f64>> {
-        let before = self.gpu.context.transfers();
-        let out = self.inner.refine_icp(source, target, initial, problem)?;
-        let moved = self.gpu.context.transfers().since(before);
-        let (tables, sums) = (2 * (32 + 4), 28 * 4);
-        assert_eq!(moved.host_to_device_bytes, tables, "ICP uploads only grid words (the points are held)");
-        let per_iteration = moved.device_to_host_bytes - tables;
-        assert!(
-            per_iteration.is_multiple_of(sums) && per_iteration / sums <= problem.max_iterations as u64,
-            "ICP read back {} bytes",
-            moved.device_to_host_bytes
-        );
-        self.add(tables as usize, moved.device_to_host_bytes as usize);
-        Ok(out)
+        problem: &'a dpr_gpu::estimate::icp::IcpProblem,
+    ) -> dpr_gpu::backend::StepFuture<'a, nalgebra::Matrix4<f64>> {
+        Box::pin(async move {
+            let before = self.gpu.context.transfers();
+            let out = self.inner.refine_icp(source, target, initial, problem).await?;
+            let moved = self.gpu.context.transfers().since(before);
+            let (tables, sums) = (2 * (32 + 4), 28 * 4);
+            assert_eq!(moved.host_to_device_bytes, tables, "ICP uploads only grid words (the points are held)");
+            let per_iteration = moved.device_to_host_bytes - tables;
+            assert!(
+                per_iteration.is_multiple_of(sums) && per_iteration / sums <= problem.max_iterations as u64,
+                "ICP read back {} bytes",
+                moved.device_to_host_bytes
+            );
+            self.add(tables as usize, moved.device_to_host_bytes as usize);
+            Ok(out)
+        })
     }
 
-    fn patch_features(&self, patches: &GatheredPatches, radius: f32) -> dpr_gpu::Result<(Vec<f32>, Vec<f32>)> {
-        let out = self.inner.patch_features(patches, radius)?;
-        self.add(24 * patches.centers.len() + 24 * patches.points.len(), 4 * (out.0.len() + out.1.len()));
-        Ok(out)
+    fn patch_features<'a>(
+        &'a self,
+        patches: &'a GatheredPatches,
+        radius: f32,
+    ) -> dpr_gpu::backend::StepFuture<'a, (Vec<f32>, Vec<f32>)> {
+        Box::pin(async move {
+            let out = self.inner.patch_features(patches, radius).await?;
+            self.add(24 * patches.centers.len() + 24 * patches.points.len(), 4 * (out.0.len() + out.1.len()));
+            Ok(out)
+        })
     }
 
-    fn encode(&self, net: Net, input: &[f32], patches: usize) -> dpr_gpu::Result<Vec<f32>> {
-        let out = self.inner.encode(net, input, patches)?;
-        self.add(4 * input.len(), 4 * out.len());
-        Ok(out)
+    fn encode<'a>(&'a self, net: Net, input: &'a [f32], patches: usize) -> dpr_gpu::backend::StepFuture<'a, Vec<f32>> {
+        Box::pin(async move {
+            let out = self.inner.encode(net, input, patches).await?;
+            self.add(4 * input.len(), 4 * out.len());
+            Ok(out)
+        })
     }
 
-    fn match_codewords(&self, s: &[f32], t: &[f32], dim: usize, mode: MatchMode) -> dpr_gpu::Result<Vec<Match>> {
-        let out = self.inner.match_codewords(s, t, dim, mode)?;
-        if !s.is_empty() && !t.is_empty() {
-            self.add(4 * (s.len() + t.len()), 3 * 4 * K_MAX * (s.len() / dim));
-        }
-        Ok(out)
+    fn match_codewords<'a>(
+        &'a self,
+        s: &'a [f32],
+        t: &'a [f32],
+        dim: usize,
+        mode: MatchMode,
+    ) -> dpr_gpu::backend::StepFuture<'a, Vec<Match>> {
+        Box::pin(async move {
+            let out = self.inner.match_codewords(s, t, dim, mode).await?;
+            if !s.is_empty() && !t.is_empty() {
+                self.add(4 * (s.len() + t.len()), 3 * 4 * K_MAX * (s.len() / dim));
+            }
+            Ok(out)
+        })
     }
 
-    fn predict_rotations(&self, pose: RotationInputs<'_>) -> dpr_gpu::Result<Vec<[f32; 9]>> {
-        let out = self.inner.predict_rotations(pose)?;
-        let up =
-            4 * (pose.source.len() + pose.target.len()) + 12 * (pose.source_normals.len() + pose.target_normals.len());
-        self.add(up, 36 * out.len());
-        Ok(out)
+    fn predict_rotations<'a>(&'a self, pose: RotationInputs<'a>) -> dpr_gpu::backend::StepFuture<'a, Vec<[f32; 9]>> {
+        Box::pin(async move {
+            let out = self.inner.predict_rotations(pose).await?;
+            let up = 4 * (pose.source.len() + pose.target.len())
+                + 12 * (pose.source_normals.len() + pose.target_normals.len());
+            self.add(up, 36 * out.len());
+            Ok(out)
+        })
     }
 
-    fn hypotheses(&self, r: &[[f32; 9]], s: &[[f32; 3]], t: &[[f32; 3]]) -> dpr_gpu::Result<Vec<Hypothesis>> {
-        let out = self.inner.hypotheses(r, s, t)?;
-        self.add(36 * r.len() + 12 * (s.len() + t.len()), 4 * HYPOTHESIS_FLOATS * out.len());
-        Ok(out)
+    fn hypotheses<'a>(
+        &'a self,
+        r: &'a [[f32; 9]],
+        s: &'a [[f32; 3]],
+        t: &'a [[f32; 3]],
+    ) -> dpr_gpu::backend::StepFuture<'a, Vec<Hypothesis>> {
+        Box::pin(async move {
+            let out = self.inner.hypotheses(r, s, t).await?;
+            self.add(36 * r.len() + 12 * (s.len() + t.len()), 4 * HYPOTHESIS_FLOATS * out.len());
+            Ok(out)
+        })
     }
 
-    fn score_hypotheses(
-        &self,
-        h: &[Hypothesis],
-        s: &[[f32; 3]],
-        t: &[[f32; 3]],
+    fn score_hypotheses<'a>(
+        &'a self,
+        h: &'a [Hypothesis],
+        s: &'a [[f32; 3]],
+        t: &'a [[f32; 3]],
         threshold: f32,
-    ) -> dpr_gpu::Result<Vec<HypothesisScore>> {
-        let out = self.inner.score_hypotheses(h, s, t, threshold)?;
-        self.add(12 * (s.len() + t.len()) + 4 * HYPOTHESIS_FLOATS * h.len(), 8 * out.len());
-        Ok(out)
+    ) -> dpr_gpu::backend::StepFuture<'a, Vec<HypothesisScore>> {
+        Box::pin(async move {
+            let out = self.inner.score_hypotheses(h, s, t, threshold).await?;
+            self.add(12 * (s.len() + t.len()) + 4 * HYPOTHESIS_FLOATS * h.len(), 8 * out.len());
+            Ok(out)
+        })
     }
 }
 

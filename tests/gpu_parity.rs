@@ -13,8 +13,8 @@
 //! must match exactly.
 
 use dpr_gpu::BackendKind;
-use dpr_gpu::backend::RotationInputs;
 use dpr_gpu::backend::{Backend, CpuBackend};
+use dpr_gpu::backend::{RotationInputs, StepFuture};
 use dpr_gpu::cpu::dense::DenseShape;
 use dpr_gpu::cpu::hypotheses::{Hypothesis, hypotheses as cpu_hypotheses};
 use dpr_gpu::cpu::score_hypotheses::{HypothesisScore, squared_residual};
@@ -275,7 +275,7 @@ fn twin_patch_features(p: &GatheredPatches, n: usize, radius: f32, frame: PoseFr
 /// The kernel on `p` in `frame`, outputs pre-filled with the sentinel.
 fn gpu_patch_features(g: &Gpu, p: &GatheredPatches, n: usize, radius: f32, frame: PoseFrame) -> (Vec<f32>, Vec<f32>) {
     let (mut ppf, mut pc) = (vec![SENTINEL; p.points.len() * 4], vec![SENTINEL; p.points.len() * 3]);
-    gpu::patch_features::run(g, p, n, radius, frame, &mut ppf, &mut pc).unwrap();
+    dpr_gpu::block_on(gpu::patch_features::run(g, p, n, radius, frame, &mut ppf, &mut pc)).unwrap();
     (ppf, pc)
 }
 
@@ -413,7 +413,7 @@ fn check_dense_variant(
         let group_buf = group.then_some(gb.raw());
         gpu::dense::record_with(&mut rec, g, variant, &params, [xb.raw(), wb.raw()], group_buf, ob.raw()).unwrap();
         rec.read(ob.raw(), 0, (init.len() * 4) as u64);
-        let got: Vec<f32> = bytemuck::pod_collect_to_vec(&rec.finish().unwrap()[0]);
+        let got: Vec<f32> = bytemuck::pod_collect_to_vec(&dpr_gpu::block_on(rec.finish()).unwrap()[0]);
         let init_for_tol = if accumulate { init.clone() } else { vec![0.0; init.len()] };
         let tol = tol(&shape, &x, w, &gt, &init_for_tol);
         assert_close(&format!("{} {shape:?} w_row_offset {offset}", variant.kernel().name), seed, &got, &want, |i| {
@@ -475,7 +475,7 @@ fn max_pool_matches_cpu_ragged() {
         x[..rows * channels].iter_mut().for_each(|v| *v = -v.abs() - 1.0);
         let want = MaxPool::CPU_TWIN(&x, groups, rows, channels);
         let mut got = vec![SENTINEL; groups * channels];
-        gpu::max_pool::run(&g, &x, groups, rows, channels, &mut got).unwrap();
+        dpr_gpu::block_on(gpu::max_pool::run(&g, &x, groups, rows, channels, &mut got)).unwrap();
         assert_close(&format!("max_pool {groups}x{rows}x{channels}"), s, &got, &want, |_| 0.0);
     }
 }
@@ -489,7 +489,7 @@ fn max_pool_matches_cpu_past_65535_workgroups() {
     let x: Vec<f32> = (0..groups).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
     let want = MaxPool::CPU_TWIN(&x, groups, 1, 1);
     let mut got = vec![SENTINEL; groups];
-    gpu::max_pool::run(&g, &x, groups, 1, 1, &mut got).unwrap();
+    dpr_gpu::block_on(gpu::max_pool::run(&g, &x, groups, 1, 1, &mut got)).unwrap();
     assert_close("max_pool (2-D dispatch)", s, &got, &want, |_| 0.0);
 }
 
@@ -504,7 +504,7 @@ fn codeword_distance_matches_cpu_ragged() {
         let b = normals(&mut rng, nt * dim);
         let want = CodewordDistance::CPU_TWIN(&a, &b, dim);
         let mut got = vec![SENTINEL; ns * nt];
-        gpu::codeword_distance::run(&g, &a, &b, dim, &mut got).unwrap();
+        dpr_gpu::block_on(gpu::codeword_distance::run(&g, &a, &b, dim, &mut got)).unwrap();
         // All terms are non-negative, so sum |terms| is the value itself.
         let tol = |i: usize| SUM_ERROR_FACTOR * (dim + 2) as f32 * EPS * want[i] + f32::MIN_POSITIVE;
         assert_close(&format!("codeword_distance {ns}x{nt}x{dim}"), s, &got, &want, tol);
@@ -517,7 +517,7 @@ const MODES: [MatchMode; 5] =
 fn check_knn(g: &Gpu, s: u64, d: &[f32], ns: usize, nt: usize, what: &str) {
     for mode in MODES {
         let want = MutualKnn::CPU_TWIN(d, ns, nt, mode);
-        let got = gpu::mutual_knn::run(g, d, ns, nt, mode).unwrap();
+        let got = dpr_gpu::block_on(gpu::mutual_knn::run(g, d, ns, nt, mode)).unwrap();
         assert_eq!(got, want, "mutual_knn {what} {ns}x{nt} {mode:?} (seed {s})");
     }
 }
@@ -586,7 +586,7 @@ fn rotation_head_matches_cpu() {
             let want = RotationHead::CPU_TWIN(&raw, output, frame, &ns, &nt);
             assert_eq!(want.len(), n * output.candidates());
             let mut got = vec![[SENTINEL; 9]; want.len()];
-            gpu::rotation_head::run(&g, &raw, output, frame, [&ns, &nt], &mut got).unwrap();
+            dpr_gpu::block_on(gpu::rotation_head::run(&g, &raw, output, frame, [&ns, &nt], &mut got)).unwrap();
             let name = format!("rotation_head ({output:?}, {frame:?})");
             let tol = if output == bins { ROTATION_BINS_ATOL } else { ROTATION_ATOL };
             assert_close(&name, s, got.as_flattened(), want.as_flattened(), |_| tol);
@@ -611,7 +611,7 @@ fn hypotheses_matches_cpu() {
     let want = Hypotheses::CPU_TWIN(&q, &ps, &pt);
     let sentinel = Hypothesis { rotation: [SENTINEL; 9], translation: [SENTINEL; 3] };
     let mut got = vec![sentinel; q.len()];
-    gpu::hypotheses::run(&g, &q, &ps, &pt, &mut got).unwrap();
+    dpr_gpu::block_on(gpu::hypotheses::run(&g, &q, &ps, &pt, &mut got)).unwrap();
     let flat = |h: &[Hypothesis]| h.iter().flat_map(gpu::hypotheses::to_row).collect::<Vec<f32>>();
     let scale: Vec<f32> = (0..q.len())
         .flat_map(|i| {
@@ -696,7 +696,7 @@ fn score_hypotheses_matches_cpu() {
     for (hyps, corr) in [(1, 1), (37, 200), (5, 64), (3, 65), (70, 0)] {
         let (h, src, tgt) = scoring_problem(&mut rng, hyps, corr);
         let mut got = vec![HypothesisScore { inliers: SENTINEL_U32, residual_sum: SENTINEL }; h.len()];
-        gpu::score_hypotheses::run(&g, &h, &src, &tgt, 0.1, &mut got).unwrap();
+        dpr_gpu::block_on(gpu::score_hypotheses::run(&g, &h, &src, &tgt, 0.1, &mut got)).unwrap();
         check_scores(s, &h, &src, &tgt, 0.1, &got);
     }
 }
@@ -708,7 +708,7 @@ fn score_hypotheses_matches_cpu_past_65535_workgroups() {
     // One workgroup per hypothesis: 65,600 of them need a 2-D grid; two correspondences keep it cheap.
     let (h, src, tgt) = scoring_problem(&mut rng, 65_600, 2);
     let mut got = vec![HypothesisScore { inliers: SENTINEL_U32, residual_sum: SENTINEL }; h.len()];
-    gpu::score_hypotheses::run(&g, &h, &src, &tgt, 0.5, &mut got).unwrap();
+    dpr_gpu::block_on(gpu::score_hypotheses::run(&g, &h, &src, &tgt, 0.5, &mut got)).unwrap();
     check_scores(s, &h, &src, &tgt, 0.5, &got);
 }
 
@@ -718,7 +718,7 @@ fn inlier_mask_matches_cpu() {
     let mut rng = Rng::new(s);
     let (h, src, tgt) = scoring_problem(&mut rng, 1, 333);
     let mut mask = vec![SENTINEL_U32; src.len()];
-    gpu::score_hypotheses::inlier_mask(&g, &h[0], &src, &tgt, 0.1, &mut mask).unwrap();
+    dpr_gpu::block_on(gpu::score_hypotheses::inlier_mask(&g, &h[0], &src, &tgt, 0.1, &mut mask)).unwrap();
     let t2 = 0.1f32 * 0.1;
     for (c, (&p, &q)) in src.iter().zip(&tgt).enumerate() {
         let r2 = squared_residual(&h[0], p, q);
@@ -740,13 +740,13 @@ fn backend_patch_features_and_encode_match_cpu() {
     let n = cpu_b.model().config.points_per_patch;
     let mut rng = Rng::new(s);
     let p = gathered(&mut rng, 13, n, 0.3);
-    let want = cpu_b.patch_features(&p, 0.3).unwrap();
-    let got = gpu_b.patch_features(&p, 0.3).unwrap();
+    let want = dpr_gpu::block_on(cpu_b.patch_features(&p, 0.3)).unwrap();
+    let got = dpr_gpu::block_on(gpu_b.patch_features(&p, 0.3)).unwrap();
     let frame = cpu_b.model().config.pose_frame;
     check_patch_features("backend patch_features", s, (&got.0, &got.1), (&want.0, &want.1), frame);
     for (net, input) in [(Net::Ppf, &want.0), (Net::Pc, &want.1)] {
-        let want_cw = cpu_b.encode(net, input, 13).unwrap();
-        let got_cw = gpu_b.encode(net, input, 13).unwrap();
+        let want_cw = dpr_gpu::block_on(cpu_b.encode(net, input, 13)).unwrap();
+        let got_cw = dpr_gpu::block_on(gpu_b.encode(net, input, 13)).unwrap();
         let tol = network_rtol() * max_abs(&want_cw);
         assert_close(&format!("encode {net:?}"), s, &got_cw, &want_cw, |_| tol);
     }
@@ -761,16 +761,16 @@ fn networks_match_cpu_at_default_widths() {
     let n = cpu_b.model().config.points_per_patch;
     let mut rng = Rng::new(s);
     let p = gathered(&mut rng, 3, n, 0.3);
-    let (ppf, pc) = cpu_b.patch_features(&p, 0.3).unwrap();
+    let (ppf, pc) = dpr_gpu::block_on(cpu_b.patch_features(&p, 0.3)).unwrap();
     let mut codewords = Vec::new();
     for (net, input) in [(Net::Ppf, &ppf), (Net::Pc, &pc)] {
-        let want = cpu_b.encode(net, input, 3).unwrap();
-        let got = gpu_b.encode(net, input, 3).unwrap();
+        let want = dpr_gpu::block_on(cpu_b.encode(net, input, 3)).unwrap();
+        let got = dpr_gpu::block_on(gpu_b.encode(net, input, 3)).unwrap();
         let tol = network_rtol() * max_abs(&want);
         assert_close(&format!("encode {net:?} (default widths)"), s, &got, &want, |_| tol);
         let f = if net == Net::Ppf { &cpu_b.model().ppf } else { &cpu_b.model().pc };
         let want_rec = f.decode(&want, 3);
-        let got_rec = gpu_b.decode(net, &want, 3).unwrap();
+        let got_rec = dpr_gpu::block_on(gpu_b.decode(net, &want, 3)).unwrap();
         let tol = network_rtol() * max_abs(&want_rec);
         assert_close(&format!("decode {net:?} (default widths)"), s, &got_rec, &want_rec, |_| tol);
         codewords.push(want);
@@ -783,8 +783,8 @@ fn networks_match_cpu_at_default_widths() {
         target_normals: &p.center_normals[..3],
         rows: 3,
     };
-    let want = cpu_b.predict_rotations(inputs).unwrap();
-    let got = gpu_b.predict_rotations(inputs).unwrap();
+    let want = dpr_gpu::block_on(cpu_b.predict_rotations(inputs)).unwrap();
+    let got = dpr_gpu::block_on(gpu_b.predict_rotations(inputs)).unwrap();
     let tol = if cpu_b.model().config.rotation_output.candidates() > 1 {
         ROTATION_BINS_ATOL.max(network_rtol())
     } else {
@@ -802,8 +802,8 @@ fn encode_and_matching_match_cpu_when_chunked() {
     let mut rng = Rng::new(s);
     let input: Vec<f32> = (0..11 * n * 4).map(|_| rng.unit_f64() as f32).collect();
     g.context.set_max_buffer_bytes(8 << 10); // one 32-point patch x 48 channels per chunk
-    let want = cpu_b.encode(Net::Ppf, &input, 11).unwrap();
-    let got = gpu_b.encode(Net::Ppf, &input, 11).unwrap();
+    let want = dpr_gpu::block_on(cpu_b.encode(Net::Ppf, &input, 11)).unwrap();
+    let got = dpr_gpu::block_on(gpu_b.encode(Net::Ppf, &input, 11)).unwrap();
     let tol = network_rtol() * max_abs(&want);
     assert_close("encode (chunked)", s, &got, &want, |_| tol);
 
@@ -811,8 +811,8 @@ fn encode_and_matching_match_cpu_when_chunked() {
     let a = normals(&mut rng, ns * dim);
     let b = normals(&mut rng, nt * dim);
     for mode in MODES {
-        let want = cpu_b.match_codewords(&a, &b, dim, mode).unwrap();
-        let got = gpu_b.match_codewords(&a, &b, dim, mode).unwrap();
+        let want = dpr_gpu::block_on(cpu_b.match_codewords(&a, &b, dim, mode)).unwrap();
+        let got = dpr_gpu::block_on(gpu_b.match_codewords(&a, &b, dim, mode)).unwrap();
         let pairs = |m: &[Match]| m.iter().map(|m| (m.source, m.target)).collect::<Vec<_>>();
         assert_eq!(pairs(&got), pairs(&want), "match_codewords (chunked) {mode:?} seed {s}");
         let (gd, wd): (Vec<f32>, Vec<f32>) =
@@ -832,7 +832,7 @@ fn decode_matches_cpu() {
     let codewords: Vec<f32> = (0..9 * cw).map(|_| rng.unit_f64() as f32).collect();
     for (net, f) in [(Net::Ppf, &model.ppf), (Net::Pc, &model.pc)] {
         let want = f.decode(&codewords, 9);
-        let got = gpu_b.decode(net, &codewords, 9).unwrap();
+        let got = dpr_gpu::block_on(gpu_b.decode(net, &codewords, 9)).unwrap();
         let tol = network_rtol() * max_abs(&want);
         assert_close(&format!("decode {net:?}"), s, &got, &want, |_| tol);
     }
@@ -864,8 +864,8 @@ fn relativenet_matches_cpu(s: u64, gpu_b: &GpuBackend, cpu_b: &CpuBackend) {
     let ns: Vec<[f32; 3]> = (0..rows).map(|_| unit(&mut rng)).collect();
     let nt: Vec<[f32; 3]> = (0..rows).map(|_| unit(&mut rng)).collect();
     let inputs = RotationInputs { source: &src, target: &tgt, source_normals: &ns, target_normals: &nt, rows };
-    let want = cpu_b.predict_rotations(inputs).unwrap();
-    let got = gpu_b.predict_rotations(inputs).unwrap();
+    let want = dpr_gpu::block_on(cpu_b.predict_rotations(inputs)).unwrap();
+    let got = dpr_gpu::block_on(gpu_b.predict_rotations(inputs)).unwrap();
     let name = format!("predict_rotations ({:?}, {:?})", config.pose_frame, config.rotation_output);
     assert_eq!(want.len(), rows * config.rotation_output.candidates());
     let tol =
@@ -873,27 +873,30 @@ fn relativenet_matches_cpu(s: u64, gpu_b: &GpuBackend, cpu_b: &CpuBackend) {
     assert_close(&name, s, got.as_flattened(), want.as_flattened(), |_| tol);
     // Wrong lengths are errors on both backends.
     let short = RotationInputs { source_normals: &ns[1..], ..inputs };
-    assert!(cpu_b.predict_rotations(short).is_err() && gpu_b.predict_rotations(short).is_err());
+    assert!(
+        dpr_gpu::block_on(cpu_b.predict_rotations(short)).is_err()
+            && dpr_gpu::block_on(gpu_b.predict_rotations(short)).is_err()
+    );
 
     let (ps, pt) = (points(&mut rng, want.len(), 2.0), points(&mut rng, want.len(), 2.0));
-    let want_h = cpu_b.hypotheses(&want, &ps, &pt).unwrap();
-    let got_h = gpu_b.hypotheses(&want, &ps, &pt).unwrap();
+    let want_h = dpr_gpu::block_on(cpu_b.hypotheses(&want, &ps, &pt)).unwrap();
+    let got_h = dpr_gpu::block_on(gpu_b.hypotheses(&want, &ps, &pt)).unwrap();
     let flat = |h: &[Hypothesis]| h.iter().flat_map(gpu::hypotheses::to_row).collect::<Vec<f32>>();
     assert_close("backend hypotheses", s, &flat(&got_h), &flat(&want_h), |_| HYPOTHESIS_ULPS * EPS * 4.0);
-    let got_s = gpu_b.score_hypotheses(&want_h, &ps, &pt, 0.5).unwrap();
+    let got_s = dpr_gpu::block_on(gpu_b.score_hypotheses(&want_h, &ps, &pt, 0.5)).unwrap();
     check_scores(s, &want_h, &ps, &pt, 0.5, &got_s);
 }
 
 fn invalid_calls_are_errors_not_panics() {
     let Some(g) = gpu() else { return };
     let (gpu_b, _) = backends(Arc::clone(&g), seed(65));
-    assert!(gpu_b.match_codewords(&[0.0; 8], &[0.0; 8], 4, MatchMode::Mutual(5)).is_err());
-    assert!(gpu_b.encode(Net::Ppf, &[0.0; 7], 1).is_err());
+    assert!(dpr_gpu::block_on(gpu_b.match_codewords(&[0.0; 8], &[0.0; 8], 4, MatchMode::Mutual(5))).is_err());
+    assert!(dpr_gpu::block_on(gpu_b.encode(Net::Ppf, &[0.0; 7], 1)).is_err());
     let shape = DenseShape { rows: 2, in_dim: 2, out_dim: 2, rows_per_group: 1, accumulate: false, relu: false };
-    assert!(gpu::dense::run(&g, &shape, &[0.0; 3], &[0.0; 4], &[], &mut [0.0; 4]).is_err());
+    assert!(dpr_gpu::block_on(gpu::dense::run(&g, &shape, &[0.0; 3], &[0.0; 4], &[], &mut [0.0; 4])).is_err());
     // Larger than the buffer cap: a clear Error::Gpu naming the limit.
     let big = vec![0.0f32; (g.context.max_buffer_bytes() / 4 + 1) as usize];
-    let err = gpu::max_pool::run(&g, &big, 1, big.len(), 1, &mut [0.0]).unwrap_err().to_string();
+    let err = dpr_gpu::block_on(gpu::max_pool::run(&g, &big, 1, big.len(), 1, &mut [0.0])).unwrap_err().to_string();
     assert!(err.contains("max_storage_buffer_binding_size"), "{err}");
 }
 
@@ -987,13 +990,13 @@ fn poison_inputs_stay_in_their_patches() {
     poisoned.points[n + 3] = [f32::NAN, 0.0, 0.0];
     poisoned.normals[3 * n + 1] = [f32::INFINITY, 0.0, 0.0];
     poisoned.points[4 * n] = [f32::NEG_INFINITY, 1.0, 1.0];
-    let (cpu_ppf, _) = cpu_b.patch_features(&clean, 0.3).unwrap();
-    let want = cpu_b.encode(Net::Ppf, &cpu_ppf, 6).unwrap();
+    let (cpu_ppf, _) = dpr_gpu::block_on(cpu_b.patch_features(&clean, 0.3)).unwrap();
+    let want = dpr_gpu::block_on(cpu_b.encode(Net::Ppf, &cpu_ppf, 6)).unwrap();
     let dim = want.len() / 6;
     let tol = network_rtol() * max_abs(&want);
     for (name, backend) in [("cpu", &cpu_b as &dyn Backend), ("gpu", &gpu_b as &dyn Backend)] {
-        let Ok((ppf, _)) = backend.patch_features(&poisoned, 0.3) else { continue };
-        let Ok(got) = backend.encode(Net::Ppf, &ppf, 6) else { continue };
+        let Ok((ppf, _)) = dpr_gpu::block_on(backend.patch_features(&poisoned, 0.3)) else { continue };
+        let Ok(got) = dpr_gpu::block_on(backend.encode(Net::Ppf, &ppf, 6)) else { continue };
         assert_eq!(got.len(), want.len(), "{name}, seed {s}");
         for patch in [0, 2, 5] {
             let range = patch * dim..(patch + 1) * dim;
@@ -1010,9 +1013,9 @@ fn poison_inputs_stay_in_their_patches() {
     let src = vec![[0.0, 0.0, 0.0], [f32::NAN, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, f32::INFINITY, 0.0]];
     let tgt = vec![[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
     let hyps = [Hypothesis { rotation: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], translation: [0.0; 3] }];
-    let want = cpu_b.score_hypotheses(&hyps, &src, &tgt, 0.1).unwrap();
+    let want = dpr_gpu::block_on(cpu_b.score_hypotheses(&hyps, &src, &tgt, 0.1)).unwrap();
     assert_eq!(want[0].inliers, 2, "cpu counts only the finite pairs");
-    if let Ok(got) = gpu_b.score_hypotheses(&hyps, &src, &tgt, 0.1) {
+    if let Ok(got) = dpr_gpu::block_on(gpu_b.score_hypotheses(&hyps, &src, &tgt, 0.1)) {
         assert_eq!(got[0].inliers, want[0].inliers, "gpu inliers with poisoned correspondences, seed {s}");
     }
 }
@@ -1077,7 +1080,7 @@ fn unit_rows_matches_cpu_ragged() {
         let mut want = vec![SENTINEL; rows * out_width];
         UnitRows::CPU_TWIN(&input, width, weight, column, out_width, &mut want);
         let mut got = vec![SENTINEL; rows * out_width];
-        gpu::unit_rows::run(&g, &input, block, &mut got).unwrap();
+        dpr_gpu::block_on(gpu::unit_rows::run(&g, &input, block, &mut got)).unwrap();
         let tol = |i: usize| (SUM_ERROR_FACTOR * (width + 2) as f32 + 8.0) * EPS * want[i].abs() + f32::MIN_POSITIVE;
         assert_close(&format!("unit_rows {rows}x{width} into {out_width} at {column}"), s, &got, &want, tol);
         let written = want.iter().filter(|x| !x.is_nan()).count();
@@ -1088,7 +1091,7 @@ fn unit_rows_matches_cpu_ragged() {
         }
     }
     let bad = Block { width: 4, out_width: 6, column: 3, weight: 1.0 };
-    assert!(gpu::unit_rows::run(&g, &[0.0; 4], bad, &mut [0.0; 6]).is_err(), "a block past the row");
+    assert!(dpr_gpu::block_on(gpu::unit_rows::run(&g, &[0.0; 4], bad, &mut [0.0; 6])).is_err(), "a block past the row");
 }
 
 /// pose_feature: a subtraction per value, exact on both sides; rows not named keep their contents.
@@ -1106,11 +1109,14 @@ fn pose_feature_matches_cpu_scattered() {
     let mut want = vec![SENTINEL; rows * width];
     gpu::pose_feature::PoseFeature::CPU_TWIN(&pc, &ppf, &picked, width, &mut want);
     let mut got = vec![SENTINEL; rows * width];
-    gpu::pose_feature::run(&g, &pc, &ppf, &picked, width, &mut got).unwrap();
+    dpr_gpu::block_on(gpu::pose_feature::run(&g, &pc, &ppf, &picked, width, &mut got)).unwrap();
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
     assert_eq!(bits(&got), bits(&want), "pose_feature (seed {s})");
     assert!(want.iter().filter(|x| x.is_nan()).count() == (rows - picked.len()) * width, "unnamed rows untouched");
-    assert!(gpu::pose_feature::run(&g, &pc, &ppf, &[rows as u32], width, &mut got).is_err(), "row out of range");
+    assert!(
+        dpr_gpu::block_on(gpu::pose_feature::run(&g, &pc, &ppf, &[rows as u32], width, &mut got)).is_err(),
+        "row out of range"
+    );
 }
 
 /// The step seam on the device: scans described on the GPU give the CPU's codewords; a CPU scan adopted by the
@@ -1151,7 +1157,7 @@ fn device_steps_match_cpu_steps() {
         )
         .unwrap()
         .with_rotations();
-        r.backend().verify(request).unwrap()
+        dpr_gpu::block_on(r.backend().verify(request)).unwrap()
     };
     let (want, got) = (verify(&on_cpu, &cs, &ct), verify(&on_gpu, &gs, &gt));
     assert_eq!(got.hypotheses, want.hypotheses, "seed {s}");
@@ -1252,28 +1258,39 @@ impl Backend for HostSteps {
     fn model(&self) -> &Model {
         self.0.model()
     }
-    fn patch_features(&self, p: &GatheredPatches, radius: f32) -> dpr_gpu::Result<(Vec<f32>, Vec<f32>)> {
+    fn patch_features<'a>(&'a self, p: &'a GatheredPatches, radius: f32) -> StepFuture<'a, (Vec<f32>, Vec<f32>)> {
         self.0.patch_features(p, radius)
     }
-    fn encode(&self, net: Net, input: &[f32], patches: usize) -> dpr_gpu::Result<Vec<f32>> {
+    fn encode<'a>(&'a self, net: Net, input: &'a [f32], patches: usize) -> StepFuture<'a, Vec<f32>> {
         self.0.encode(net, input, patches)
     }
-    fn match_codewords(&self, s: &[f32], t: &[f32], dim: usize, mode: MatchMode) -> dpr_gpu::Result<Vec<Match>> {
+    fn match_codewords<'a>(
+        &'a self,
+        s: &'a [f32],
+        t: &'a [f32],
+        dim: usize,
+        mode: MatchMode,
+    ) -> StepFuture<'a, Vec<Match>> {
         self.0.match_codewords(s, t, dim, mode)
     }
-    fn predict_rotations(&self, pose: RotationInputs<'_>) -> dpr_gpu::Result<Vec<[f32; 9]>> {
+    fn predict_rotations<'a>(&'a self, pose: RotationInputs<'a>) -> StepFuture<'a, Vec<[f32; 9]>> {
         self.0.predict_rotations(pose)
     }
-    fn hypotheses(&self, r: &[[f32; 9]], s: &[[f32; 3]], t: &[[f32; 3]]) -> dpr_gpu::Result<Vec<Hypothesis>> {
+    fn hypotheses<'a>(
+        &'a self,
+        r: &'a [[f32; 9]],
+        s: &'a [[f32; 3]],
+        t: &'a [[f32; 3]],
+    ) -> StepFuture<'a, Vec<Hypothesis>> {
         self.0.hypotheses(r, s, t)
     }
-    fn score_hypotheses(
-        &self,
-        h: &[Hypothesis],
-        s: &[[f32; 3]],
-        t: &[[f32; 3]],
+    fn score_hypotheses<'a>(
+        &'a self,
+        h: &'a [Hypothesis],
+        s: &'a [[f32; 3]],
+        t: &'a [[f32; 3]],
         threshold: f32,
-    ) -> dpr_gpu::Result<Vec<HypothesisScore>> {
+    ) -> StepFuture<'a, Vec<HypothesisScore>> {
         self.0.score_hypotheses(h, s, t, threshold)
     }
 }
@@ -1560,8 +1577,10 @@ fn device_context_radii_match_cpu() {
         assert_eq!(g_scan.keypoint_ranks, c_scan.keypoint_ranks, "seed {s}");
         let (gm, cm) = (g_scan.read_codewords().unwrap(), c_scan.read_codewords().unwrap());
         assert_close("main codewords", s, &gm, &cm, |_| rtol * max_abs(&cm).max(1.0));
-        let (gc, cc) =
-            (g_scan.context[0].rows.read_codewords().unwrap(), c_scan.context[0].rows.read_codewords().unwrap());
+        let (gc, cc) = (
+            dpr_gpu::block_on(g_scan.context[0].rows.read_codewords()).unwrap(),
+            dpr_gpu::block_on(c_scan.context[0].rows.read_codewords()).unwrap(),
+        );
         assert_eq!(gc.len(), cm.len(), "a context row per kept keypoint (seed {s})");
         assert_close("context codewords", s, &gc, &cc, |_| rtol * max_abs(&cc).max(1.0));
         assert!(gc.iter().zip(&gm).any(|(a, b)| a != b), "context rows are another radius's (seed {s})");
@@ -1594,8 +1613,10 @@ fn device_context_radii_match_cpu() {
         dpr_gpu::Registrar::with_backend(&lazy, Box::new(gpu_b)).unwrap().register_detailed(&source, &target).unwrap();
     for (g_scan, c_scan) in [(&registered.source, &cs), (&registered.target, &ct)] {
         assert_eq!(g_scan.keypoint_ranks, c_scan.keypoint_ranks, "lazy context, seed {s}");
-        let (gc, cc) =
-            (g_scan.context[0].rows.read_codewords().unwrap(), c_scan.context[0].rows.read_codewords().unwrap());
+        let (gc, cc) = (
+            dpr_gpu::block_on(g_scan.context[0].rows.read_codewords()).unwrap(),
+            dpr_gpu::block_on(c_scan.context[0].rows.read_codewords()).unwrap(),
+        );
         assert_close("lazily described context codewords", s, &gc, &cc, |_| rtol * max_abs(&cc).max(1.0));
     }
 }

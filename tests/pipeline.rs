@@ -180,8 +180,8 @@ fn verify(
     target: &[[f32; 3]],
     threshold: f32,
 ) -> dpr_gpu::Result<PoseEstimate> {
-    let hypotheses = hypotheses_of(backend, rotations, source, target, 1)?;
-    let scores = backend.score_hypotheses(&hypotheses, source, target, threshold)?;
+    let hypotheses = dpr_gpu::block_on(hypotheses_of(backend, rotations, source, target, 1))?;
+    let scores = dpr_gpu::block_on(backend.score_hypotheses(&hypotheses, source, target, threshold))?;
     let best = best_hypothesis(&scores).expect("hypotheses to verify");
     Ok(refine(matrix_from_hypothesis(&hypotheses[best]), source, target, threshold, hypotheses.len()))
 }
@@ -430,7 +430,7 @@ fn context_radii_match_on_weighted_unit_codewords_of_every_radius() {
                 .collect();
             if factor > 1.0 {
                 let k = context.iter().position(|c| c.factor == factor).unwrap();
-                let own = described.context[k].rows.read_codewords().unwrap();
+                let own = dpr_gpu::block_on(described.context[k].rows.read_codewords()).unwrap();
                 let picked: Vec<f32> = described
                     .keypoint_ranks
                     .iter()

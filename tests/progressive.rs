@@ -151,8 +151,8 @@ fn context_radii_only_when_untrusted_add_one_round_on_every_radius() {
         assert_eq!(a.correspondences, b.correspondences);
         assert_ne!(a.correspondences, c.correspondences, "the last round matched on the context radius too");
         assert_eq!(
-            a.source.context[0].rows.read_codewords().unwrap(),
-            b.source.context[0].rows.read_codewords().unwrap()
+            dpr_gpu::block_on(a.source.context[0].rows.read_codewords()).unwrap(),
+            dpr_gpu::block_on(b.source.context[0].rows.read_codewords()).unwrap()
         );
         // Rounds at 40, 80 and 120 keypoints, then the context round: four matchings, one context description
         // per scan.

@@ -300,8 +300,8 @@ impl DescribedScan {
 
 /// Writes described rows (read back from the backend that holds them): codewords, then the pose rows.
 fn write_rows(w: &mut Writer, rows: &dyn ScanRows) -> PyResult<()> {
-    let codewords = rows.read_codewords().map_err(to_py_err)?;
-    let pose = rows.read_pose_rows().map_err(to_py_err)?;
+    let codewords = dpr_gpu::block_on(rows.read_codewords()).map_err(to_py_err)?;
+    let pose = dpr_gpu::block_on(rows.read_pose_rows()).map_err(to_py_err)?;
     w.f32s(&codewords);
     w.f32s(&pose.input);
     w.f32s(&pose.features);

@@ -49,14 +49,15 @@ impl ScanFeatures {
     }
 
     /// The rotation-invariant PPF-FoldNet codewords, `keypoints.len() x codeword`, row-major (read back from
-    /// the backend that holds them).
+    /// the backend that holds them; blocks: in a browser await `rows.read_codewords()`).
     pub fn read_codewords(&self) -> crate::Result<Vec<f32>> {
-        self.rows.read_codewords()
+        crate::block_on(self.rows.read_codewords())
     }
 
-    /// PC-FoldNet's inputs and the pose features computed so far (read back).
+    /// PC-FoldNet's inputs and the pose features computed so far (read back; blocks like
+    /// [`ScanFeatures::read_codewords`]).
     pub fn read_pose_rows(&self) -> crate::Result<PoseRows> {
-        self.rows.read_pose_rows()
+        crate::block_on(self.rows.read_pose_rows())
     }
 }
 

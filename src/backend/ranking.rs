@@ -26,7 +26,7 @@ pub fn repeat_per_candidate(points: &[[f32; 3]], candidates: usize) -> Vec<[f32;
 }
 
 /// One hypothesis per rotation (`candidates` consecutive rotations per correspondence of `source` / `target`).
-pub fn hypotheses_of<B: Backend + ?Sized>(
+pub async fn hypotheses_of<B: Backend + ?Sized>(
     backend: &B,
     rotations: &[[f32; 9]],
     source: &[[f32; 3]],
@@ -34,12 +34,10 @@ pub fn hypotheses_of<B: Backend + ?Sized>(
     candidates: usize,
 ) -> Result<Vec<Hypothesis>> {
     if candidates == 1 {
-        backend.hypotheses(rotations, source, target)
+        backend.hypotheses(rotations, source, target).await
     } else {
-        backend.hypotheses(
-            rotations,
-            &repeat_per_candidate(source, candidates),
-            &repeat_per_candidate(target, candidates),
-        )
+        backend
+            .hypotheses(rotations, &repeat_per_candidate(source, candidates), &repeat_per_candidate(target, candidates))
+            .await
     }
 }

@@ -4,7 +4,7 @@
 //! [`crate::cpu::patch_sample`]'s rule, normals estimated where patches need them, gathering, then
 //! [`Backend::describe`]. The GPU backend keeps the cloud on the device instead (`gpu::scan`).
 
-use super::{Backend, PatchBatch, ScanRows};
+use super::{Backend, PatchBatch, ScanRows, StepFuture, ready};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::preprocess::{estimate_normals_at, extract_patches, gather, voxel_downsample};
@@ -61,20 +61,20 @@ pub trait ScanCloud: Send + Sync {
     /// Describes `keypoints` (cloud indices, in order) with patches of `radius` (at most the settings'
     /// `largest_radius`) ranked by `seed`, appending the kept ones' rows to `rows`. `cloud` is the scan's host
     /// cloud (the host version fills the normals it estimates in).
-    fn describe_keypoints(
-        &mut self,
-        backend: &dyn Backend,
-        cloud: &mut PointCloud,
-        keypoints: (&[usize], f32),
+    fn describe_keypoints<'a>(
+        &'a mut self,
+        backend: &'a dyn Backend,
+        cloud: &'a mut PointCloud,
+        keypoints: (&'a [usize], f32),
         seed: u64,
-        rows: &dyn ScanRows,
-        lap: Lap<'_>,
-    ) -> Result<DescribedKeypoints>;
+        rows: &'a dyn ScanRows,
+        lap: Lap<'a>,
+    ) -> StepFuture<'a, DescribedKeypoints>;
 
     /// `count` indices of `cloud` (count < its points) by farthest-point sampling from `start`
     /// ([`crate::cpu::farthest_point`]'s definition); the provided version runs on the host cloud.
-    fn farthest_points(&self, cloud: &PointCloud, count: usize, start: usize) -> Result<Vec<usize>> {
-        Ok(crate::cpu::farthest_point::farthest_point(&cloud.points, count, start))
+    fn farthest_points<'a>(&'a self, cloud: &'a PointCloud, count: usize, start: usize) -> StepFuture<'a, Vec<usize>> {
+        ready(Ok(crate::cpu::farthest_point::farthest_point(&cloud.points, count, start)))
     }
 
     /// The scan's points where the backend holds them, to keep after description; `None` (the provided
@@ -84,7 +84,7 @@ pub trait ScanCloud: Send + Sync {
     }
 
     /// Fills every normal of `cloud` (estimating or reading back those not in it yet).
-    fn complete_normals(&mut self, cloud: &mut PointCloud) -> Result<()>;
+    fn complete_normals<'a>(&'a mut self, cloud: &'a mut PointCloud) -> StepFuture<'a, ()>;
 
     /// Whether `cloud`'s normals are all there (given by the file, or every one estimated and filled in).
     fn normals_complete(&self) -> bool;
@@ -197,7 +197,33 @@ impl HostScanCloud {
 }
 
 impl ScanCloud for HostScanCloud {
-    fn describe_keypoints(
+    fn describe_keypoints<'a>(
+        &'a mut self,
+        backend: &'a dyn Backend,
+        cloud: &'a mut PointCloud,
+        (keypoints, radius): (&'a [usize], f32),
+        seed: u64,
+        rows: &'a dyn ScanRows,
+        lap: Lap<'a>,
+    ) -> StepFuture<'a, DescribedKeypoints> {
+        Box::pin(self.describe_on_host(backend, cloud, (keypoints, radius), seed, rows, lap))
+    }
+
+    fn complete_normals<'a>(&'a mut self, cloud: &'a mut PointCloud) -> StepFuture<'a, ()> {
+        let all = (0..cloud.len()).collect();
+        self.fill_normals(cloud, all);
+        ready(Ok(()))
+    }
+
+    fn normals_complete(&self) -> bool {
+        self.missing.is_none()
+    }
+}
+
+impl HostScanCloud {
+    /// [`ScanCloud::describe_keypoints`] on the host: patches, the normals they need, gathering, then the
+    /// backend's [`Backend::describe`].
+    async fn describe_on_host(
         &mut self,
         backend: &dyn Backend,
         cloud: &mut PointCloud,
@@ -215,7 +241,7 @@ impl ScanCloud for HostScanCloud {
         let normals = cloud.normals.as_ref().expect("normals set when the scan started");
         let gathered = gather(&cloud.points, normals, &patches);
         lap("normals");
-        backend.describe(PatchBatch::new(&gathered, n, radius)?, rows)?;
+        backend.describe(PatchBatch::new(&gathered, n, radius)?, rows).await?;
         lap("ppf_encoder");
         Ok(DescribedKeypoints {
             kept: kept_positions(keypoints, &patches.keypoints),
@@ -223,15 +249,5 @@ impl ScanCloud for HostScanCloud {
             centers: gathered.centers,
             center_normals: gathered.center_normals,
         })
-    }
-
-    fn complete_normals(&mut self, cloud: &mut PointCloud) -> Result<()> {
-        let all = (0..cloud.len()).collect();
-        self.fill_normals(cloud, all);
-        Ok(())
-    }
-
-    fn normals_complete(&self) -> bool {
-        self.missing.is_none()
     }
 }

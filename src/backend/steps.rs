@@ -4,7 +4,7 @@
 //! `host_*` steps) are what the CPU backend runs and what a backend without a device store falls back to;
 //! they call the stage methods in the order the pipeline always did, so their results are those of before.
 
-use super::{Backend, PoseRows, best_hypothesis, compare_hypotheses, hypotheses_of};
+use super::{Backend, PoseRows, StepFuture, best_hypothesis, compare_hypotheses, hypotheses_of, ready};
 use crate::cpu::hypotheses::Hypothesis;
 use crate::cpu::mutual_knn::Match;
 use crate::cpu::score_hypotheses::HypothesisScore;
@@ -25,9 +25,9 @@ pub trait ScanRows: Send + Sync + std::fmt::Debug {
     /// Codeword width.
     fn codeword(&self) -> usize;
     /// The PPF-FoldNet codewords, `rows x codeword`, row-major (a readback for a device store).
-    fn read_codewords(&self) -> Result<Vec<f32>>;
+    fn read_codewords(&self) -> StepFuture<'_, Vec<f32>>;
     /// PC-FoldNet's inputs and the pose features computed so far (a readback for a device store).
-    fn read_pose_rows(&self) -> Result<PoseRows>;
+    fn read_pose_rows(&self) -> StepFuture<'_, PoseRows>;
     /// The store as `Any`, for the backend that made it to find its own type.
     fn as_any(&self) -> &dyn Any;
 }
@@ -72,11 +72,11 @@ impl ScanRows for HostScanRows {
     fn codeword(&self) -> usize {
         self.codeword
     }
-    fn read_codewords(&self) -> Result<Vec<f32>> {
-        Ok(self.lock().codewords.clone())
+    fn read_codewords(&self) -> StepFuture<'_, Vec<f32>> {
+        ready(Ok(self.lock().codewords.clone()))
     }
-    fn read_pose_rows(&self) -> Result<PoseRows> {
-        Ok(self.lock().pose.clone())
+    fn read_pose_rows(&self) -> StepFuture<'_, PoseRows> {
+        ready(Ok(self.lock().pose.clone()))
     }
     fn as_any(&self) -> &dyn Any {
         self
@@ -388,14 +388,14 @@ pub fn rank(scores: &[HypothesisScore], keep: usize) -> Vec<usize> {
 }
 
 /// Describes a batch into host rows: patch features, PPF-FoldNet, and PC-FoldNet's inputs kept.
-pub fn host_describe<B: Backend + ?Sized>(backend: &B, batch: PatchBatch<'_>, rows: &dyn ScanRows) -> Result<()> {
+pub async fn host_describe<B: Backend + ?Sized>(backend: &B, batch: PatchBatch<'_>, rows: &dyn ScanRows) -> Result<()> {
     let store = host_rows(rows, "describe")?;
     let count = batch.len();
     if count == 0 {
         return Ok(());
     }
-    let (ppf_input, pc_input) = backend.patch_features(batch.patches(), batch.radius())?;
-    let codewords = backend.encode(Net::Ppf, &ppf_input, count)?;
+    let (ppf_input, pc_input) = backend.patch_features(batch.patches(), batch.radius()).await?;
+    let codewords = backend.encode(Net::Ppf, &ppf_input, count).await?;
     let dim = store.codeword;
     if codewords.len() != count * dim {
         return Err(Error::invalid(format!("describe: {} codeword values for {count} rows of {dim}", codewords.len())));
@@ -410,7 +410,7 @@ pub fn host_describe<B: Backend + ?Sized>(backend: &B, batch: PatchBatch<'_>, ro
 }
 
 /// Matches the first rows of two host stores (side by side with their context rows, if any).
-pub fn host_correspond<B: Backend + ?Sized>(backend: &B, request: RowMatch<'_>) -> Result<Vec<Match>> {
+pub async fn host_correspond<B: Backend + ?Sized>(backend: &B, request: RowMatch<'_>) -> Result<Vec<Match>> {
     let ((s, sn), (t, tn)) = (request.source(), request.target());
     let dim = s.codeword();
     let prefix = |rows: &dyn ScanRows, n: usize| -> Result<Vec<f32>> {
@@ -418,7 +418,7 @@ pub fn host_correspond<B: Backend + ?Sized>(backend: &B, request: RowMatch<'_>) 
     };
     let blocks = request.blocks();
     if blocks.is_empty() {
-        return backend.match_codewords(&prefix(s, sn)?, &prefix(t, tn)?, dim, request.mode());
+        return backend.match_codewords(&prefix(s, sn)?, &prefix(t, tn)?, dim, request.mode()).await;
     }
     let width = dim * blocks.len();
     let (mut source, mut target) = (vec![0.0; sn * width], vec![0.0; tn * width]);
@@ -426,12 +426,17 @@ pub fn host_correspond<B: Backend + ?Sized>(backend: &B, request: RowMatch<'_>) 
         crate::cpu::unit_rows::unit_rows(&prefix(bs, sn)?, dim, weight, b * dim, width, &mut source);
         crate::cpu::unit_rows::unit_rows(&prefix(bt, tn)?, dim, weight, b * dim, width, &mut target);
     }
-    backend.match_codewords(&source, &target, width, request.mode())
+    backend.match_codewords(&source, &target, width, request.mode()).await
 }
 
 /// The pose features (PC-FoldNet codeword minus PPF-FoldNet codeword) of `which` rows of a host store, in
 /// that order; rows not computed before run through PC-FoldNet now, once.
-pub fn host_pose_features<B: Backend + ?Sized>(backend: &B, rows: &dyn ScanRows, which: &[u32]) -> Result<Vec<f32>> {
+#[expect(clippy::await_holding_lock, reason = "host rows: the stage's future is computed when called, nothing waits")]
+pub async fn host_pose_features<B: Backend + ?Sized>(
+    backend: &B,
+    rows: &dyn ScanRows,
+    which: &[u32],
+) -> Result<Vec<f32>> {
     let store = host_rows(rows, "pose features")?;
     let dim = store.codeword;
     let mut s = store.lock();
@@ -446,7 +451,7 @@ pub fn host_pose_features<B: Backend + ?Sized>(backend: &B, rows: &dyn ScanRows,
         let width = s.pose.input.len() / count.max(1);
         let input: Vec<f32> =
             missing.iter().flat_map(|&r| s.pose.input[r as usize * width..][..width].iter().copied()).collect();
-        let pc = backend.encode(Net::Pc, &input, missing.len())?;
+        let pc = backend.encode(Net::Pc, &input, missing.len()).await?;
         let HostRows { codewords, pose } = &mut *s;
         for (slot, &r) in missing.iter().enumerate() {
             let r = r as usize;
@@ -460,10 +465,10 @@ pub fn host_pose_features<B: Backend + ?Sized>(backend: &B, rows: &dyn ScanRows,
 
 /// Hypothesize and verify through the stage methods: pose features, RelativeNet, one hypothesis per rotation,
 /// every hypothesis scored over the correspondences.
-pub fn host_verify<B: Backend + ?Sized>(backend: &B, request: MatchedRows<'_>) -> Result<Verified> {
+pub async fn host_verify<B: Backend + ?Sized>(backend: &B, request: MatchedRows<'_>) -> Result<Verified> {
     let (s, t) = (request.source(), request.target());
-    let fs = backend.pose_features(s.scan, s.rows)?;
-    let ft = backend.pose_features(t.scan, t.rows)?;
+    let fs = backend.pose_features(s.scan, s.rows).await?;
+    let ft = backend.pose_features(t.scan, t.rows).await?;
     let inputs = super::RotationInputs {
         source: &fs,
         target: &ft,
@@ -471,13 +476,13 @@ pub fn host_verify<B: Backend + ?Sized>(backend: &B, request: MatchedRows<'_>) -
         target_normals: t.normals,
         rows: request.len(),
     };
-    let rotations = backend.predict_rotations(inputs)?;
+    let rotations = backend.predict_rotations(inputs).await?;
     let m = backend.model().config.rotation_output.candidates();
     if rotations.len() != m * request.len() {
         return Err(Error::invalid(format!("verify: {} rotations for {} rows", rotations.len(), request.len())));
     }
-    let hypotheses = hypotheses_of(backend, &rotations, s.points, t.points, m)?;
-    let scores = backend.score_hypotheses(&hypotheses, s.points, t.points, request.threshold())?;
+    let hypotheses = hypotheses_of(backend, &rotations, s.points, t.points, m).await?;
+    let scores = backend.score_hypotheses(&hypotheses, s.points, t.points, request.threshold()).await?;
     if scores.len() != hypotheses.len() {
         return Err(Error::invalid("verify: a score per hypothesis expected"));
     }
@@ -541,12 +546,18 @@ mod tests {
     fn cpu_stages_refuse_inconsistent_lengths_instead_of_dividing_or_truncating() {
         let config = ModelConfig { points_per_patch: 16, ..ModelConfig::default() };
         let cpu = CpuBackend::new(Model::from_weights(&Weights::init(&config, 1).unwrap()).unwrap());
-        assert!(cpu.match_codewords(&[0.0; 8], &[0.0; 8], 0, MatchMode::Mutual(1)).is_err(), "zero width");
-        assert!(cpu.match_codewords(&[0.0; 8], &[0.0; 6], 4, MatchMode::Mutual(1)).is_err(), "ragged rows");
-        assert!(cpu.encode(Net::Ppf, &[0.0; 7], 1).is_err());
-        assert!(cpu.hypotheses(&[[0.0; 9]; 2], &[[0.0; 3]; 2], &[[0.0; 3]; 1]).is_err());
+        assert!(
+            crate::block_on(cpu.match_codewords(&[0.0; 8], &[0.0; 8], 0, MatchMode::Mutual(1))).is_err(),
+            "zero width"
+        );
+        assert!(
+            crate::block_on(cpu.match_codewords(&[0.0; 8], &[0.0; 6], 4, MatchMode::Mutual(1))).is_err(),
+            "ragged rows"
+        );
+        assert!(crate::block_on(cpu.encode(Net::Ppf, &[0.0; 7], 1)).is_err());
+        assert!(crate::block_on(cpu.hypotheses(&[[0.0; 9]; 2], &[[0.0; 3]; 2], &[[0.0; 3]; 1])).is_err());
         let h = Hypothesis { rotation: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], translation: [0.0; 3] };
-        assert!(cpu.score_hypotheses(&[h], &[[0.0; 3]; 2], &[[0.0; 3]; 3], 0.1).is_err());
+        assert!(crate::block_on(cpu.score_hypotheses(&[h], &[[0.0; 3]; 2], &[[0.0; 3]; 3], 0.1)).is_err());
     }
 
     #[test]

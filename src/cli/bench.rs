@@ -634,9 +634,10 @@ impl BenchInputs {
         let mut rng = Rng::new(seed);
         let patches = synthetic_patches(&mut rng, k, p, radius);
         let (ppf, pc) = patches.features(p, radius, model.config.pose_frame);
-        let source_cw = reference.encode(Net::Ppf, &ppf, k)?;
+        let source_cw = crate::block_on(reference.encode(Net::Ppf, &ppf, k))?;
         let target_cw: Vec<f32> = source_cw.iter().map(|v| v + 0.01 * rng.normal() as f32).collect();
-        let pose: Vec<f32> = crate::model::pose_feature(&reference.encode(Net::Pc, &pc, k)?, &source_cw);
+        let pose: Vec<f32> =
+            crate::model::pose_feature(&crate::block_on(reference.encode(Net::Pc, &pc, k))?, &source_cw);
         let normals = patches.center_normals.clone();
         let rotation_inputs = RotationInputs {
             source: &pose,
@@ -645,13 +646,13 @@ impl BenchInputs {
             target_normals: &normals,
             rows: k,
         };
-        let rotations = reference.predict_rotations(rotation_inputs)?;
+        let rotations = crate::block_on(reference.predict_rotations(rotation_inputs))?;
         // One hypothesis per predicted rotation: each correspondence's points repeat once per candidate rotation.
         let candidates = rotations.len() / k.max(1);
         let centers = patches.centers.iter().flat_map(|&c| std::iter::repeat_n(c, candidates));
         let src_pts: Vec<[f32; 3]> = centers.collect();
         let tgt_pts: Vec<[f32; 3]> = src_pts.iter().map(|q| q.map(|c| c + 0.05 * rng.normal() as f32)).collect();
-        let hyps = reference.hypotheses(&rotations, &src_pts, &tgt_pts)?;
+        let hyps = crate::block_on(reference.hypotheses(&rotations, &src_pts, &tgt_pts))?;
         Ok(BenchInputs {
             patches,
             ppf,
@@ -702,13 +703,15 @@ fn measure_stages(
             let Some(b) = backend else { continue };
             let m = measure(args.repeat, device, || -> anyhow::Result<()> {
                 match stage {
-                    "patch_features" => drop(b.patch_features(patches, radius)?),
-                    "encode ppf" => drop(b.encode(Net::Ppf, ppf, k)?),
-                    "encode pc" => drop(b.encode(Net::Pc, pc, k)?),
-                    "match_codewords" => drop(b.match_codewords(source_cw, target_cw, cw, MatchMode::Mutual(1))?),
-                    "predict_rotations" => drop(b.predict_rotations(rotation_inputs)?),
-                    "hypotheses" => drop(b.hypotheses(rotations, src_pts, tgt_pts)?),
-                    _ => drop(b.score_hypotheses(hyps, src_pts, tgt_pts, radius / 3.0)?),
+                    "patch_features" => drop(crate::block_on(b.patch_features(patches, radius))?),
+                    "encode ppf" => drop(crate::block_on(b.encode(Net::Ppf, ppf, k))?),
+                    "encode pc" => drop(crate::block_on(b.encode(Net::Pc, pc, k))?),
+                    "match_codewords" => {
+                        drop(crate::block_on(b.match_codewords(source_cw, target_cw, cw, MatchMode::Mutual(1)))?)
+                    }
+                    "predict_rotations" => drop(crate::block_on(b.predict_rotations(rotation_inputs))?),
+                    "hypotheses" => drop(crate::block_on(b.hypotheses(rotations, src_pts, tgt_pts))?),
+                    _ => drop(crate::block_on(b.score_hypotheses(hyps, src_pts, tgt_pts, radius / 3.0))?),
                 }
                 Ok(())
             })
@@ -768,7 +771,7 @@ fn measure_encode_backward(
         let m = measure(args.repeat, Some(g), || -> anyhow::Result<()> {
             let mut rec = Recorder::new(g, "encode backward bench");
             record_encode_backward(&mut rec, net, &layers, 0, &device_tape, d_cw.raw())?;
-            rec.finish()?;
+            crate::block_on(rec.finish())?;
             Ok(())
         })?;
         row.gpu = Some(gpu_timing(m, flops, args.peak_tflops));
@@ -834,7 +837,8 @@ fn measure_train_step(
             &own
         };
         let mut trainer = crate::gpu::train::DeviceTrainer::new(g, weights, loss, &adam)?;
-        let m = measure(args.repeat, Some(g), || trainer.step(g, batch).map(drop).map_err(Into::into))?;
+        let m =
+            measure(args.repeat, Some(g), || crate::block_on(trainer.step(g, batch)).map(drop).map_err(Into::into))?;
         row.gpu = Some(gpu_timing(m, None, args.peak_tflops));
     }
     Ok(row)
@@ -952,7 +956,7 @@ fn gemm_variants(
             let m = measure(args.repeat, Some(g), || {
                 let mut rec = Recorder::new(g, "bench dense");
                 gpu_dense::record_with(&mut rec, g, variant, &params, [xb.raw(), wb.raw()], Some(bb.raw()), ob.raw())?;
-                rec.finish()?;
+                crate::block_on(rec.finish())?;
                 Ok(())
             })?;
             let t = gpu_timing(m, Some(flops), args.peak_tflops);

@@ -467,7 +467,7 @@ fn train_steps(
     while trainer.step_count() < args.steps {
         let lr = trainer.learning_rate();
         let losses = match device.as_deref_mut() {
-            Some(d) => trainer.step_with(|batch| d.trainer.step(&d.gpu, batch))?,
+            Some(d) => trainer.step_with(|batch| crate::block_on(d.trainer.step(&d.gpu, batch)))?,
             None => trainer.step()?,
         };
         let step = trainer.step_count();
@@ -552,7 +552,10 @@ impl DeviceRun {
 
     /// Brings the host copy of the weights and optimiser state up to date (before a checkpoint or the output).
     fn sync(&self, trainer: &mut Trainer) -> anyhow::Result<()> {
-        trainer.set_state(self.trainer.weights(&self.gpu)?, self.trainer.adam(&self.gpu)?)?;
+        trainer.set_state(
+            crate::block_on(self.trainer.weights(&self.gpu))?,
+            crate::block_on(self.trainer.adam(&self.gpu))?,
+        )?;
         Ok(())
     }
 }

@@ -52,15 +52,16 @@ pub fn source_stride(points: usize) -> usize {
 /// The ICP loop shared by every backend: from `initial`, asks `sums` for the normal equations at the current
 /// pose, solves the 6x6 system (Cholesky, f64), applies the small-angle update on the left, and stops after
 /// `max_iterations`, when fewer than six pairs are used, when the system is singular, or when the update falls
-/// below [`CONVERGED_ROTATION`] and [`CONVERGED_TRANSLATION`].
-pub fn iterate(
+/// below [`CONVERGED_ROTATION`] and [`CONVERGED_TRANSLATION`]. Async because a device's sums are a readback;
+/// the host's are ready at once.
+pub async fn iterate(
     initial: Matrix4<f64>,
     max_iterations: usize,
-    mut sums: impl FnMut(&Matrix4<f64>) -> Result<NormalEquations>,
+    mut sums: impl AsyncFnMut(&Matrix4<f64>) -> Result<NormalEquations>,
 ) -> Result<Matrix4<f64>> {
     let mut pose = initial;
     for _ in 0..max_iterations {
-        let NormalEquations { ata, atb, used } = sums(&pose)?;
+        let NormalEquations { ata, atb, used } = sums(&pose).await?;
         if used < 6 {
             break;
         }
@@ -89,7 +90,8 @@ pub fn icp_point_to_plane(
     let stride = source_stride(source.len());
     let max_d2 = max_distance * max_distance;
     let used_points: Vec<[f32; 3]> = source.points.iter().step_by(stride).copied().collect();
-    iterate(initial, max_iterations, |pose| {
+    // The host's sums are computed when asked for, so the loop never waits.
+    crate::block_on(iterate(initial, max_iterations, async |pose| {
         // Normal equations summed per fixed chunk in parallel, then the chunks in order: the same sums for
         // any thread count.
         let partial: Vec<(Matrix6<f64>, Vector6<f64>, usize)> = used_points
@@ -121,7 +123,7 @@ pub fn icp_point_to_plane(
             used += u;
         }
         Ok(NormalEquations { ata, atb, used })
-    })
+    }))
 }
 
 /// Point-to-plane ICP from `initial` on the host (what a backend runs unless it overrides

@@ -62,7 +62,7 @@ impl DeviceIcpTarget {
     /// Builds the target from the `n` points in `points`: voxel averages at `problem.max_distance / 2`, their
     /// cell table and PCA normals of `max(k, 3)` neighbours facing the origin (as the host path). Two
     /// submissions; only grid words come back.
-    pub fn build(gpu: &Gpu, points: &wgpu::Buffer, n: usize, problem: &IcpProblem) -> Result<DeviceIcpTarget> {
+    pub async fn build(gpu: &Gpu, points: &wgpu::Buffer, n: usize, problem: &IcpProblem) -> Result<DeviceIcpTarget> {
         let distance = problem.max_distance;
         if !(distance.is_finite() && distance > 0.0) {
             return Err(Error::invalid(format!("ICP max correspondence distance {distance} must be positive")));
@@ -73,12 +73,12 @@ impl DeviceIcpTarget {
             return Err(Error::invalid("ICP: the target has no points"));
         }
         let voxel = distance / 2.0;
-        let (small, cells) = downsample_buffer(gpu, points.clone(), n, voxel)?;
+        let (small, cells) = downsample_buffer(gpu, points.clone(), n, voxel).await?;
         let mut rec = Recorder::new(gpu, "icp target");
         let table = CellTable::record(gpu, &mut rec, small, cells, 1.0 / icp_cell(distance, voxel, k))?;
         let nb = record_knn_normals(gpu, &mut rec, &table, k, Some([0.0; 3]))?;
         let (rg, rs) = table.read_meta(&mut rec);
-        let out = rec.finish()?;
+        let out = rec.finish().await?;
         table.check(&out[rg], &out[rs])?;
         Ok(DeviceIcpTarget { table, normals: nb.normals })
     }
@@ -107,7 +107,7 @@ impl DeviceIcpTarget {
 /// Point-to-plane ICP of the `n` source points in `source` onto `target` from `initial`: every
 /// [`source_stride`]-th point, pairs within `problem.max_distance`, the host's loop and stopping rules. One
 /// submission and 112 bytes read back per iteration.
-pub fn refine(
+pub async fn refine(
     gpu: &Gpu,
     source: &wgpu::Buffer,
     n: usize,
@@ -118,14 +118,15 @@ pub fn refine(
     let stride = source_stride(n);
     let sums = storage_buffer(&gpu.context, "icp_sums", sums_bytes(used_points(n, stride)))?;
     let grid = target.grid_buffers();
-    iterate(initial, problem.max_iterations, |pose| {
+    iterate(initial, problem.max_iterations, async |pose| {
         let p = params(&pose_rows(pose), n, stride, target.table.inv_cell, problem.max_distance)?;
         let mut rec = Recorder::new(gpu, "icp_normal_equations");
         record(&mut rec, &p, source, &grid, &target.normals, &sums)?;
         let r = rec.read(&sums, 0, (TERMS * 4) as u64);
-        let out = rec.finish()?;
+        let out = rec.finish().await?;
         Ok(normal_equations(&decode_total(&out[r])))
     })
+    .await
 }
 
 impl GpuBackend {
@@ -146,7 +147,7 @@ impl GpuBackend {
     }
 
     /// [`crate::backend::Backend::refine_icp`] on the device; see the module docs.
-    pub(super) fn refine_icp_on_device(
+    pub(super) async fn refine_icp_on_device(
         &self,
         source: &ScanFeatures,
         target: &ScanFeatures,
@@ -155,9 +156,10 @@ impl GpuBackend {
     ) -> Result<Matrix4<f64>> {
         let (s, ns) = self.device_points(source)?;
         let (t, nt) = self.device_points(target)?;
-        self.run("icp", |_| {
-            let small = DeviceIcpTarget::build(&self.gpu, &t, nt, problem)?;
-            refine(&self.gpu, &s, ns, &small, initial, problem)
+        self.run("icp", async |_| {
+            let small = DeviceIcpTarget::build(&self.gpu, &t, nt, problem).await?;
+            refine(&self.gpu, &s, ns, &small, initial, problem).await
         })
+        .await
     }
 }

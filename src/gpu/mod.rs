@@ -232,19 +232,29 @@ impl GpuBackend {
         self.workspace.lock().map_err(|_| Error::Gpu("a previous GPU call panicked (workspace lock poisoned)".into()))
     }
 
-    fn run<T>(&self, what: &str, f: impl FnOnce(&mut Workspace) -> Result<T>) -> Result<T> {
+    /// Runs `f` on the workspace; a device error it caused outside the recorders' own scopes (creating or writing
+    /// a buffer) is reported as `Error::Gpu("{what}: ...")`.
+    ///
+    /// The workspace (and a scan's rows, in the steps that write them) stays locked while `f` awaits its readbacks,
+    /// as it stayed locked while a blocking call waited before: the buffers are in use until the GPU is done.
+    /// Natively the future runs on the thread that locked ([`crate::block_on`]); in a browser the page has one
+    /// thread, so one call at a time may use a backend (the web bindings queue calls).
+    #[expect(clippy::await_holding_lock, reason = "the workspace's buffers are in use until the readback; see above")]
+    async fn run<T>(&self, what: &str, f: impl AsyncFnOnce(&mut Workspace) -> Result<T>) -> Result<T> {
         let mut ws = self.workspace()?;
-        self.gpu.context.scoped(what, || f(&mut ws))?
+        let out = f(&mut ws).await;
+        self.gpu.context.deferred_errors(what)?;
+        out
     }
 
     /// Reconstructions (`patches x grid_points x io_width`) of codewords, as `model.{ppf,pc}.decode`.
-    pub fn decode(&self, net: Net, codewords: &[f32], patches: usize) -> Result<Vec<f32>> {
+    pub async fn decode(&self, net: Net, codewords: &[f32], patches: usize) -> Result<Vec<f32>> {
         let f = self.foldnet(net);
-        self.run("decode", |ws| nets::decode(&self.gpu, ws, f, codewords, patches))
+        self.run("decode", async |ws| nets::decode(&self.gpu, ws, f, codewords, patches).await).await
     }
 
     /// Inlier flags of one hypothesis over the correspondences (for refinement on the best hypothesis).
-    pub fn inlier_mask(
+    pub async fn inlier_mask(
         &self,
         hypothesis: &Hypothesis,
         source: &[[f32; 3]],
@@ -252,7 +262,7 @@ impl GpuBackend {
         threshold: f32,
     ) -> Result<Vec<bool>> {
         let mut mask = vec![0u32; source.len()];
-        score_hypotheses::inlier_mask(&self.gpu, hypothesis, source, target, threshold, &mut mask)?;
+        score_hypotheses::inlier_mask(&self.gpu, hypothesis, source, target, threshold, &mut mask).await?;
         Ok(mask.into_iter().map(|m| m == 1).collect())
     }
 
@@ -297,7 +307,7 @@ impl GpuBackend {
 
     /// Mutual kNN between the first `ns` rows of `source` and the first `nt` of `target` (codewords of `dim`
     /// on the device); only the per-row lists come back.
-    fn match_buffers(
+    async fn match_buffers(
         &self,
         s: &wgpu::Buffer,
         t: &wgpu::Buffer,
@@ -310,7 +320,7 @@ impl GpuBackend {
         }
         let gpu = &self.gpu;
         let ctx = &gpu.context;
-        self.run("match_codewords", |ws| {
+        self.run("match_codewords", async |ws| {
             let chunk = items_per_chunk(ctx, (nt * 4) as u64, "row of the distance matrix")?;
             let lists = mutual_knn::KnnBuffers::new(|name, bytes| ws.buffer(ctx, name, bytes), ns, nt)?;
             let dist = ws.buffer(ctx, "match_distances", (chunk.min(ns) * nt * 4) as u64)?;
@@ -328,7 +338,7 @@ impl GpuBackend {
             rec.read(&lists.row_dist, 0, bytes);
             rec.read(&lists.row_index, 0, bytes);
             rec.read(&lists.flags, 0, bytes);
-            let out = rec.finish()?;
+            let out = rec.finish().await?;
             let flags: Vec<u32> = bytemuck::pod_collect_to_vec(&out[2]);
             Ok(mutual_knn::compact(
                 &bytemuck::pod_collect_to_vec::<u8, f32>(&out[0]),
@@ -337,6 +347,7 @@ impl GpuBackend {
                 k,
             ))
         })
+        .await
     }
 
     fn foldnet(&self, net: Net) -> &nets::GpuFoldNet {
@@ -356,13 +367,13 @@ impl Backend for GpuBackend {
         &self.model
     }
 
-    fn start_scan(
-        &self,
-        cloud: &crate::cloud::PointCloud,
-        settings: &crate::backend::ScanSettings,
-        lap: crate::backend::Lap<'_>,
-    ) -> Result<(crate::cloud::PointCloud, Box<dyn crate::backend::ScanCloud>)> {
-        self.start_device_scan(cloud, settings, lap)
+    fn start_scan<'a>(
+        &'a self,
+        cloud: &'a crate::cloud::PointCloud,
+        settings: &'a crate::backend::ScanSettings,
+        lap: crate::backend::Lap<'a>,
+    ) -> crate::backend::StepFuture<'a, (crate::cloud::PointCloud, Box<dyn crate::backend::ScanCloud>)> {
+        Box::pin(async move { self.start_device_scan(cloud, settings, lap).await })
     }
 
     fn new_scan_rows(&self, capacity: usize) -> Result<Arc<dyn ScanRows>> {
@@ -373,186 +384,233 @@ impl Backend for GpuBackend {
         self.restore_device_rows(codewords, pose, keypoints)
     }
 
-    fn adopt_rows(&self, rows: &Arc<dyn ScanRows>) -> Result<Arc<dyn ScanRows>> {
-        if rows.as_any().downcast_ref::<rows::GpuScanRows>().is_some_and(|r| r.owned_by(self.owner)) {
-            return Ok(Arc::clone(rows));
-        }
-        self.restore_device_rows(rows.read_codewords()?, rows.read_pose_rows()?, rows.rows())
+    fn adopt_rows<'a>(&'a self, rows: &'a Arc<dyn ScanRows>) -> crate::backend::StepFuture<'a, Arc<dyn ScanRows>> {
+        Box::pin(async move {
+            if rows.as_any().downcast_ref::<rows::GpuScanRows>().is_some_and(|r| r.owned_by(self.owner)) {
+                return Ok(Arc::clone(rows));
+            }
+            self.restore_device_rows(rows.read_codewords().await?, rows.read_pose_rows().await?, rows.rows())
+        })
     }
 
-    fn describe(&self, batch: PatchBatch<'_>, rows: &dyn ScanRows) -> Result<()> {
-        self.describe_on_device(batch, rows)
+    fn describe<'a>(&'a self, batch: PatchBatch<'a>, rows: &'a dyn ScanRows) -> crate::backend::StepFuture<'a, ()> {
+        Box::pin(async move { self.describe_on_device(batch, rows).await })
     }
 
-    fn correspond(&self, request: RowMatch<'_>) -> Result<Vec<Match>> {
-        self.correspond_on_device(request)
+    fn correspond<'a>(&'a self, request: RowMatch<'a>) -> crate::backend::StepFuture<'a, Vec<Match>> {
+        Box::pin(async move { self.correspond_on_device(request).await })
     }
 
-    fn pose_features(&self, rows: &dyn ScanRows, which: &[u32]) -> Result<Vec<f32>> {
-        self.prepare_on_device(rows, which)?;
-        self.read_pose_features(rows, which)
+    fn pose_features<'a>(
+        &'a self,
+        rows: &'a dyn ScanRows,
+        which: &'a [u32],
+    ) -> crate::backend::StepFuture<'a, Vec<f32>> {
+        Box::pin(async move {
+            self.prepare_on_device(rows, which).await?;
+            self.read_pose_features(rows, which).await
+        })
     }
 
-    fn prepare_pose_features(&self, rows: &dyn ScanRows, which: &[u32]) -> Result<()> {
-        self.prepare_on_device(rows, which)
+    fn prepare_pose_features<'a>(
+        &'a self,
+        rows: &'a dyn ScanRows,
+        which: &'a [u32],
+    ) -> crate::backend::StepFuture<'a, ()> {
+        Box::pin(async move { self.prepare_on_device(rows, which).await })
     }
 
-    fn verify(&self, request: MatchedRows<'_>) -> Result<Verified> {
-        self.verify_on_device(request)
+    fn verify<'a>(&'a self, request: MatchedRows<'a>) -> crate::backend::StepFuture<'a, Verified> {
+        Box::pin(async move { self.verify_on_device(request).await })
     }
 
-    fn refine_icp(
-        &self,
-        source: &crate::backend::ScanFeatures,
-        target: &crate::backend::ScanFeatures,
+    fn refine_icp<'a>(
+        &'a self,
+        source: &'a crate::backend::ScanFeatures,
+        target: &'a crate::backend::ScanFeatures,
         initial: nalgebra::Matrix4<f64>,
-        problem: &crate::estimate::icp::IcpProblem,
-    ) -> Result<nalgebra::Matrix4<f64>> {
-        self.refine_icp_on_device(source, target, initial, problem)
+        problem: &'a crate::estimate::icp::IcpProblem,
+    ) -> crate::backend::StepFuture<'a, nalgebra::Matrix4<f64>> {
+        Box::pin(async move { self.refine_icp_on_device(source, target, initial, problem).await })
     }
 
-    fn patch_features(&self, patches: &GatheredPatches, radius: f32) -> Result<(Vec<f32>, Vec<f32>)> {
-        let n = self.model.config.points_per_patch;
-        let p = patches.centers.len();
-        PatchBatch::new(patches, n, radius)?;
-        let gpu = &self.gpu;
-        let ctx = &gpu.context;
-        self.run("patch_features", |ws| {
-            let chunk = items_per_chunk(ctx, (n * 16) as u64, "patch's features")?;
-            let mut pending = Vec::new();
-            for c0 in (0..p).step_by(chunk) {
-                let cp = chunk.min(p - c0);
-                let rows = cp * n;
-                let [centers, center_normals, points, normals] =
-                    Self::upload_patch_inputs(ws, ctx, patches, n, (c0, cp))?;
-                let ppf = ws.buffer(ctx, "pf_ppf", (rows * 16) as u64)?;
-                let pc = ws.buffer(ctx, "pf_pc", (rows * 12) as u64)?;
-                let mut rec = Recorder::new(gpu, "patch_features");
-                self.record_patch_features(
-                    &mut rec,
-                    radius,
-                    cp,
-                    [&centers, &center_normals, &points, &normals],
-                    [&ppf, &pc],
-                )?;
-                rec.read(&ppf, 0, (rows * 16) as u64);
-                rec.read(&pc, 0, (rows * 12) as u64);
-                pending.push(rec.submit()?);
-            }
-            let (mut ppf, mut pc) = (Vec::with_capacity(p * n * 4), Vec::with_capacity(p * n * 3));
-            for pend in pending {
-                let out = pend.wait(gpu)?;
-                ppf.extend_from_slice(bytemuck::cast_slice::<u8, f32>(&out[0]));
-                pc.extend_from_slice(bytemuck::cast_slice::<u8, f32>(&out[1]));
-            }
-            Ok((ppf, pc))
+    fn patch_features<'a>(
+        &'a self,
+        patches: &'a GatheredPatches,
+        radius: f32,
+    ) -> crate::backend::StepFuture<'a, (Vec<f32>, Vec<f32>)> {
+        Box::pin(async move {
+            let n = self.model.config.points_per_patch;
+            let p = patches.centers.len();
+            PatchBatch::new(patches, n, radius)?;
+            let gpu = &self.gpu;
+            let ctx = &gpu.context;
+            self.run("patch_features", async |ws| {
+                let chunk = items_per_chunk(ctx, (n * 16) as u64, "patch's features")?;
+                let mut pending = Vec::new();
+                for c0 in (0..p).step_by(chunk) {
+                    let cp = chunk.min(p - c0);
+                    let rows = cp * n;
+                    let [centers, center_normals, points, normals] =
+                        Self::upload_patch_inputs(ws, ctx, patches, n, (c0, cp))?;
+                    let ppf = ws.buffer(ctx, "pf_ppf", (rows * 16) as u64)?;
+                    let pc = ws.buffer(ctx, "pf_pc", (rows * 12) as u64)?;
+                    let mut rec = Recorder::new(gpu, "patch_features");
+                    self.record_patch_features(
+                        &mut rec,
+                        radius,
+                        cp,
+                        [&centers, &center_normals, &points, &normals],
+                        [&ppf, &pc],
+                    )?;
+                    rec.read(&ppf, 0, (rows * 16) as u64);
+                    rec.read(&pc, 0, (rows * 12) as u64);
+                    pending.push(rec.submit()?);
+                }
+                let (mut ppf, mut pc) = (Vec::with_capacity(p * n * 4), Vec::with_capacity(p * n * 3));
+                for pend in pending {
+                    let out = pend.wait(gpu).await?;
+                    ppf.extend_from_slice(bytemuck::cast_slice::<u8, f32>(&out[0]));
+                    pc.extend_from_slice(bytemuck::cast_slice::<u8, f32>(&out[1]));
+                }
+                Ok((ppf, pc))
+            })
+            .await
         })
     }
 
-    fn encode(&self, net: Net, input: &[f32], patches: usize) -> Result<Vec<f32>> {
-        let n = self.model.config.points_per_patch;
-        let f = self.foldnet(net);
-        self.run("encode", |ws| nets::encode(&self.gpu, ws, f, input, patches, n))
-    }
-
-    fn match_codewords(&self, source: &[f32], target: &[f32], dim: usize, mode: MatchMode) -> Result<Vec<Match>> {
-        crate::backend::check::codeword_rows(source, target, dim)?;
-        let (ns, nt) = (source.len() / dim, target.len() / dim);
-        if ns == 0 || nt == 0 {
-            return Ok(Vec::new());
-        }
-        mutual_knn::mode_k(mode)?;
-        let (s, t) = self.run("match_codewords", |ws| {
-            let ctx = &self.gpu.context;
-            Ok((ws.upload(ctx, "match_source", source)?, ws.upload(ctx, "match_target", target)?))
-        })?;
-        self.match_buffers(&s, &t, (ns, nt, dim), mode)
-    }
-
-    fn predict_rotations(&self, pose: RotationInputs<'_>) -> Result<Vec<[f32; 9]>> {
-        let c = &self.model.config;
-        pose.validate(c.codeword())?;
-        self.run("predict_rotations", |ws| nets::relative(&self.gpu, ws, &self.weights.relative, c, pose))
-    }
-
-    fn hypotheses(&self, rotations: &[[f32; 9]], source: &[[f32; 3]], target: &[[f32; 3]]) -> Result<Vec<Hypothesis>> {
-        let rows = rotations.len();
-        crate::backend::check::hypothesis_inputs(rows, source.len(), target.len())?;
-        let gpu = &self.gpu;
-        let ctx = &gpu.context;
-        self.run("hypotheses", |ws| {
-            let chunk = items_per_chunk(ctx, (hypotheses::HYPOTHESIS_FLOATS * 4) as u64, "hypothesis")?;
-            let mut pending = Vec::new();
-            for r0 in (0..rows).step_by(chunk) {
-                let n = chunk.min(rows - r0);
-                let q = ws.upload(ctx, "hyp_rotations", &rotations[r0..r0 + n])?;
-                let s = ws.upload(ctx, "hyp_source", &source[r0..r0 + n])?;
-                let t = ws.upload(ctx, "hyp_target", &target[r0..r0 + n])?;
-                let bytes = (n * hypotheses::HYPOTHESIS_FLOATS * 4) as u64;
-                let out = ws.buffer(ctx, "hyp_out", bytes)?;
-                let mut rec = Recorder::new(gpu, "hypotheses");
-                hypotheses::record(&mut rec, n, [&q, &s, &t], &out)?;
-                rec.read(&out, 0, bytes);
-                pending.push(rec.submit()?);
-            }
-            let mut out = Vec::with_capacity(rows);
-            for p in pending {
-                let floats: Vec<f32> = bytemuck::pod_collect_to_vec(&p.wait(gpu)?[0]);
-                out.extend(floats.chunks_exact(hypotheses::HYPOTHESIS_FLOATS).map(hypotheses::from_row));
-            }
-            Ok(out)
+    fn encode<'a>(&'a self, net: Net, input: &'a [f32], patches: usize) -> crate::backend::StepFuture<'a, Vec<f32>> {
+        Box::pin(async move {
+            let n = self.model.config.points_per_patch;
+            let f = self.foldnet(net);
+            self.run("encode", async |ws| nets::encode(&self.gpu, ws, f, input, patches, n).await).await
         })
     }
 
-    fn score_hypotheses(
-        &self,
-        hypotheses: &[Hypothesis],
-        source: &[[f32; 3]],
-        target: &[[f32; 3]],
+    fn match_codewords<'a>(
+        &'a self,
+        source: &'a [f32],
+        target: &'a [f32],
+        dim: usize,
+        mode: MatchMode,
+    ) -> crate::backend::StepFuture<'a, Vec<Match>> {
+        Box::pin(async move {
+            crate::backend::check::codeword_rows(source, target, dim)?;
+            let (ns, nt) = (source.len() / dim, target.len() / dim);
+            if ns == 0 || nt == 0 {
+                return Ok(Vec::new());
+            }
+            mutual_knn::mode_k(mode)?;
+            let (s, t) = self
+                .run("match_codewords", async |ws| {
+                    let ctx = &self.gpu.context;
+                    Ok((ws.upload(ctx, "match_source", source)?, ws.upload(ctx, "match_target", target)?))
+                })
+                .await?;
+            self.match_buffers(&s, &t, (ns, nt, dim), mode).await
+        })
+    }
+
+    fn predict_rotations<'a>(&'a self, pose: RotationInputs<'a>) -> crate::backend::StepFuture<'a, Vec<[f32; 9]>> {
+        Box::pin(async move {
+            let c = &self.model.config;
+            pose.validate(c.codeword())?;
+            self.run("predict_rotations", async |ws| {
+                nets::relative(&self.gpu, ws, &self.weights.relative, c, pose).await
+            })
+            .await
+        })
+    }
+
+    fn hypotheses<'a>(
+        &'a self,
+        rotations: &'a [[f32; 9]],
+        source: &'a [[f32; 3]],
+        target: &'a [[f32; 3]],
+    ) -> crate::backend::StepFuture<'a, Vec<Hypothesis>> {
+        Box::pin(async move {
+            let rows = rotations.len();
+            crate::backend::check::hypothesis_inputs(rows, source.len(), target.len())?;
+            let gpu = &self.gpu;
+            let ctx = &gpu.context;
+            self.run("hypotheses", async |ws| {
+                let chunk = items_per_chunk(ctx, (hypotheses::HYPOTHESIS_FLOATS * 4) as u64, "hypothesis")?;
+                let mut pending = Vec::new();
+                for r0 in (0..rows).step_by(chunk) {
+                    let n = chunk.min(rows - r0);
+                    let q = ws.upload(ctx, "hyp_rotations", &rotations[r0..r0 + n])?;
+                    let s = ws.upload(ctx, "hyp_source", &source[r0..r0 + n])?;
+                    let t = ws.upload(ctx, "hyp_target", &target[r0..r0 + n])?;
+                    let bytes = (n * hypotheses::HYPOTHESIS_FLOATS * 4) as u64;
+                    let out = ws.buffer(ctx, "hyp_out", bytes)?;
+                    let mut rec = Recorder::new(gpu, "hypotheses");
+                    hypotheses::record(&mut rec, n, [&q, &s, &t], &out)?;
+                    rec.read(&out, 0, bytes);
+                    pending.push(rec.submit()?);
+                }
+                let mut out = Vec::with_capacity(rows);
+                for p in pending {
+                    let floats: Vec<f32> = bytemuck::pod_collect_to_vec(&p.wait(gpu).await?[0]);
+                    out.extend(floats.chunks_exact(hypotheses::HYPOTHESIS_FLOATS).map(hypotheses::from_row));
+                }
+                Ok(out)
+            })
+            .await
+        })
+    }
+
+    fn score_hypotheses<'a>(
+        &'a self,
+        hypotheses: &'a [Hypothesis],
+        source: &'a [[f32; 3]],
+        target: &'a [[f32; 3]],
         threshold: f32,
-    ) -> Result<Vec<HypothesisScore>> {
-        crate::backend::check::correspondences(source.len(), target.len())?;
-        let gpu = &self.gpu;
-        let ctx = &gpu.context;
-        self.run("score_hypotheses", |ws| {
-            let s = ws.upload(ctx, "score_source", source)?;
-            let t = ws.upload(ctx, "score_target", target)?;
-            let chunk = items_per_chunk(ctx, (hypotheses::HYPOTHESIS_FLOATS * 4) as u64, "hypothesis")?;
-            let mut pending = Vec::new();
-            for h0 in (0..hypotheses.len()).step_by(chunk) {
-                let n = chunk.min(hypotheses.len() - h0);
-                let rows: Vec<[f32; hypotheses::HYPOTHESIS_FLOATS]> =
-                    hypotheses[h0..h0 + n].iter().map(hypotheses::to_row).collect();
-                let h = ws.upload(ctx, "score_hypotheses", &rows)?;
-                let inliers = ws.buffer(ctx, "score_inliers", (n * 4) as u64)?;
-                let sums = ws.buffer(ctx, "score_sums", (n * 4) as u64)?;
-                let params = score_hypotheses::ScoreHypothesesParams {
-                    hypotheses: to_u32(n, "hypotheses")?,
-                    correspondences: to_u32(source.len(), "correspondences")?,
-                    threshold_sq: threshold * threshold,
-                    write_mask: 0,
-                };
-                let mut rec = Recorder::new(gpu, "score_hypotheses");
-                let out =
-                    score_hypotheses::ScoreBuffers { inliers: &inliers, residual_sums: &sums, mask: &gpu.dummy_rw };
-                score_hypotheses::record(&mut rec, &params, [&h, &s, &t], &out)?;
-                rec.read(&inliers, 0, (n * 4) as u64);
-                rec.read(&sums, 0, (n * 4) as u64);
-                pending.push(rec.submit()?);
-            }
-            let mut out = Vec::with_capacity(hypotheses.len());
-            for p in pending {
-                let data = p.wait(gpu)?;
-                let counts: Vec<u32> = bytemuck::pod_collect_to_vec(&data[0]);
-                let sums: Vec<f32> = bytemuck::pod_collect_to_vec(&data[1]);
-                out.extend(
-                    counts
-                        .into_iter()
-                        .zip(sums)
-                        .map(|(inliers, residual_sum)| HypothesisScore { inliers, residual_sum }),
-                );
-            }
-            Ok(out)
+    ) -> crate::backend::StepFuture<'a, Vec<HypothesisScore>> {
+        Box::pin(async move {
+            crate::backend::check::correspondences(source.len(), target.len())?;
+            let gpu = &self.gpu;
+            let ctx = &gpu.context;
+            self.run("score_hypotheses", async |ws| {
+                let s = ws.upload(ctx, "score_source", source)?;
+                let t = ws.upload(ctx, "score_target", target)?;
+                let chunk = items_per_chunk(ctx, (hypotheses::HYPOTHESIS_FLOATS * 4) as u64, "hypothesis")?;
+                let mut pending = Vec::new();
+                for h0 in (0..hypotheses.len()).step_by(chunk) {
+                    let n = chunk.min(hypotheses.len() - h0);
+                    let rows: Vec<[f32; hypotheses::HYPOTHESIS_FLOATS]> =
+                        hypotheses[h0..h0 + n].iter().map(hypotheses::to_row).collect();
+                    let h = ws.upload(ctx, "score_hypotheses", &rows)?;
+                    let inliers = ws.buffer(ctx, "score_inliers", (n * 4) as u64)?;
+                    let sums = ws.buffer(ctx, "score_sums", (n * 4) as u64)?;
+                    let params = score_hypotheses::ScoreHypothesesParams {
+                        hypotheses: to_u32(n, "hypotheses")?,
+                        correspondences: to_u32(source.len(), "correspondences")?,
+                        threshold_sq: threshold * threshold,
+                        write_mask: 0,
+                    };
+                    let mut rec = Recorder::new(gpu, "score_hypotheses");
+                    let out =
+                        score_hypotheses::ScoreBuffers { inliers: &inliers, residual_sums: &sums, mask: &gpu.dummy_rw };
+                    score_hypotheses::record(&mut rec, &params, [&h, &s, &t], &out)?;
+                    rec.read(&inliers, 0, (n * 4) as u64);
+                    rec.read(&sums, 0, (n * 4) as u64);
+                    pending.push(rec.submit()?);
+                }
+                let mut out = Vec::with_capacity(hypotheses.len());
+                for p in pending {
+                    let data = p.wait(gpu).await?;
+                    let counts: Vec<u32> = bytemuck::pod_collect_to_vec(&data[0]);
+                    let sums: Vec<f32> = bytemuck::pod_collect_to_vec(&data[1]);
+                    out.extend(
+                        counts
+                            .into_iter()
+                            .zip(sums)
+                            .map(|(inliers, residual_sum)| HypothesisScore { inliers, residual_sum }),
+                    );
+                }
+                Ok(out)
+            })
+            .await
         })
     }
 }

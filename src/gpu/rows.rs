@@ -46,12 +46,14 @@ impl std::fmt::Debug for GpuScanRows {
 }
 
 /// PC-FoldNet inputs of consecutive rows, in one buffer (as patch features wrote them).
+#[derive(Clone)]
 struct Segment {
     first: usize,
     rows: usize,
     buffer: wgpu::Buffer,
 }
 
+#[derive(Clone)]
 struct DeviceRows {
     rows: usize,
     capacity: usize,
@@ -145,27 +147,33 @@ impl ScanRows for GpuScanRows {
     fn codeword(&self) -> usize {
         self.codeword
     }
-    fn read_codewords(&self) -> Result<Vec<f32>> {
-        let s = self.lock();
-        let bytes = buffer::read_bytes(&self.gpu.context, &s.codewords, 0, (s.rows * self.codeword * 4) as u64)?;
-        Ok(bytemuck::pod_collect_to_vec(&bytes))
+    fn read_codewords<'a>(&'a self) -> crate::backend::StepFuture<'a, Vec<f32>> {
+        Box::pin(async move {
+            // A snapshot (buffer handles), so no lock is held while the readback is awaited.
+            let s = self.lock().clone();
+            let bytes =
+                buffer::read_bytes(&self.gpu.context, &s.codewords, 0, (s.rows * self.codeword * 4) as u64).await?;
+            Ok(bytemuck::pod_collect_to_vec(&bytes))
+        })
     }
-    fn read_pose_rows(&self) -> Result<PoseRows> {
-        let s = self.lock();
-        let ctx = &self.gpu.context;
-        let mut input = Vec::with_capacity(s.rows * self.pc_width);
-        for g in &s.segments {
-            let bytes = buffer::read_bytes(ctx, &g.buffer, 0, (g.rows * self.pc_width * 4) as u64)?;
-            input.extend_from_slice(&bytemuck::pod_collect_to_vec::<u8, f32>(&bytes));
-        }
-        let features = buffer::read_bytes(ctx, &s.pose, 0, (s.rows * self.codeword * 4) as u64)?;
-        let mut features: Vec<f32> = bytemuck::pod_collect_to_vec(&features);
-        for (r, &ready) in s.ready.iter().enumerate() {
-            if !ready {
-                features[r * self.codeword..][..self.codeword].fill(f32::NAN);
+    fn read_pose_rows<'a>(&'a self) -> crate::backend::StepFuture<'a, PoseRows> {
+        Box::pin(async move {
+            let s = self.lock().clone();
+            let ctx = &self.gpu.context;
+            let mut input = Vec::with_capacity(s.rows * self.pc_width);
+            for g in &s.segments {
+                let bytes = buffer::read_bytes(ctx, &g.buffer, 0, (g.rows * self.pc_width * 4) as u64).await?;
+                input.extend_from_slice(&bytemuck::pod_collect_to_vec::<u8, f32>(&bytes));
             }
-        }
-        Ok(PoseRows { input, features, ready: s.ready.clone() })
+            let features = buffer::read_bytes(ctx, &s.pose, 0, (s.rows * self.codeword * 4) as u64).await?;
+            let mut features: Vec<f32> = bytemuck::pod_collect_to_vec(&features);
+            for (r, &ready) in s.ready.iter().enumerate() {
+                if !ready {
+                    features[r * self.codeword..][..self.codeword].fill(f32::NAN);
+                }
+            }
+            Ok(PoseRows { input, features, ready: s.ready.clone() })
+        })
     }
     fn as_any(&self) -> &dyn Any {
         self
@@ -182,7 +190,7 @@ impl GpuBackend {
     }
 
     pub(super) fn new_device_rows(&self, capacity: usize) -> Result<Arc<dyn ScanRows>> {
-        Ok(Arc::new(self.run("scan rows", |_| GpuScanRows::new(self, capacity))?))
+        Ok(Arc::new(self.gpu.context.scoped("scan rows", || GpuScanRows::new(self, capacity))??))
     }
 
     pub(super) fn restore_device_rows(
@@ -221,7 +229,7 @@ impl GpuBackend {
 
     /// Patch features and PPF-FoldNet on the device, appended to `rows` by offset; PC-FoldNet's inputs are kept
     /// as they were computed.
-    pub(super) fn describe_on_device(&self, batch: PatchBatch<'_>, rows: &dyn ScanRows) -> Result<()> {
+    pub(super) async fn describe_on_device(&self, batch: PatchBatch<'_>, rows: &dyn ScanRows) -> Result<()> {
         let store = self.own(rows, "describe")?;
         let patches = batch.patches();
         let n = self.model.config.points_per_patch;
@@ -229,11 +237,12 @@ impl GpuBackend {
         self.describe_chunks(store, batch.len(), batch.radius(), |_, ws, c0, cp| {
             Self::upload_patch_inputs(ws, ctx, patches, n, (c0, cp))
         })
+        .await
     }
 
     /// Patches sampled on a device cloud, gathered, featurised and encoded on the device and appended to
     /// `rows` by offset (nothing is read back): [`GpuBackend::describe_on_device`] without the uploads.
-    pub(super) fn describe_sampled(
+    pub(super) async fn describe_sampled(
         &self,
         cloud: &DeviceCloud,
         sampled: &SampledPatches,
@@ -256,12 +265,17 @@ impl GpuBackend {
             cloud.record_gather(rec, candidates, &table, (cp, n, false), [&index, &points, &normals])?;
             Ok([centers, center_normals, points, normals])
         })
+        .await
     }
 
     /// Appends `p` patches to `store`, in chunks that fit the device: `inputs` records (or uploads) the patch
     /// features' inputs `[centers, center normals, points, normals]` of patches `c0..c0 + cp`; patch features
     /// and PPF-FoldNet follow in the same submission, and the codewords land in the store by row offset.
-    fn describe_chunks(
+    #[expect(
+        clippy::await_holding_lock,
+        reason = "the store stays locked until its rows are written; see `GpuBackend::run`"
+    )]
+    async fn describe_chunks(
         &self,
         store: &GpuScanRows,
         p: usize,
@@ -275,7 +289,7 @@ impl GpuBackend {
         let cw = store.codeword;
         let gpu = &self.gpu;
         let ctx = &gpu.context;
-        self.run("describe", |ws| {
+        self.run("describe", async |ws| {
             let mut s = store.lock();
             let start = s.rows;
             store.reserve(&mut s, start + p)?;
@@ -305,75 +319,88 @@ impl GpuBackend {
                 segments.push(Segment { first: start + c0, rows: cp, buffer: pc });
             }
             for pend in pending {
-                pend.wait(gpu)?;
+                pend.wait(gpu).await?;
             }
             s.segments.extend(segments);
             s.rows = start + p;
             s.ready.resize(start + p, false);
             Ok(())
         })
+        .await
     }
 
     /// The pose features of rows `which` (computed), read back in that order: one copy per row into a
     /// workspace buffer, one readback.
-    pub(super) fn read_pose_features(&self, rows: &dyn ScanRows, which: &[u32]) -> Result<Vec<f32>> {
+    pub(super) async fn read_pose_features(&self, rows: &dyn ScanRows, which: &[u32]) -> Result<Vec<f32>> {
         let store = self.own(rows, "pose features")?;
         if which.is_empty() {
             return Ok(Vec::new());
         }
         let gpu = &self.gpu;
         let bytes = (which.len() * store.codeword * 4) as u64;
-        let out = self.run("pose features", |ws| {
-            let dst = ws.buffer(&gpu.context, "pose_readback", bytes)?;
-            let mut rec = Recorder::new(gpu, "pose features");
-            store.gather_rows(&mut rec, &store.lock().pose, which, &dst);
-            rec.read(&dst, 0, bytes);
-            rec.finish()
-        })?;
+        let out = self
+            .run("pose features", async |ws| {
+                let dst = ws.buffer(&gpu.context, "pose_readback", bytes)?;
+                let mut rec = Recorder::new(gpu, "pose features");
+                store.gather_rows(&mut rec, &store.lock().pose, which, &dst);
+                rec.read(&dst, 0, bytes);
+                rec.finish().await
+            })
+            .await?;
         Ok(bytemuck::pod_collect_to_vec(&out[0]))
     }
 
     /// Mutual kNN on the codewords where they are; only the matches come back.
     /// With context rows, the matching rows are built where the codewords are ([`super::kernels::unit_rows`]).
-    pub(super) fn correspond_on_device(&self, request: RowMatch<'_>) -> Result<Vec<crate::cpu::mutual_knn::Match>> {
+    pub(super) async fn correspond_on_device(
+        &self,
+        request: RowMatch<'_>,
+    ) -> Result<Vec<crate::cpu::mutual_knn::Match>> {
         let ((s, ns), (t, nt)) = (request.source(), request.target());
         let dim = s.codeword();
         let blocks = request.blocks();
         if blocks.is_empty() {
             let source = self.own(s, "correspond")?.lock().codewords.clone();
             let target = self.own(t, "correspond")?.lock().codewords.clone();
-            return self.match_buffers(&source, &target, (ns, nt, dim), request.mode());
+            return self.match_buffers(&source, &target, (ns, nt, dim), request.mode()).await;
         }
         let width = dim * blocks.len();
         let gpu = &self.gpu;
-        let (source, target) = self.run("matching rows", |ws| {
-            let ctx = &gpu.context;
-            let source = ws.buffer(ctx, "match_source_blocks", (ns.max(1) * width * 4) as u64)?;
-            let target = ws.buffer(ctx, "match_target_blocks", (nt.max(1) * width * 4) as u64)?;
-            let mut rec = Recorder::new(gpu, "matching rows");
-            for (b, &(weight, bs, bt)) in blocks.iter().enumerate() {
-                let block = super::kernels::unit_rows::Block { width: dim, out_width: width, column: b * dim, weight };
-                for (rows, n, out) in [(bs, ns, &source), (bt, nt, &target)] {
-                    if n > 0 {
-                        let codewords = self.own(rows, "correspond")?.lock().codewords.clone();
-                        super::kernels::unit_rows::record(&mut rec, n, block, &codewords, out)?;
+        let (source, target) = self
+            .run("matching rows", async |ws| {
+                let ctx = &gpu.context;
+                let source = ws.buffer(ctx, "match_source_blocks", (ns.max(1) * width * 4) as u64)?;
+                let target = ws.buffer(ctx, "match_target_blocks", (nt.max(1) * width * 4) as u64)?;
+                let mut rec = Recorder::new(gpu, "matching rows");
+                for (b, &(weight, bs, bt)) in blocks.iter().enumerate() {
+                    let block =
+                        super::kernels::unit_rows::Block { width: dim, out_width: width, column: b * dim, weight };
+                    for (rows, n, out) in [(bs, ns, &source), (bt, nt, &target)] {
+                        if n > 0 {
+                            let codewords = self.own(rows, "correspond")?.lock().codewords.clone();
+                            super::kernels::unit_rows::record(&mut rec, n, block, &codewords, out)?;
+                        }
                     }
                 }
-            }
-            rec.finish()?;
-            Ok((source, target))
-        })?;
-        self.match_buffers(&source, &target, (ns, nt, width), request.mode())
+                rec.finish().await?;
+                Ok((source, target))
+            })
+            .await?;
+        self.match_buffers(&source, &target, (ns, nt, width), request.mode()).await
     }
 
     /// PC-FoldNet on the rows of `which` whose pose features are missing; the features stay on the device.
-    pub(super) fn prepare_on_device(&self, rows: &dyn ScanRows, which: &[u32]) -> Result<()> {
+    #[expect(
+        clippy::await_holding_lock,
+        reason = "the store stays locked until its rows are written; see `GpuBackend::run`"
+    )]
+    pub(super) async fn prepare_on_device(&self, rows: &dyn ScanRows, which: &[u32]) -> Result<()> {
         let store = self.own(rows, "pose features")?;
         let gpu = &self.gpu;
         let ctx = &gpu.context;
         let n = self.model.config.points_per_patch;
         let cw = store.codeword;
-        self.run("pc_encoder", |ws| {
+        self.run("pc_encoder", async |ws| {
             let mut s = store.lock();
             if let Some(&bad) = which.iter().find(|&&r| r as usize >= s.rows) {
                 return Err(Error::invalid(format!(
@@ -400,22 +427,23 @@ impl GpuBackend {
                 pending.push(rec.submit()?);
             }
             for pend in pending {
-                pend.wait(gpu)?;
+                pend.wait(gpu).await?;
             }
             for &r in &missing {
                 s.ready[r as usize] = true;
             }
             Ok(())
         })
+        .await
     }
 
     /// RelativeNet, hypotheses and scores on the device from the matched rows' pose features; the scores come
     /// back (8 bytes per hypothesis), then only the kept hypotheses (48 bytes each), and the rotations when
     /// asked.
-    pub(super) fn verify_on_device(&self, request: MatchedRows<'_>) -> Result<Verified> {
+    pub(super) async fn verify_on_device(&self, request: MatchedRows<'_>) -> Result<Verified> {
         let (src, tgt) = (request.source(), request.target());
-        self.prepare_on_device(src.scan, src.rows)?;
-        self.prepare_on_device(tgt.scan, tgt.rows)?;
+        self.prepare_on_device(src.scan, src.rows).await?;
+        self.prepare_on_device(tgt.scan, tgt.rows).await?;
         let (ss, ts) = (self.own(src.scan, "verify")?, self.own(tgt.scan, "verify")?);
         let (source_pose, target_pose) = (ss.lock().pose.clone(), ts.lock().pose.clone());
         let config = &self.model.config;
@@ -435,51 +463,53 @@ impl GpuBackend {
         let ctx = &gpu.context;
         let row_bytes = nets::relative_row_bytes(layers, config).max((m * hf * 4) as u64);
         let chunk = items_per_chunk(ctx, row_bytes, "RelativeNet row")?;
-        let (pending, hyps) = self.run("verify", |ws| {
-            let points_s = ws.upload(ctx, "score_source", src.points)?;
-            let points_t = ws.upload(ctx, "score_target", tgt.points)?;
-            let mut pending = Vec::new();
-            let mut hyps = Vec::new();
-            for r0 in (0..rows).step_by(chunk) {
-                let n = chunk.min(rows - r0);
-                let s_in = ws.buffer(ctx, "rel_source", (n * f * 4) as u64)?;
-                let t_in = ws.buffer(ctx, "rel_target", (n * f * 4) as u64)?;
-                let ns = ws.upload(ctx, "rel_source_normals", &src.normals[r0..r0 + n])?;
-                let nt = ws.upload(ctx, "rel_target_normals", &tgt.normals[r0..r0 + n])?;
-                let hs = ws.upload(ctx, "hyp_source", &rep_source[r0 * m..(r0 + n) * m])?;
-                let ht = ws.upload(ctx, "hyp_target", &rep_target[r0 * m..(r0 + n) * m])?;
-                let h = storage_buffer(ctx, "verify hypotheses", (n * m * hf * 4) as u64)?;
-                let inliers = ws.buffer(ctx, "score_inliers", (n * m * 4) as u64)?;
-                let sums = ws.buffer(ctx, "score_sums", (n * m * 4) as u64)?;
-                let mut rec = Recorder::new(gpu, "verify");
-                ss.gather_rows(&mut rec, &source_pose, &src.rows[r0..r0 + n], &s_in);
-                ts.gather_rows(&mut rec, &target_pose, &tgt.rows[r0..r0 + n], &t_in);
-                let rotations =
-                    nets::record_relative(&mut rec, gpu, ws, (layers, config), [&s_in, &t_in, &ns, &nt], n)?;
-                hypotheses::record(&mut rec, n * m, [&rotations, &hs, &ht], &h)?;
-                let params = score_hypotheses::ScoreHypothesesParams {
-                    hypotheses: to_u32(n * m, "hypotheses")?,
-                    correspondences: to_u32(rows, "correspondences")?,
-                    threshold_sq: request.threshold() * request.threshold(),
-                    write_mask: 0,
-                };
-                let out =
-                    score_hypotheses::ScoreBuffers { inliers: &inliers, residual_sums: &sums, mask: &gpu.dummy_rw };
-                score_hypotheses::record(&mut rec, &params, [&h, &points_s, &points_t], &out)?;
-                rec.read(&inliers, 0, (n * m * 4) as u64);
-                rec.read(&sums, 0, (n * m * 4) as u64);
-                if request.wants_rotations() {
-                    rec.read(&rotations, 0, (n * m * 36) as u64);
+        let (pending, hyps) = self
+            .run("verify", async |ws| {
+                let points_s = ws.upload(ctx, "score_source", src.points)?;
+                let points_t = ws.upload(ctx, "score_target", tgt.points)?;
+                let mut pending = Vec::new();
+                let mut hyps = Vec::new();
+                for r0 in (0..rows).step_by(chunk) {
+                    let n = chunk.min(rows - r0);
+                    let s_in = ws.buffer(ctx, "rel_source", (n * f * 4) as u64)?;
+                    let t_in = ws.buffer(ctx, "rel_target", (n * f * 4) as u64)?;
+                    let ns = ws.upload(ctx, "rel_source_normals", &src.normals[r0..r0 + n])?;
+                    let nt = ws.upload(ctx, "rel_target_normals", &tgt.normals[r0..r0 + n])?;
+                    let hs = ws.upload(ctx, "hyp_source", &rep_source[r0 * m..(r0 + n) * m])?;
+                    let ht = ws.upload(ctx, "hyp_target", &rep_target[r0 * m..(r0 + n) * m])?;
+                    let h = storage_buffer(ctx, "verify hypotheses", (n * m * hf * 4) as u64)?;
+                    let inliers = ws.buffer(ctx, "score_inliers", (n * m * 4) as u64)?;
+                    let sums = ws.buffer(ctx, "score_sums", (n * m * 4) as u64)?;
+                    let mut rec = Recorder::new(gpu, "verify");
+                    ss.gather_rows(&mut rec, &source_pose, &src.rows[r0..r0 + n], &s_in);
+                    ts.gather_rows(&mut rec, &target_pose, &tgt.rows[r0..r0 + n], &t_in);
+                    let rotations =
+                        nets::record_relative(&mut rec, gpu, ws, (layers, config), [&s_in, &t_in, &ns, &nt], n)?;
+                    hypotheses::record(&mut rec, n * m, [&rotations, &hs, &ht], &h)?;
+                    let params = score_hypotheses::ScoreHypothesesParams {
+                        hypotheses: to_u32(n * m, "hypotheses")?,
+                        correspondences: to_u32(rows, "correspondences")?,
+                        threshold_sq: request.threshold() * request.threshold(),
+                        write_mask: 0,
+                    };
+                    let out =
+                        score_hypotheses::ScoreBuffers { inliers: &inliers, residual_sums: &sums, mask: &gpu.dummy_rw };
+                    score_hypotheses::record(&mut rec, &params, [&h, &points_s, &points_t], &out)?;
+                    rec.read(&inliers, 0, (n * m * 4) as u64);
+                    rec.read(&sums, 0, (n * m * 4) as u64);
+                    if request.wants_rotations() {
+                        rec.read(&rotations, 0, (n * m * 36) as u64);
+                    }
+                    pending.push(rec.submit()?);
+                    hyps.push((r0 * m, n * m, h));
                 }
-                pending.push(rec.submit()?);
-                hyps.push((r0 * m, n * m, h));
-            }
-            Ok((pending, hyps))
-        })?;
+                Ok((pending, hyps))
+            })
+            .await?;
         let mut scores = Vec::with_capacity(rows * m);
         let mut rotations = request.wants_rotations().then(Vec::new);
         for p in pending {
-            let data = p.wait(gpu)?;
+            let data = p.wait(gpu).await?;
             let counts: Vec<u32> = bytemuck::pod_collect_to_vec(&data[0]);
             let sums: Vec<f32> = bytemuck::pod_collect_to_vec(&data[1]);
             scores.extend(
@@ -489,16 +519,14 @@ impl GpuBackend {
                 r.extend(bytemuck::pod_collect_to_vec::<u8, [f32; 9]>(&data[2]));
             }
         }
-        let best = rank(&scores, request.keep())
-            .into_iter()
-            .map(|index| {
-                let (first, _, h) =
-                    hyps.iter().rev().find(|(first, _, _)| *first <= index).expect("chunks cover every index");
-                let bytes = buffer::read_bytes(ctx, h, ((index - first) * hf * 4) as u64, (hf * 4) as u64)?;
-                let hypothesis = hypotheses::from_row(&bytemuck::pod_collect_to_vec::<u8, f32>(&bytes));
-                Ok(RankedHypothesis { index, hypothesis, score: scores[index] })
-            })
-            .collect::<Result<Vec<_>>>()?;
+        let mut best = Vec::new();
+        for index in rank(&scores, request.keep()) {
+            let (first, _, h) =
+                hyps.iter().rev().find(|(first, _, _)| *first <= index).expect("chunks cover every index");
+            let bytes = buffer::read_bytes(ctx, h, ((index - first) * hf * 4) as u64, (hf * 4) as u64).await?;
+            let hypothesis = hypotheses::from_row(&bytemuck::pod_collect_to_vec::<u8, f32>(&bytes));
+            best.push(RankedHypothesis { index, hypothesis, score: scores[index] });
+        }
         Ok(Verified { best, hypotheses: scores.len(), rotations })
     }
 }

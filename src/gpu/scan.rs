@@ -31,7 +31,7 @@ pub struct GpuScanCloud {
 
 impl GpuBackend {
     /// [`Backend::start_scan`] on the device.
-    pub(super) fn start_device_scan(
+    pub(super) async fn start_device_scan(
         &self,
         cloud: &PointCloud,
         settings: &ScanSettings,
@@ -41,7 +41,10 @@ impl GpuBackend {
         // Downsampled on the device, the points stay there for the description (the host copy is part of the
         // described scan, e.g. for snapshots and pickling).
         let (mut host, held) = match settings.voxel {
-            Some(v) => self.run("voxel_downsample", |_| super::preprocess::voxel_downsample_held(gpu, cloud, v))?,
+            Some(v) => {
+                self.run("voxel_downsample", async |_| super::preprocess::voxel_downsample_held(gpu, cloud, v).await)
+                    .await?
+            }
             None => (cloud.clone(), None),
         };
         check_points(&host, cloud.len(), settings)?;
@@ -51,10 +54,14 @@ impl GpuBackend {
             (Some(ns), true) => NormalSource::Given(ns),
             _ => NormalSource::Estimate { k: settings.normal_neighbors, viewpoint: settings.viewpoint },
         };
-        let device = self.run("start_scan", |_| match held {
-            Some(points) => DeviceCloud::from_buffer(gpu, points, host.len(), source, settings.largest_radius),
-            None => DeviceCloud::new(gpu, &host.points, source, settings.largest_radius),
-        })?;
+        let device = self
+            .run("start_scan", async |_| match held {
+                Some(points) => {
+                    DeviceCloud::from_buffer(gpu, points, host.len(), source, settings.largest_radius).await
+                }
+                None => DeviceCloud::new(gpu, &host.points, source, settings.largest_radius).await,
+            })
+            .await?;
         if !given {
             host.normals = None;
         }
@@ -65,40 +72,53 @@ impl GpuBackend {
 }
 
 impl ScanCloud for GpuScanCloud {
-    fn describe_keypoints(
-        &mut self,
-        _backend: &dyn Backend,
-        _cloud: &mut PointCloud,
-        (keypoints, radius): (&[usize], f32),
+    fn describe_keypoints<'a>(
+        &'a mut self,
+        _backend: &'a dyn Backend,
+        _cloud: &'a mut PointCloud,
+        (keypoints, radius): (&'a [usize], f32),
         seed: u64,
-        rows: &dyn ScanRows,
-        lap: Lap<'_>,
-    ) -> Result<DescribedKeypoints> {
-        let b = &self.backend;
-        let ks = keypoints
-            .iter()
-            .map(|&k| u32::try_from(k).map_err(|_| Error::invalid(format!("keypoint {k} does not fit 32 bits"))))
-            .collect::<Result<Vec<u32>>>()?;
-        // Normals were estimated for every point when the scan started; sampling, gathering and describing run
-        // as one pass per part, timed as the encoder stage.
-        lap("patches");
-        lap("normals");
-        let mut out = DescribedKeypoints::default();
-        // Parts of the keypoints whose candidates fit a buffer, sampled and described in order.
-        self.cloud.sample_in_parts(&b.gpu, (&ks, radius), seed, 0, &mut |first, sampled| {
-            b.describe_sampled(&self.cloud, &sampled, rows)?;
-            out.kept.extend(sampled.kept.iter().map(|&s| first + s));
-            out.empty += sampled.empty.len();
-            out.centers.extend(sampled.centers);
-            out.center_normals.extend(sampled.center_normals);
-            Ok(())
-        })?;
-        lap("ppf_encoder");
-        Ok(out)
+        rows: &'a dyn ScanRows,
+        lap: Lap<'a>,
+    ) -> crate::backend::StepFuture<'a, DescribedKeypoints> {
+        Box::pin(async move {
+            let b = &self.backend;
+            let ks = keypoints
+                .iter()
+                .map(|&k| u32::try_from(k).map_err(|_| Error::invalid(format!("keypoint {k} does not fit 32 bits"))))
+                .collect::<Result<Vec<u32>>>()?;
+            // Normals were estimated for every point when the scan started; sampling, gathering and describing run
+            // as one pass per part, timed as the encoder stage.
+            lap("patches");
+            lap("normals");
+            let mut out = DescribedKeypoints::default();
+            // Parts of the keypoints whose candidates fit a buffer, sampled and described in order.
+            self.cloud
+                .sample_in_parts(&b.gpu, (&ks, radius), seed, 0, async |first, sampled| {
+                    b.describe_sampled(&self.cloud, &sampled, rows).await?;
+                    out.kept.extend(sampled.kept.iter().map(|&s| first + s));
+                    out.empty += sampled.empty.len();
+                    out.centers.extend(sampled.centers);
+                    out.center_normals.extend(sampled.center_normals);
+                    Ok(())
+                })
+                .await?;
+            lap("ppf_encoder");
+            Ok(out)
+        })
     }
 
-    fn farthest_points(&self, _cloud: &PointCloud, count: usize, start: usize) -> Result<Vec<usize>> {
-        self.backend.run("farthest_point", |_| self.cloud.farthest_points(&self.backend.gpu, count, start))
+    fn farthest_points<'a>(
+        &'a self,
+        _cloud: &'a PointCloud,
+        count: usize,
+        start: usize,
+    ) -> crate::backend::StepFuture<'a, Vec<usize>> {
+        Box::pin(async move {
+            self.backend
+                .run("farthest_point", async |_| self.cloud.farthest_points(&self.backend.gpu, count, start).await)
+                .await
+        })
     }
 
     fn held_points(&self) -> Option<Arc<dyn HeldPoints>> {
@@ -109,12 +129,16 @@ impl ScanCloud for GpuScanCloud {
         }))
     }
 
-    fn complete_normals(&mut self, cloud: &mut PointCloud) -> Result<()> {
-        if self.estimated && !self.complete {
-            cloud.normals = Some(self.backend.run("normals", |_| self.cloud.read_normals(&self.backend.gpu))?);
-            self.complete = true;
-        }
-        Ok(())
+    fn complete_normals<'a>(&'a mut self, cloud: &'a mut PointCloud) -> crate::backend::StepFuture<'a, ()> {
+        Box::pin(async move {
+            if self.estimated && !self.complete {
+                cloud.normals = Some(
+                    self.backend.run("normals", async |_| self.cloud.read_normals(&self.backend.gpu).await).await?,
+                );
+                self.complete = true;
+            }
+            Ok(())
+        })
     }
 
     fn normals_complete(&self) -> bool {

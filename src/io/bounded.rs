@@ -31,7 +31,21 @@ pub(super) fn read_input(path: &Path, format: Format) -> Result<Vec<u8>> {
         return Err(too_big(path, meta.len()));
     }
     let expected = if meta.is_file() { meta.len() as usize } else { CHUNK };
-    let mut reader = Reader { path, file, data: Vec::with_capacity(expected.saturating_add(1)), eof: false };
+    read_checked(path, file, expected, format)
+}
+
+/// [`read_input`] for a cloud already in memory (`name` stands for its path in messages): the same limits and
+/// text checks.
+pub(super) fn check_bytes(name: &Path, bytes: &[u8], format: Format) -> Result<Vec<u8>> {
+    if bytes.len() as u64 > MAX_INPUT_BYTES {
+        return Err(too_big(name, bytes.len() as u64));
+    }
+    read_checked(name, bytes, bytes.len(), format)
+}
+
+/// Reads `source` (`expected` bytes or so) within the limits, checking text content as it arrives.
+fn read_checked(path: &Path, source: impl Read, expected: usize, format: Format) -> Result<Vec<u8>> {
+    let mut reader = Reader { path, source, data: Vec::with_capacity(expected.saturating_add(1)), eof: false };
     let text_from = match format {
         Format::Xyz => 0,
         Format::Ply | Format::Pcd => match reader.header(format)? {
@@ -75,24 +89,24 @@ pub fn read_file_bounded(path: &Path, limit: u64) -> Result<Vec<u8>> {
     Ok(data)
 }
 
-/// The file being read and what has arrived so far.
-struct Reader<'a> {
+/// The input being read and what has arrived so far.
+struct Reader<'a, R: Read> {
     /// For error messages.
     path: &'a Path,
-    /// The open file.
-    file: File,
+    /// The open file (or bytes in memory).
+    source: R,
     /// Bytes read so far.
     data: Vec<u8>,
     /// True once the file has ended.
     eof: bool,
 }
 
-impl Reader<'_> {
+impl<R: Read> Reader<'_, R> {
     /// Reads one more chunk; fails when the input exceeds [`MAX_INPUT_BYTES`].
     fn fill(&mut self) -> Result<()> {
         let before = self.data.len();
         let got =
-            (&mut self.file).take(CHUNK as u64).read_to_end(&mut self.data).map_err(|e| Error::io(self.path, e))?;
+            (&mut self.source).take(CHUNK as u64).read_to_end(&mut self.data).map_err(|e| Error::io(self.path, e))?;
         self.eof = got == 0;
         if (before + got) as u64 > MAX_INPUT_BYTES {
             return Err(too_big(self.path, (before + got) as u64));

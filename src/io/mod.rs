@@ -130,13 +130,27 @@ pub struct LoadReport {
 pub fn read_cloud(path: &Path, options: &LoadOptions) -> Result<(PointCloud, LoadReport)> {
     let format = Format::from_path(path)?;
     let data = bounded::read_input(path, format)?;
+    parse_cloud(path, format, &data, options)
+}
+
+/// [`read_cloud`] for a file's contents already in memory (a browser's `File`, an upload): `name` gives the
+/// format by its extension and names the input in messages; the same limits, checks and filtering apply.
+pub fn read_cloud_bytes(name: &str, bytes: &[u8], options: &LoadOptions) -> Result<(PointCloud, LoadReport)> {
+    let path = Path::new(name);
+    let format = Format::from_path(path)?;
+    let data = bounded::check_bytes(path, bytes, format)?;
+    parse_cloud(path, format, &data, options)
+}
+
+/// Parses the checked contents `data` of the cloud file `path` in `format`.
+fn parse_cloud(path: &Path, format: Format, data: &[u8], options: &LoadOptions) -> Result<(PointCloud, LoadReport)> {
     match format {
-        Format::Ply => ply::parse(path, &data, options),
-        Format::Pcd => pcd::parse(path, &data, options),
+        Format::Ply => ply::parse(path, data, options),
+        Format::Pcd => pcd::parse(path, data, options),
         Format::Xyz => {
             // PTS files conventionally carry `x y z intensity r g b`: never read their columns 4-6 as normals.
             let is_pts = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("pts"));
-            xyz::parse(path, &data, options, !is_pts)
+            xyz::parse(path, data, options, !is_pts)
         }
     }
 }
@@ -515,6 +529,35 @@ impl CloudBuilder {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_cloud_in_memory_reads_as_the_same_file_does_and_bad_bytes_name_the_input() {
+        let dir = std::env::temp_dir().join(format!("dpr_gpu_bytes_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let cloud = PointCloud {
+            points: vec![[0.5, -1.0, 2.0], [1.5, 0.25, -3.0], [0.0, 0.0, 1.0]],
+            normals: Some(vec![[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
+        };
+        for (name, text) in [("c.ply", None), ("c.xyz", Some("0.5 -1 2\n1.5 0.25 -3\n0 0 1\n"))] {
+            let path = dir.join(name);
+            match text {
+                None => write_ply(&path, &cloud).unwrap(),
+                Some(t) => std::fs::write(&path, t).unwrap(),
+            }
+            let from_file = read_cloud(&path, &LoadOptions::default()).unwrap().0;
+            let bytes = std::fs::read(&path).unwrap();
+            let from_bytes = read_cloud_bytes(name, &bytes, &LoadOptions::default()).unwrap().0;
+            assert_eq!(from_bytes, from_file, "{name}");
+            assert_eq!(from_bytes.points, cloud.points, "{name}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+        let cut = read_cloud_bytes("scan.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 9\nproperty float x\nproperty float y\nproperty float z\nend_header\n\x00\x00", &LoadOptions::default()).unwrap_err().to_string();
+        assert!(cut.contains("scan.ply"), "{cut}");
+        let nul = read_cloud_bytes("scan.xyz", b"1 2 3\n\x004 5 6\n", &LoadOptions::default()).unwrap_err().to_string();
+        assert!(nul.contains("scan.xyz"), "{nul}");
+        let ext = read_cloud_bytes("scan.obj", b"v 1 2 3", &LoadOptions::default()).unwrap_err().to_string();
+        assert!(ext.contains("scan.obj") && ext.contains(".ply"), "{ext}");
+    }
 
     #[test]
     fn scalar_decodes_both_endians() {

@@ -20,7 +20,11 @@ use crate::verdict::Verdict;
 use crate::verdict::handedness::mirror_image;
 use std::path::PathBuf;
 use std::sync::Arc;
+// std's clock panics on wasm32-unknown-unknown; the browser's (performance.now) has the same interface.
+#[cfg(not(target_arch = "wasm32"))]
 use std::time::Instant;
+#[cfg(target_arch = "wasm32")]
+use web_time::Instant;
 
 mod scan;
 mod stages;
@@ -310,14 +314,16 @@ impl Registrar {
     /// it. A scan moved by a rigid motion M is described as the original when `viewpoint` moves with it (M
     /// times the original viewpoint).
     pub fn describe_from(&self, cloud: &PointCloud, stream: u64, viewpoint: [f32; 3]) -> Result<ScanFeatures> {
-        let mut clock = Stopwatch::new(self.progress_for(stream));
-        let mut scan = self.start_description(cloud, stream, viewpoint, &mut clock)?;
-        self.extend_description(&mut scan, self.settings.keypoints, &mut clock)?;
-        self.describe_context(&mut scan, &mut clock)?;
-        self.complete_normals(&mut scan)?;
-        clock.lap("remaining_normals");
-        scan.features.timings = clock.timings;
-        Ok(scan.features)
+        crate::block_on(async {
+            let mut clock = Stopwatch::new(self.progress_for(stream));
+            let mut scan = self.start_description(cloud, stream, viewpoint, &mut clock).await?;
+            self.extend_description(&mut scan, self.settings.keypoints, &mut clock).await?;
+            self.describe_context(&mut scan, &mut clock).await?;
+            scan.cloud.complete_normals(&mut scan.features.cloud).await?;
+            clock.lap("remaining_normals");
+            scan.features.timings = clock.timings;
+            Ok(scan.features)
+        })
     }
 
     /// What the backend's scan preparation and description need of the settings.
@@ -336,7 +342,7 @@ impl Registrar {
 
     /// Preprocesses `cloud` where the backend describes it (downsampling, normals) and fixes its keypoint
     /// order; no keypoint is described yet.
-    fn start_description(
+    async fn start_description(
         &self,
         cloud: &PointCloud,
         stream: u64,
@@ -347,7 +353,7 @@ impl Registrar {
         cloud.validate("cloud")?;
         let scan_settings = self.scan_settings(viewpoint, crate::backend::has_usable_normals(cloud));
         let (cloud, scan_cloud) =
-            self.backend.start_scan(cloud, &scan_settings, &mut |stage| clock.lap(stage)).map_err(|e| {
+            self.backend.start_scan(cloud, &scan_settings, &mut |stage| clock.lap(stage)).await.map_err(|e| {
                 match (e, scan_settings.voxel) {
                     // A default voxel follows the radius: say so, since the user never set it.
                     (Error::InvalidInput(m), Some(v)) if s.voxel.is_none() => Error::invalid(format!(
@@ -364,7 +370,7 @@ impl Registrar {
             // Farthest-point sampling where the backend keeps the cloud (the same start draw as on the host).
             KeypointMode::Uniform if s.keypoints < cloud.len() => {
                 let start = rng.below(cloud.len());
-                scan_cloud.farthest_points(&cloud, s.keypoints, start)?
+                scan_cloud.farthest_points(&cloud, s.keypoints, start).await?
             }
             _ => select_keypoints(&cloud.points, s.keypoints, s.keypoint_mode, &mut rng),
         };
@@ -395,7 +401,7 @@ impl Registrar {
     /// Describes the keypoints of `scan`'s order up to the first `candidates` (patches, network inputs, PPF
     /// codewords); PC-FoldNet's inputs are kept for [`Registrar::estimate`]. Errors when, with the whole order
     /// described, no keypoint has a patch.
-    fn extend_description(
+    async fn extend_description(
         &self,
         scan: &mut DescribingScan,
         candidates: usize,
@@ -406,14 +412,17 @@ impl Registrar {
             return Ok(());
         }
         let f = &mut scan.features;
-        let described = scan.cloud.describe_keypoints(
-            self.backend.as_ref(),
-            &mut f.cloud,
-            (&scan.order[from..to], self.radius()),
-            scan.patch_seed,
-            f.rows.as_ref(),
-            &mut |stage| clock.lap(stage),
-        )?;
+        let described = scan
+            .cloud
+            .describe_keypoints(
+                self.backend.as_ref(),
+                &mut f.cloud,
+                (&scan.order[from..to], self.radius()),
+                scan.patch_seed,
+                f.rows.as_ref(),
+                &mut |stage| clock.lap(stage),
+            )
+            .await?;
         // Ranks of the kept keypoints: their positions in `scan.order[from..to]`.
         f.keypoint_ranks.extend(described.kept.iter().map(|&pos| (from + pos) as u32));
         f.keypoints.extend(described.centers);
@@ -427,14 +436,14 @@ impl Registrar {
             )));
         }
         if self.settings.context_when == ContextWhen::Always {
-            self.describe_context(scan, clock)?;
+            self.describe_context(scan, clock).await?;
         }
         Ok(())
     }
 
     /// Describes the kept keypoints of `scan` that have no context rows yet again at every context radius.
     /// None is dropped (a larger patch holds every point of the main one), so the rows stay aligned.
-    fn describe_context(&self, scan: &mut DescribingScan, clock: &mut Stopwatch<'_>) -> Result<()> {
+    async fn describe_context(&self, scan: &mut DescribingScan, clock: &mut Stopwatch<'_>) -> Result<()> {
         let f = &mut scan.features;
         for c in &f.context {
             let kept: Vec<usize> =
@@ -442,14 +451,17 @@ impl Registrar {
             if kept.is_empty() {
                 continue;
             }
-            let again = scan.cloud.describe_keypoints(
-                self.backend.as_ref(),
-                &mut f.cloud,
-                (&kept, c.radius),
-                scan.patch_seed,
-                c.rows.as_ref(),
-                &mut |_| {},
-            )?;
+            let again = scan
+                .cloud
+                .describe_keypoints(
+                    self.backend.as_ref(),
+                    &mut f.cloud,
+                    (&kept, c.radius),
+                    scan.patch_seed,
+                    c.rows.as_ref(),
+                    &mut |_| {},
+                )
+                .await?;
             if again.kept.len() != kept.len() {
                 return Err(Error::invalid(format!(
                     "context radius {}: {} of {} keypoints kept",
@@ -463,23 +475,18 @@ impl Registrar {
         Ok(())
     }
 
-    /// Computes every normal of `scan`'s cloud that is still missing.
-    fn complete_normals(&self, scan: &mut DescribingScan) -> Result<()> {
-        scan.cloud.complete_normals(&mut scan.features.cloud)
-    }
-
     /// The pose features (PC-FoldNet codeword minus PPF-FoldNet codeword) of `rows` of `scan`, in that order,
     /// `rows.len() x codeword` (read back from the backend). Rows not computed before run through PC-FoldNet
     /// now, once.
     pub fn pose_features(&self, scan: &ScanFeatures, rows: &[u32]) -> Result<Vec<f32>> {
-        self.backend.pose_features(scan.rows.as_ref(), rows)
+        crate::block_on(self.backend.pose_features(scan.rows.as_ref(), rows))
     }
 
     /// `scan` with its rows held by this registrar's backend: the same rows when the backend described them,
     /// else a copy moved to it (e.g. a scan unpickled with host rows, registered on a GPU).
     pub fn adopt(&self, scan: &ScanFeatures) -> Result<ScanFeatures> {
         let adopt = |rows: &Arc<dyn ScanRows>| -> Result<Arc<dyn ScanRows>> {
-            let rows = self.backend.adopt_rows(rows)?;
+            let rows = crate::block_on(self.backend.adopt_rows(rows))?;
             if rows.rows() != scan.keypoints.len() {
                 return Err(Error::invalid(format!(
                     "described scan: {} rows for {} keypoints",
@@ -500,12 +507,12 @@ impl Registrar {
     /// Correspondences between two described scans (matching rule from the settings).
     /// On the codewords of every radius, whatever [`ContextWhen`] says.
     pub fn correspond(&self, source: &ScanFeatures, target: &ScanFeatures) -> Result<Vec<Correspondence>> {
-        self.correspond_rows(source, source.keypoints.len(), target, target.keypoints.len(), true)
+        crate::block_on(self.correspond_rows(source, source.keypoints.len(), target, target.keypoints.len(), true))
     }
 
     /// Correspondences between the first `source_rows` keypoints of `source` and the first `target_rows` of
     /// `target`, on the context radii's codewords too when `context`.
-    fn correspond_rows(
+    async fn correspond_rows(
         &self,
         source: &ScanFeatures,
         source_rows: usize,
@@ -519,7 +526,7 @@ impl Registrar {
             self.settings.matching,
         )?;
         let request = if context { request.with_context(&source.context, &target.context)? } else { request };
-        let matches = self.backend.correspond(request)?;
+        let matches = self.backend.correspond(request).await?;
         Ok(matches
             .into_iter()
             .map(|m| Correspondence {
@@ -540,12 +547,12 @@ impl Registrar {
         correspondences: &[Correspondence],
         estimator: Estimator,
     ) -> Result<PoseEstimate> {
-        Ok(self.estimate_judged(source, target, correspondences, estimator)?.0)
+        Ok(crate::block_on(self.estimate_judged(source, target, correspondences, estimator))?.0)
     }
 
     /// [`Registrar::estimate`], with the verdict on the estimate when choosing it took one (so it is not judged
     /// twice).
-    fn estimate_judged(
+    async fn estimate_judged(
         &self,
         source: &ScanFeatures,
         target: &ScanFeatures,
@@ -589,7 +596,7 @@ impl Registrar {
                     threshold,
                     keep,
                 )?;
-                let verified = self.backend.verify(request)?;
+                let verified = self.backend.verify(request).await?;
                 (verified.best.iter().map(|b| matrix_from_hypothesis(&b.hypothesis)).collect(), verified.hypotheses)
             }
             Estimator::Ransac => {
@@ -600,13 +607,13 @@ impl Registrar {
         };
         let candidates = candidates::distinct_refined(&poses, &src, &tgt, threshold, scored);
         // ICP when enabled, then the estimate over the correspondences.
-        let finish = |estimate: &PoseEstimate| -> Result<PoseEstimate> {
+        let finish = async |estimate: &PoseEstimate| -> Result<PoseEstimate> {
             let Some(icp) = &self.settings.icp else { return Ok(estimate.clone()) };
-            let refined = self.refine_by_icp(source, target, estimate.target_from_source, icp)?;
+            let refined = self.refine_by_icp(source, target, estimate.target_from_source, icp).await?;
             Ok(crate::estimate::evaluate(refined, &src, &tgt, threshold, estimate.hypotheses_scored))
         };
         // The estimator's choice as today; the others compete only when the verdict does not trust it.
-        let first = finish(candidates.first().ok_or_else(|| Error::invalid("no hypotheses to verify"))?)?;
+        let first = finish(candidates.first().ok_or_else(|| Error::invalid("no hypotheses to verify"))?).await?;
         if candidates.len() == 1 {
             return Ok((first, None));
         }
@@ -624,7 +631,7 @@ impl Registrar {
         candidates[0] = first.clone();
         match candidates::choose(&candidates, &views) {
             0 => Ok((first, Some(verdict))),
-            k => Ok((finish(&candidates[k])?, None)),
+            k => Ok((finish(&candidates[k]).await?, None)),
         }
     }
 
@@ -632,7 +639,7 @@ impl Registrar {
     /// point-pair distance, by default radius / 12; normals estimated on the copy), so it needs no normal of the
     /// full clouds and costs little next to description. It runs where the backend keeps the clouds
     /// ([`Backend::refine_icp`]).
-    fn refine_by_icp(
+    async fn refine_by_icp(
         &self,
         source: &ScanFeatures,
         target: &ScanFeatures,
@@ -644,7 +651,7 @@ impl Registrar {
             max_iterations: icp.max_iterations,
             normal_neighbors: self.settings.normal_neighbors,
         };
-        self.backend.refine_icp(source, target, initial, &problem)
+        self.backend.refine_icp(source, target, initial, &problem).await
     }
 
     /// Whether `estimate` (computed from `correspondences` between `source` and `target`) can be trusted: the
@@ -700,7 +707,7 @@ impl Registrar {
 
     /// One round: correspondences among the first `keypoints` keypoints of each scan (on the context radii's
     /// codewords too when `context`), the pose, its verdict.
-    fn round(
+    async fn round(
         &self,
         (source, target): (&ScanFeatures, &ScanFeatures),
         keypoints: usize,
@@ -709,18 +716,18 @@ impl Registrar {
     ) -> Result<Round> {
         clock.scope = "";
         let (sr, tr) = (source.rows_within(keypoints), target.rows_within(keypoints));
-        let correspondences = self.correspond_rows(source, sr, target, tr, context)?;
+        let correspondences = self.correspond_rows(source, sr, target, tr, context).await?;
         clock.lap("matching");
         if estimator == Estimator::RelativeNet {
             // Computed here (and kept in the scans) to time PC-FoldNet on its own.
             let (s, t) = (source.rows.as_ref(), target.rows.as_ref());
-            self.backend
-                .prepare_pose_features(s, &correspondences.iter().map(|c| c.source_index).collect::<Vec<_>>())?;
-            self.backend
-                .prepare_pose_features(t, &correspondences.iter().map(|c| c.target_index).collect::<Vec<_>>())?;
+            let source_rows: Vec<u32> = correspondences.iter().map(|c| c.source_index).collect();
+            let target_rows: Vec<u32> = correspondences.iter().map(|c| c.target_index).collect();
+            self.backend.prepare_pose_features(s, &source_rows).await?;
+            self.backend.prepare_pose_features(t, &target_rows).await?;
         }
         clock.lap("pc_encoder");
-        let (estimate, verdict) = self.estimate_judged(source, target, &correspondences, estimator)?;
+        let (estimate, verdict) = self.estimate_judged(source, target, &correspondences, estimator).await?;
         clock.lap("estimation");
         let verdict = verdict.unwrap_or_else(|| self.judge((source, target), &estimate, &correspondences));
         Ok(Round { keypoints, correspondences, estimate, verdict })
@@ -735,16 +742,18 @@ impl Registrar {
         target: &ScanFeatures,
         estimator: Estimator,
     ) -> Result<Round> {
-        let mut clock = Stopwatch::new(None);
-        let plan = (estimator, self.context_in_every_round());
-        let (outcome, last) = self.progressive_rounds(&mut (source, target), plan, &mut clock)?;
-        self.conclude(outcome, (source, target), last, estimator, &mut clock)
+        crate::block_on(async {
+            let mut clock = Stopwatch::new(None);
+            let plan = (estimator, self.context_in_every_round());
+            let (outcome, last) = self.progressive_rounds(&mut (source, target), plan, &mut clock).await?;
+            self.conclude(outcome, (source, target), last, estimator, &mut clock).await
+        })
     }
 
     /// The progressive schedule: for each keypoint stage k, `scans` are readied for k keypoints a scan
     /// ([`RoundScans::prepare`]); a round runs when that changed the rows it would match, and the first trusted
     /// round ends the schedule. Returns the rounds' outcome and the last stage.
-    fn progressive_rounds(
+    async fn progressive_rounds(
         &self,
         scans: &mut impl RoundScans,
         plan: (Estimator, bool),
@@ -754,12 +763,12 @@ impl Registrar {
         let mut rows = None;
         let stages = self.keypoint_stages();
         for &k in &stages {
-            let now = scans.prepare(self, k, clock)?;
+            let now = scans.prepare(self, k, clock).await?;
             if rows == Some(now) {
                 continue;
             }
             rows = Some(now);
-            if outcome.offer(self.round(scans.pair(), k, plan, clock)) {
+            if outcome.offer(self.round(scans.pair(), k, plan, clock).await) {
                 break;
             }
         }
@@ -775,16 +784,19 @@ impl Registrar {
         target: &ScanFeatures,
         estimator: Estimator,
     ) -> Result<Round> {
-        let mut clock = Stopwatch::new(None);
-        let mut outcome = stages::Outcome::default();
-        let all = source.candidates.max(target.candidates);
-        outcome.offer(self.round((source, target), all, (estimator, self.context_in_every_round()), &mut clock));
-        self.conclude(outcome, (source, target), all, estimator, &mut clock)
+        crate::block_on(async {
+            let mut clock = Stopwatch::new(None);
+            let mut outcome = stages::Outcome::default();
+            let all = source.candidates.max(target.candidates);
+            let plan = (estimator, self.context_in_every_round());
+            outcome.offer(self.round((source, target), all, plan, &mut clock).await);
+            self.conclude(outcome, (source, target), all, estimator, &mut clock).await
+        })
     }
 
     /// The result of the rounds in `outcome`, after the round on every radius over `keypoints` keypoints when
     /// [`ContextWhen::Untrusted`] calls for it (the scans' context rows are described already).
-    fn conclude(
+    async fn conclude(
         &self,
         mut outcome: stages::Outcome,
         scans: (&ScanFeatures, &ScanFeatures),
@@ -793,41 +805,53 @@ impl Registrar {
         clock: &mut Stopwatch<'_>,
     ) -> Result<Round> {
         if self.needs_context_round(&outcome) {
-            outcome.offer(self.round(scans, keypoints, (estimator, true), clock));
+            outcome.offer(self.round(scans, keypoints, (estimator, true), clock).await);
         }
         outcome.finish()
     }
 
-    /// The whole pipeline on two clouds.
+    /// The whole pipeline on two clouds (blocks until done: [`Registrar::register_async`] awaits).
     pub fn register(&self, source: &PointCloud, target: &PointCloud) -> Result<RegistrationResult> {
         Ok(self.register_detailed(source, target)?.result)
+    }
+
+    /// [`Registrar::register`] as a future: what a browser awaits (its GPU readbacks complete on the page's
+    /// event loop).
+    pub async fn register_async(&self, source: &PointCloud, target: &PointCloud) -> Result<RegistrationResult> {
+        Ok(self.register_detailed_async(source, target).await?.result)
     }
 
     /// [`Registrar::register`], also returning the described scans and the correspondences the result came from
     /// (for bindings and pictures that show keypoints and matches). Runs the progressive schedule: each round
     /// describes more keypoints of both scans, and the first trusted round ends it.
     pub fn register_detailed(&self, source: &PointCloud, target: &PointCloud) -> Result<Registration> {
+        crate::block_on(self.register_detailed_async(source, target))
+    }
+
+    /// [`Registrar::register_detailed`] as a future.
+    pub async fn register_detailed_async(&self, source: &PointCloud, target: &PointCloud) -> Result<Registration> {
         if self.settings.radius.is_none() {
-            return self.at_scale_of(&[(source, "source"), (target, "target")])?.register_detailed(source, target);
+            let scaled = self.at_scale_of(&[(source, "source"), (target, "target")])?;
+            return Box::pin(scaled.register_detailed_async(source, target)).await;
         }
         let mut clock = Stopwatch::new(self.progress.as_deref().map(|p| (p, "")));
         let viewpoint = self.settings.viewpoint;
         clock.scope = "source.";
-        let src = self.start_description(source, 0, viewpoint, &mut clock).map_err(|e| prefix("source", e))?;
+        let src = self.start_description(source, 0, viewpoint, &mut clock).await.map_err(|e| prefix("source", e))?;
         clock.scope = "target.";
-        let tgt = self.start_description(target, 1, viewpoint, &mut clock).map_err(|e| prefix("target", e))?;
+        let tgt = self.start_description(target, 1, viewpoint, &mut clock).await.map_err(|e| prefix("target", e))?;
         let plan = (self.settings.estimator, self.context_in_every_round());
         let mut scans = (src, tgt);
-        let (outcome, last) = self.progressive_rounds(&mut scans, plan, &mut clock)?;
+        let (outcome, last) = self.progressive_rounds(&mut scans, plan, &mut clock).await?;
         let (mut src, mut tgt) = scans;
         if self.needs_context_round(&outcome) {
             clock.scope = "source.";
-            self.describe_context(&mut src, &mut clock).map_err(|e| prefix("source", e))?;
+            self.describe_context(&mut src, &mut clock).await.map_err(|e| prefix("source", e))?;
             clock.scope = "target.";
-            self.describe_context(&mut tgt, &mut clock).map_err(|e| prefix("target", e))?;
+            self.describe_context(&mut tgt, &mut clock).await.map_err(|e| prefix("target", e))?;
         }
         let scans = (&src.features, &tgt.features);
-        let round = self.conclude(outcome, scans, last, self.settings.estimator, &mut clock)?;
+        let round = self.conclude(outcome, scans, last, self.settings.estimator, &mut clock).await?;
         for scan in [&mut src, &mut tgt] {
             if !scan.cloud.normals_complete() {
                 // Normals were estimated only where patches needed them.
@@ -865,8 +889,12 @@ impl Registrar {
 trait RoundScans {
     /// Readies the scans for a round over their first `keypoints` keypoints (describing more where needed) and
     /// says how many rows of each such a round would match.
-    fn prepare(&mut self, registrar: &Registrar, keypoints: usize, clock: &mut Stopwatch<'_>)
-    -> Result<(usize, usize)>;
+    async fn prepare(
+        &mut self,
+        registrar: &Registrar,
+        keypoints: usize,
+        clock: &mut Stopwatch<'_>,
+    ) -> Result<(usize, usize)>;
 
     /// The (source, target) features a round matches.
     fn pair(&self) -> (&ScanFeatures, &ScanFeatures);
@@ -874,7 +902,7 @@ trait RoundScans {
 
 /// Scans described already ([`Registrar::register_described`]): nothing to do but count rows.
 impl RoundScans for (&ScanFeatures, &ScanFeatures) {
-    fn prepare(&mut self, _: &Registrar, keypoints: usize, _: &mut Stopwatch<'_>) -> Result<(usize, usize)> {
+    async fn prepare(&mut self, _: &Registrar, keypoints: usize, _: &mut Stopwatch<'_>) -> Result<(usize, usize)> {
         Ok((self.0.rows_within(keypoints), self.1.rows_within(keypoints)))
     }
 
@@ -885,16 +913,16 @@ impl RoundScans for (&ScanFeatures, &ScanFeatures) {
 
 /// Scans being described ([`Registrar::register_detailed`]): each stage describes more keypoints of both.
 impl RoundScans for (DescribingScan, DescribingScan) {
-    fn prepare(
+    async fn prepare(
         &mut self,
         registrar: &Registrar,
         keypoints: usize,
         clock: &mut Stopwatch<'_>,
     ) -> Result<(usize, usize)> {
         clock.scope = "source.";
-        registrar.extend_description(&mut self.0, keypoints, clock).map_err(|e| prefix("source", e))?;
+        registrar.extend_description(&mut self.0, keypoints, clock).await.map_err(|e| prefix("source", e))?;
         clock.scope = "target.";
-        registrar.extend_description(&mut self.1, keypoints, clock).map_err(|e| prefix("target", e))?;
+        registrar.extend_description(&mut self.1, keypoints, clock).await.map_err(|e| prefix("target", e))?;
         Ok((self.0.features.keypoints.len(), self.1.features.keypoints.len()))
     }
 

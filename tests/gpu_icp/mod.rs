@@ -61,7 +61,8 @@ fn icp_normal_equations_matches_cpu() {
     for (pose, stride) in cases {
         let rows = pose_rows(&pose);
         let want = icp_normal_equations(&source, stride, &t, &rows, max_distance).unwrap();
-        let got = gpu::icp_normal_equations::run(&g, &source, stride, &t, &rows, max_distance).unwrap();
+        let got =
+            dpr_gpu::block_on(gpu::icp_normal_equations::run(&g, &source, stride, &t, &rows, max_distance)).unwrap();
         assert_eq!(got.partials.len(), want.partials.len(), "stride {stride} (seed {s})");
         for (w, (a, b)) in got.partials.iter().zip(&want.partials).enumerate() {
             assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits), "partial {w}, stride {stride} (seed {s})");
@@ -87,12 +88,26 @@ fn icp_normal_equations_matches_cpu() {
         .count();
     assert!(ties > 0, "no midpoint has a tie (seed {s})");
     // Empty source: zeros on both sides; mismatched inputs: errors.
-    let empty = gpu::icp_normal_equations::run(&g, &[], 1, &t, &pose_rows(&Matrix4::identity()), max_distance).unwrap();
+    let empty = dpr_gpu::block_on(gpu::icp_normal_equations::run(
+        &g,
+        &[],
+        1,
+        &t,
+        &pose_rows(&Matrix4::identity()),
+        max_distance,
+    ))
+    .unwrap();
     assert_eq!(empty.total, [0.0; 28]);
     assert!(empty.partials.is_empty());
     let bad = IcpTarget { grid: &grid, normals: &normals[1..] };
-    assert!(gpu::icp_normal_equations::run(&g, &source, 1, &bad, &pose_rows(&Matrix4::identity()), 0.1).is_err());
-    assert!(gpu::icp_normal_equations::run(&g, &source, 1, &t, &pose_rows(&Matrix4::identity()), 1.0).is_err());
+    assert!(
+        dpr_gpu::block_on(gpu::icp_normal_equations::run(&g, &source, 1, &bad, &pose_rows(&Matrix4::identity()), 0.1))
+            .is_err()
+    );
+    assert!(
+        dpr_gpu::block_on(gpu::icp_normal_equations::run(&g, &source, 1, &t, &pose_rows(&Matrix4::identity()), 1.0))
+            .is_err()
+    );
 }
 
 /// The GPU backend's ICP (device target, f32 sums in a fixed order) against the host's (kiddo, nalgebra
@@ -131,18 +146,23 @@ fn device_icp_converges_like_the_host() {
     let problem = IcpProblem { max_distance: 0.1, max_iterations: 30, normal_neighbors: settings.normal_neighbors };
     let initial = motion([0.02, -0.02, 0.015], [0.02, -0.03, 0.015]) * truth;
     let before = g.context.transfers();
-    let device = on_gpu.backend().refine_icp(&gs, &gt, initial, &problem).unwrap();
+    let device = dpr_gpu::block_on(on_gpu.backend().refine_icp(&gs, &gt, initial, &problem)).unwrap();
     let moved = g.context.transfers().since(before);
-    let host = on_cpu.backend().refine_icp(&cs, &ct, initial, &problem).unwrap();
+    let host = dpr_gpu::block_on(on_cpu.backend().refine_icp(&cs, &ct, initial, &problem)).unwrap();
     // The same points uploaded: the device-described scans without their held points (their clouds are the
     // held points read back). Host-described scans differ in the last bits of their voxel averages and normals
     // where the GPU rounds differently (FMA contraction, e.g. on NVIDIA), so they get the host tolerance below.
     let unheld =
         |scan: &dpr_gpu::pipeline::ScanFeatures| dpr_gpu::pipeline::ScanFeatures { held_points: None, ..scan.clone() };
-    let uploaded = on_gpu.backend().refine_icp(&unheld(&gs), &unheld(&gt), initial, &problem).unwrap();
+    let uploaded =
+        dpr_gpu::block_on(on_gpu.backend().refine_icp(&unheld(&gs), &unheld(&gt), initial, &problem)).unwrap();
     assert_eq!(device, uploaded, "held and uploaded points give the same pose (seed {s})");
-    let host_uploaded = on_gpu.backend().refine_icp(&cs, &ct, initial, &problem).unwrap();
-    assert_eq!(device, on_gpu.backend().refine_icp(&gs, &gt, initial, &problem).unwrap(), "deterministic");
+    let host_uploaded = dpr_gpu::block_on(on_gpu.backend().refine_icp(&cs, &ct, initial, &problem)).unwrap();
+    assert_eq!(
+        device,
+        dpr_gpu::block_on(on_gpu.backend().refine_icp(&gs, &gt, initial, &problem)).unwrap(),
+        "deterministic"
+    );
     let down_bound = 2 * (32 + 4) + 112 * problem.max_iterations as u64;
     assert!(moved.device_to_host_bytes <= down_bound, "{} bytes down, bound {down_bound}", moved.device_to_host_bytes);
     assert_eq!(moved.host_to_device_bytes, 2 * (32 + 4), "only the two tables' initial grid words go up");

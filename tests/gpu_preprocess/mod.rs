@@ -38,16 +38,16 @@ fn cell_bounds_matches_cpu() {
     {
         let pts = cloud(&mut rng, n, extent, offset);
         let want = cell_bounds(&pts, inv_cell).unwrap();
-        assert_eq!(gpu::cell_bounds::run(&g, &pts, inv_cell).unwrap(), want, "n {n} (seed {s})");
+        assert_eq!(dpr_gpu::block_on(gpu::cell_bounds::run(&g, &pts, inv_cell)).unwrap(), want, "n {n} (seed {s})");
     }
     // A point whose cell is out of range, and no points: errors on both sides.
     let mut pts = cloud(&mut rng, 300, 1.0, 0.0);
     pts[200] = [0.0, 3e9, 0.0];
     assert!(cell_bounds(&pts, 1.0).is_err());
-    let e = gpu::cell_bounds::run(&g, &pts, 1.0).unwrap_err().to_string();
+    let e = dpr_gpu::block_on(gpu::cell_bounds::run(&g, &pts, 1.0)).unwrap_err().to_string();
     assert!(e.contains("2^30"), "{e}");
-    assert!(gpu::cell_bounds::run(&g, &[], 1.0).is_err());
-    assert!(gpu::cell_bounds::run(&g, &pts[..1], 0.0).is_err());
+    assert!(dpr_gpu::block_on(gpu::cell_bounds::run(&g, &[], 1.0)).is_err());
+    assert!(dpr_gpu::block_on(gpu::cell_bounds::run(&g, &pts[..1], 0.0)).is_err());
 }
 
 fn cell_keys_matches_cpu() {
@@ -58,7 +58,7 @@ fn cell_keys_matches_cpu() {
         let pts = cloud(&mut rng, n, extent, offset);
         let b = cell_bounds(&pts, inv_cell).unwrap();
         let want = cell_keys(&pts, inv_cell, &b).unwrap();
-        let got = gpu::cell_keys::run(&g, &pts, inv_cell, &b).unwrap();
+        let got = dpr_gpu::block_on(gpu::cell_keys::run(&g, &pts, inv_cell, &b)).unwrap();
         assert_eq!(got.len(), n.next_power_of_two());
         assert_eq!(&got[..n], &want[..], "n {n} (seed {s})");
         assert!(got[n..].iter().all(|k| *k == PAD_KEY), "padding (seed {s})");
@@ -67,7 +67,7 @@ fn cell_keys_matches_cpu() {
     let pts = vec![[0.0, 0.0, 0.0], [0.5, 2.5e6, 0.25]];
     let b = cell_bounds(&pts, 1.0).unwrap();
     let want = cell_keys(&pts, 1.0, &b).unwrap_err().to_string();
-    let got = gpu::cell_keys::run(&g, &pts, 1.0, &b).unwrap_err().to_string();
+    let got = dpr_gpu::block_on(gpu::cell_keys::run(&g, &pts, 1.0, &b)).unwrap_err().to_string();
     assert_eq!(got, want);
     assert!(got.contains("axis 1"), "{got}");
 }
@@ -87,7 +87,7 @@ fn bitonic_sort_matches_cpu() {
             .collect();
         let mut want = keys.clone();
         bitonic_sort::bitonic_sort(&mut want);
-        assert_eq!(gpu::bitonic_sort::run(&g, &keys).unwrap(), want, "n {n} (seed {s})");
+        assert_eq!(dpr_gpu::block_on(gpu::bitonic_sort::run(&g, &keys)).unwrap(), want, "n {n} (seed {s})");
     }
 }
 
@@ -97,7 +97,11 @@ fn prefix_scan_matches_cpu() {
     let mut rng = Rng::new(s);
     for (n, max) in [(0, 1), (1, 5), (255, 2), (256, 2), (257, 1000), (70_001, 2), (1000, u32::MAX as usize)] {
         let values: Vec<u32> = (0..n).map(|_| rng.below(max) as u32).collect();
-        assert_eq!(gpu::prefix_scan::run(&g, &values).unwrap(), prefix_scan::prefix_scan(&values), "n {n} (seed {s})");
+        assert_eq!(
+            dpr_gpu::block_on(gpu::prefix_scan::run(&g, &values)).unwrap(),
+            prefix_scan::prefix_scan(&values),
+            "n {n} (seed {s})"
+        );
     }
 }
 
@@ -109,7 +113,7 @@ fn segments_matches_cpu() {
         let mut keys: Vec<SortKey> =
             (0..n).map(|i| [rng.below(cells) as u32, rng.below(2) as u32, i as u32, 0]).collect();
         bitonic_sort::bitonic_sort(&mut keys);
-        assert_eq!(gpu::segments::run(&g, &keys).unwrap(), segments(&keys), "n {n} (seed {s})");
+        assert_eq!(dpr_gpu::block_on(gpu::segments::run(&g, &keys)).unwrap(), segments(&keys), "n {n} (seed {s})");
     }
 }
 
@@ -122,13 +126,14 @@ fn voxel_average_matches_cpu() {
         let normals: Vec<[f32; 3]> = (0..n).map(|_| super::unit(&mut rng)).collect();
         let (_, sorted, seg) = voxel_average::sorted_cells(&pts, 1.0 / voxel).unwrap();
         let (want_p, want_n) = voxel_average::voxel_average(&pts, Some(&normals), &sorted, &seg);
-        let (got_p, got_n) = gpu::voxel_average::run(&g, &pts, Some(&normals), &sorted, &seg).unwrap();
+        let (got_p, got_n) =
+            dpr_gpu::block_on(gpu::voxel_average::run(&g, &pts, Some(&normals), &sorted, &seg)).unwrap();
         let (wp, gp) = (want_p.concat(), got_p.concat());
         assert_close("voxel_average points", s, &gp, &wp, |i| voxel_point_tol(wp[i], voxel));
         assert_close("voxel_average normals", s, &got_n.unwrap().concat(), &want_n.unwrap().concat(), |_| {
             VOXEL_NORMAL_ATOL
         });
-        let (no_normals, none) = gpu::voxel_average::run(&g, &pts, None, &sorted, &seg).unwrap();
+        let (no_normals, none) = dpr_gpu::block_on(gpu::voxel_average::run(&g, &pts, None, &sorted, &seg)).unwrap();
         assert!(none.is_none());
         assert_close("voxel_average points", s, &no_normals.concat(), &wp, |i| voxel_point_tol(wp[i], voxel));
     }
@@ -158,7 +163,7 @@ fn voxel_downsample_matches_cpu() {
     ];
     for (c, voxel) in &clouds {
         let want = dpr_gpu::preprocess::voxel_downsample(c, *voxel).unwrap();
-        let got = gpu::preprocess::voxel_downsample(&g, c, *voxel).unwrap();
+        let got = dpr_gpu::block_on(gpu::preprocess::voxel_downsample(&g, c, *voxel)).unwrap();
         assert_eq!(got.len(), want.len(), "voxels (seed {s})");
         let (wp, gp) = (want.points.concat(), got.points.concat());
         assert_close("voxel_downsample points", s, &gp, &wp, |i| voxel_point_tol(wp[i], *voxel));
@@ -170,9 +175,9 @@ fn voxel_downsample_matches_cpu() {
     // Too wide for the keys: the CPU path's error, not a wrong answer; bad voxel sizes; an empty cloud.
     let wide = PointCloud::from_points(vec![[0.0; 3], [3e5, 0.0, 0.0]]);
     let want = dpr_gpu::preprocess::voxel_downsample(&wide, 0.1).unwrap_err().to_string();
-    assert_eq!(gpu::preprocess::voxel_downsample(&g, &wide, 0.1).unwrap_err().to_string(), want);
-    assert!(gpu::preprocess::voxel_downsample(&g, &wide, 0.0).is_err());
-    assert!(gpu::preprocess::voxel_downsample(&g, &PointCloud::default(), 0.1).unwrap().is_empty());
+    assert_eq!(dpr_gpu::block_on(gpu::preprocess::voxel_downsample(&g, &wide, 0.1)).unwrap_err().to_string(), want);
+    assert!(dpr_gpu::block_on(gpu::preprocess::voxel_downsample(&g, &wide, 0.0)).is_err());
+    assert!(dpr_gpu::block_on(gpu::preprocess::voxel_downsample(&g, &PointCloud::default(), 0.1)).unwrap().is_empty());
 }
 
 /// grid_knn on random data: both sides compute `dx*dx + dy*dy + dz*dz`, but a GPU may contract it into FMAs,
@@ -262,7 +267,14 @@ fn grid_knn_matches_cpu() {
             let b = brute_knn(&lattice, q as usize, k);
             assert_eq!(want.0[i * k..][..k], b.iter().map(|x| x.1).collect::<Vec<_>>()[..], "twin vs brute force");
         }
-        check_knn_lists("grid_knn lattice", s, k, &gpu::grid_knn::run(&g, &grid, &queries, k).unwrap(), &want, true);
+        check_knn_lists(
+            "grid_knn lattice",
+            s,
+            k,
+            &dpr_gpu::block_on(gpu::grid_knn::run(&g, &grid, &queries, k)).unwrap(),
+            &want,
+            true,
+        );
     }
     for (cell, k, outlier) in [(0.15, 10, false), (0.08, 30, false), (2.0, 5, true)] {
         let pts = knn_scene(&mut rng, 700, outlier);
@@ -273,10 +285,10 @@ fn grid_knn_matches_cpu() {
             let b: Vec<u32> = brute_knn(&pts, q, k).iter().map(|x| x.1).collect();
             assert_eq!(want.0[q * k..][..k], b[..], "twin vs brute force, query {q}");
         }
-        let got = gpu::grid_knn::run(&g, &grid, &queries, k).unwrap();
+        let got = dpr_gpu::block_on(gpu::grid_knn::run(&g, &grid, &queries, k)).unwrap();
         check_knn_lists("grid_knn random", s, k, &got, &want, false);
         // The composed GPU path (cell table built on the GPU) gives the same lists.
-        let composed = gpu::preprocess::knn(&g, &pts, k, cell).unwrap();
+        let composed = dpr_gpu::block_on(gpu::preprocess::knn(&g, &pts, k, cell)).unwrap();
         check_knn_lists("preprocess::knn", s, k, &composed, &want, false);
     }
     // Fewer points than k: unused slots.
@@ -286,12 +298,12 @@ fn grid_knn_matches_cpu() {
         "grid_knn small",
         s,
         6,
-        &gpu::grid_knn::run(&g, &grid, &[3, 0], 6).unwrap(),
+        &dpr_gpu::block_on(gpu::grid_knn::run(&g, &grid, &[3, 0], 6)).unwrap(),
         &grid_knn(&grid, &[3, 0], 6).unwrap(),
         true,
     );
-    assert!(gpu::grid_knn::run(&g, &grid, &[0], 65).is_err());
-    assert!(gpu::preprocess::knn(&g, &pts, 0, 0.1).is_err());
+    assert!(dpr_gpu::block_on(gpu::grid_knn::run(&g, &grid, &[0], 65)).is_err());
+    assert!(dpr_gpu::block_on(gpu::preprocess::knn(&g, &pts, 0, 0.1)).is_err());
 }
 
 /// `(second - smallest) / largest` eigenvalue of the neighbourhood `nbrs` (f64).
@@ -355,7 +367,7 @@ fn pca_normals_matches_cpu() {
         let queries: Vec<u32> = (0..pts.len() as u32).collect();
         let (lists, _) = grid_knn(&grid, &queries, k).unwrap();
         let want = pca_normals(&pts, &queries, &lists, k, view).unwrap();
-        let got = gpu::pca_normals::run(&g, &pts, &queries, &lists, k, view).unwrap();
+        let got = dpr_gpu::block_on(gpu::pca_normals::run(&g, &pts, &queries, &lists, k, view)).unwrap();
         let compared = check_normals("pca_normals", s, &pts, &lists, k, view, (&got, &want));
         assert!(compared > pts.len() / 2, "only {compared} well-conditioned normals (seed {s})");
     }
@@ -367,13 +379,13 @@ fn pca_normals_matches_cpu() {
     let queries = [0, 1, 3, 4];
     for view in [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]] {
         let want = pca_normals(&pts, &queries, &lists, 3, view).unwrap();
-        let got = gpu::pca_normals::run(&g, &pts, &queries, &lists, 3, view).unwrap();
+        let got = dpr_gpu::block_on(gpu::pca_normals::run(&g, &pts, &queries, &lists, 3, view)).unwrap();
         assert_close("pca_normals degenerate", s, &got.concat(), &want.concat(), |_| 16.0 * EPS);
         for n in &got {
             assert!(((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt() - 1.0).abs() <= 16.0 * EPS, "{n:?}");
         }
     }
-    assert!(gpu::pca_normals::run(&g, &pts, &[0], &[0, 9, 1], 3, [0.0; 3]).is_err());
+    assert!(dpr_gpu::block_on(gpu::pca_normals::run(&g, &pts, &[0], &[0, 9, 1], 3, [0.0; 3])).is_err());
 }
 
 /// The composed GPU normals (table, search and PCA on the GPU) and downsampling + normals against the twins.
@@ -393,12 +405,12 @@ fn normals_and_downsampling_match_cpu() {
         (lists, normals)
     };
     let (lists, want) = twin(&pts, 0.1);
-    let got = gpu::preprocess::normals(&g, &pts, k, view, 0.1).unwrap();
+    let got = dpr_gpu::block_on(gpu::preprocess::normals(&g, &pts, k, view, 0.1)).unwrap();
     assert!(check_normals("preprocess::normals", s, &pts, &lists, k, view, (&got, &want)) > pts.len() / 2);
 
     let voxel = 0.04;
     let cloud = PointCloud::from_points(pts);
-    let down = gpu::preprocess::downsample_and_normals(&g, &cloud, voxel, k, view).unwrap();
+    let down = dpr_gpu::block_on(gpu::preprocess::downsample_and_normals(&g, &cloud, voxel, k, view)).unwrap();
     let want_down = dpr_gpu::preprocess::voxel_downsample(&cloud, voxel).unwrap();
     assert_eq!(down.len(), want_down.len(), "voxels (seed {s})");
     let (wp, gp) = (want_down.points.concat(), down.points.concat());
@@ -445,7 +457,7 @@ fn patch_sample_matches_cpu() {
     for cell in [radius, 1.7 * radius] {
         let grid = CellGrid::new(&pts, 1.0 / cell).unwrap();
         let want = patch_sample(&grid, &keypoints, radius, s).unwrap();
-        let got = gpu::patch_sample::run(&g, &grid, &keypoints, radius, s).unwrap();
+        let got = dpr_gpu::block_on(gpu::patch_sample::run(&g, &grid, &keypoints, radius, s)).unwrap();
         assert_eq!(got.counts, want.counts, "counts, cell {cell} (seed {s})");
         assert_eq!(got.sorted, want.sorted, "ranked candidates, cell {cell} (seed {s})");
         // The cases the scene is built for are there.
@@ -458,9 +470,12 @@ fn patch_sample_matches_cpu() {
     // Cells narrower than the radius, a keypoint that is not a point: the twin's errors.
     let grid = CellGrid::new(&pts, 1.0 / (radius / 3.0)).unwrap();
     let want = patch_sample(&grid, &keypoints[..3], radius, s).unwrap_err().to_string();
-    assert_eq!(gpu::patch_sample::run(&g, &grid, &keypoints[..3], radius, s).unwrap_err().to_string(), want);
+    assert_eq!(
+        dpr_gpu::block_on(gpu::patch_sample::run(&g, &grid, &keypoints[..3], radius, s)).unwrap_err().to_string(),
+        want
+    );
     let grid = CellGrid::new(&pts, 1.0 / radius).unwrap();
-    assert!(gpu::patch_sample::run(&g, &grid, &[pts.len() as u32], radius, s).is_err());
+    assert!(dpr_gpu::block_on(gpu::patch_sample::run(&g, &grid, &[pts.len() as u32], radius, s)).is_err());
 }
 
 fn patch_gather_matches_cpu() {
@@ -482,10 +497,12 @@ fn patch_gather_matches_cpu() {
     }
     for (n, centers) in [(16, false), (1, false), (40, false), (16, true)] {
         let want = patch_gather(&pts, &normals, &c.sorted, &table, n, centers).unwrap();
-        let got = gpu::patch_gather::run(&g, &pts, &normals, &c.sorted, &table, n, centers).unwrap();
+        let got = dpr_gpu::block_on(gpu::patch_gather::run(&g, &pts, &normals, &c.sorted, &table, n, centers)).unwrap();
         assert_eq!(got, want, "n {n}, centers {centers} (seed {s})");
     }
-    assert!(gpu::patch_gather::run(&g, &pts, &normals, &c.sorted, &[[0, 0, 0, 0]], 4, false).is_err());
+    assert!(
+        dpr_gpu::block_on(gpu::patch_gather::run(&g, &pts, &normals, &c.sorted, &[[0, 0, 0, 0]], 4, false)).is_err()
+    );
 }
 
 /// The composed GPU sampling (cell table, search, sort, gather on the device) against the CPU path's
@@ -502,7 +519,7 @@ fn sample_patches_matches_cpu_and_brute_force() {
     let ks: Vec<usize> = keypoints.iter().map(|&k| k as usize).collect();
     let index = dpr_gpu::spatial::PointIndex::new(&pts).unwrap();
     let want = dpr_gpu::preprocess::extract_patches(&pts, &index, &ks, radius, n, s);
-    let got = gpu::preprocess::sample_patches(&g, &pts, &keypoints, radius, n, s).unwrap();
+    let got = dpr_gpu::block_on(gpu::preprocess::sample_patches(&g, &pts, &keypoints, radius, n, s)).unwrap();
     assert_eq!(got, want, "seed {s}");
     let r2 = radius_squared(radius);
     for (p, &k) in got.keypoints.iter().enumerate() {
@@ -526,7 +543,11 @@ fn sample_patches_matches_cpu_and_brute_force() {
     let total: u32 =
         dpr_gpu::cpu::patch_sample::patch_sample(&grid, &keypoints, radius, s).unwrap().counts.iter().sum();
     assert!(u64::from(total) * 16 > 64 * 1024, "{total} candidates fit one buffer: nothing is split");
-    assert_eq!(gpu::preprocess::sample_patches(&small, &pts, &keypoints, radius, n, s).unwrap(), want, "split");
+    assert_eq!(
+        dpr_gpu::block_on(gpu::preprocess::sample_patches(&small, &pts, &keypoints, radius, n, s)).unwrap(),
+        want,
+        "split"
+    );
 }
 
 /// A device cloud's estimated normals (its own kNN grid, cells sized from the point density) against the twins
@@ -540,8 +561,8 @@ fn device_cloud_normals_match_cpu() {
     let pts = knn_scene(&mut rng, 1500, false);
     let (k, view) = (12, [20.0, 0.0, 3.0]);
     let source = gpu::preprocess::NormalSource::Estimate { k, viewpoint: view };
-    let cloud = gpu::preprocess::DeviceCloud::new(&g, &pts, source, 0.3).unwrap();
-    let got = cloud.read_normals(&g).unwrap();
+    let cloud = dpr_gpu::block_on(gpu::preprocess::DeviceCloud::new(&g, &pts, source, 0.3)).unwrap();
+    let got = dpr_gpu::block_on(cloud.read_normals(&g)).unwrap();
     let grid = CellGrid::new(&pts, 1.0 / 0.1).unwrap();
     let queries: Vec<u32> = (0..pts.len() as u32).collect();
     let (lists, _) = grid_knn(&grid, &queries, k).unwrap();
@@ -566,9 +587,14 @@ fn farthest_point_matches_cpu() {
     for (pts, count) in &cases {
         let start = rng.below(pts.len());
         let want = farthest_point(pts, *count, start);
-        assert_eq!(gpu::farthest_point::run(&g, pts, *count, start).unwrap(), want, "n {} (seed {s})", pts.len());
+        assert_eq!(
+            dpr_gpu::block_on(gpu::farthest_point::run(&g, pts, *count, start)).unwrap(),
+            want,
+            "n {} (seed {s})",
+            pts.len()
+        );
     }
-    assert!(gpu::farthest_point::run(&g, &cases[0].0[..3], 4, 0).is_err());
+    assert!(dpr_gpu::block_on(gpu::farthest_point::run(&g, &cases[0].0[..3], 4, 0)).is_err());
 }
 
 /// Every test of this module.

@@ -28,7 +28,7 @@ fn nearest_checked(g: &dpr_gpu::gpu::Gpu, s: u64, rng: &mut Rng, dim: usize) -> 
     let (n, m) = SIZES;
     let (x, y) = clouds(rng, (n, m), dim);
     let (cpu_nearest, cpu_distance) = chamfer_nearest(&x, &y, dim, (n, m));
-    let (nearest, distance) = gpu::chamfer_nearest::run(g, &x, &y, dim, (n, m)).unwrap();
+    let (nearest, distance) = dpr_gpu::block_on(gpu::chamfer_nearest::run(g, &x, &y, dim, (n, m))).unwrap();
     assert_eq!(nearest.len(), cpu_nearest.len());
     let d64 = |p: usize, r: usize, k: usize| {
         let (xi, yj) = if r < n { (p * n + r, p * m + k) } else { (p * n + k, p * m + r - n) };
@@ -89,7 +89,8 @@ pub fn chamfer_grad_matches_cpu_on_both_branches() {
         let Clouds { x, y, nearest, distance, exact } = nearest_checked(&g, s, &mut rng, dim);
         let scale = 0.3f32;
         let (want_loss, want_grad) = chamfer_grad(&x, &y, dim, (n, m), (&nearest, &exact), scale);
-        let (loss, grad) = gpu::chamfer_grad::run(&g, [&x, &y], dim, (n, m), (&nearest, &distance), scale).unwrap();
+        let (loss, grad) =
+            dpr_gpu::block_on(gpu::chamfer_grad::run(&g, [&x, &y], dim, (n, m), (&nearest, &distance), scale)).unwrap();
         // Both branches of the max occur: patch 1 gathers over its input points, patch 2 does not.
         let mean =
             |p: usize, r: std::ops::Range<usize>| exact[p * (n + m)..][r.clone()].iter().sum::<f64>() / r.len() as f64;

@@ -83,7 +83,7 @@ fn transpose_matches_cpu_exactly() {
         let x = normals(&mut rng, rows * cols);
         let want = dpr_gpu::cpu::transpose::transpose(&x, rows, cols);
         let mut got = vec![SENTINEL; x.len()];
-        gpu::transpose::run(&g, &x, rows, cols, &mut got).unwrap();
+        dpr_gpu::block_on(gpu::transpose::run(&g, &x, rows, cols, &mut got)).unwrap();
         assert_close(&format!("transpose {rows} x {cols}"), s, &got, &want, |_| 0.0);
     }
 }
@@ -116,7 +116,7 @@ fn relu_backward_matches_cpu_at_zero_and_signed_zeros() {
     let d_out = normals(&mut rng, out.len());
     let want = ReluBackward::CPU_TWIN(&out, &d_out);
     let mut got = vec![SENTINEL; out.len()];
-    gpu::relu_backward::run(&g, &out, &d_out, &mut got).unwrap();
+    dpr_gpu::block_on(gpu::relu_backward::run(&g, &out, &d_out, &mut got)).unwrap();
     assert_close("relu_backward", s, &got, &want, |_| 0.0);
 }
 
@@ -130,7 +130,7 @@ fn group_row_sums_matches_cpu_ragged() {
         let x = normals(&mut rng, groups * rows_per_group * width);
         let want = GroupRowSums::CPU_TWIN(&x, rows_per_group, width);
         let mut got = vec![SENTINEL; groups * width];
-        gpu::group_row_sums::run(&g, &x, rows_per_group, width, &mut got).unwrap();
+        dpr_gpu::block_on(gpu::group_row_sums::run(&g, &x, rows_per_group, width, &mut got)).unwrap();
         assert_close(&format!("group_row_sums {groups}x{rows_per_group}x{width}"), s, &got, &want, |_| 0.0);
     }
 }
@@ -151,7 +151,7 @@ fn max_pool_backward_matches_cpu_with_ties_and_accumulation() {
         let mut want = start.clone();
         MaxPoolBackward::CPU_TWIN(&x, groups, rows, channels, &d_out, &mut want);
         let mut got = start.clone();
-        gpu::max_pool_backward::run(&g, &x, groups, rows, channels, &d_out, &mut got).unwrap();
+        dpr_gpu::block_on(gpu::max_pool_backward::run(&g, &x, groups, rows, channels, &d_out, &mut got)).unwrap();
         // One addition per element at most, in the same order: the same bits.
         assert_close(&format!("max_pool_backward {groups}x{rows}x{channels}"), s, &got, &want, |_| 0.0);
     }
@@ -171,7 +171,15 @@ fn dense_weight_grad_matches_cpu_ragged() {
             DenseWeightGrad::CPU_TWIN(shape, &dz, &x, &mut want_w, bias.then_some(&mut want_b[..]));
             let mut got_w = w_start.clone();
             let mut got_b = if bias { b_start.clone() } else { vec![SENTINEL; shape.out_dim] };
-            gpu::dense_weight_grad::run(&g, shape, &dz, &x, &mut got_w, bias.then_some(&mut got_b[..])).unwrap();
+            dpr_gpu::block_on(gpu::dense_weight_grad::run(
+                &g,
+                shape,
+                &dz,
+                &x,
+                &mut got_w,
+                bias.then_some(&mut got_b[..]),
+            ))
+            .unwrap();
             let tol_w = |i: usize| {
                 let (o, col) = (i / shape.in_dim, i % shape.in_dim);
                 let Some(c) = col.checked_sub(shape.offset).filter(|&c| c < shape.width) else { return 0.0 };
@@ -204,7 +212,7 @@ fn dense_input_grad_matches_cpu_ragged() {
         let mut want = start.clone();
         DenseInputGrad::CPU_TWIN(shape, &dz, &weight, &mut want);
         let mut got = start.clone();
-        gpu::dense_input_grad::run(&g, shape, &dz, &weight, &mut got).unwrap();
+        dpr_gpu::block_on(gpu::dense_input_grad::run(&g, shape, &dz, &weight, &mut got)).unwrap();
         let tol = |i: usize| {
             let (r, c) = (i / shape.width, i % shape.width);
             let terms: f32 = (0..shape.out_dim)
@@ -364,7 +372,7 @@ impl LayerCase {
         let (rw, rb) = (read(&mut rec, &wg), read(&mut rec, &bg));
         let rg = group_buffers.1.as_ref().map(|d| read(&mut rec, d));
         let rs: Vec<Option<usize>> = segment_buffers.iter().map(|b| b.1.as_ref().map(|d| read(&mut rec, d))).collect();
-        let bytes = rec.finish().unwrap();
+        let bytes = dpr_gpu::block_on(rec.finish()).unwrap();
         let floats = |i: usize| bytemuck::cast_slice::<u8, f32>(&bytes[i]).to_vec();
         (floats(rw), floats(rb), rg.map(floats), rs.into_iter().map(|r| r.map(floats)).collect())
     }
@@ -464,7 +472,7 @@ fn encode_backward_on_the_device_matches_the_cpu_trainer() {
     let mut rec = Recorder::new(&g, "encode backward test");
     record_encode_backward(&mut rec, net, &layers.view(), 0, &tape_buffers.view(), d_cw.raw()).unwrap();
     let reads = read_gradients(&mut rec, &layers);
-    let bytes = rec.finish().unwrap();
+    let bytes = dpr_gpu::block_on(rec.finish()).unwrap();
     assert_gradients("encode backward", s, &bytes, &reads, &want, 0..net.encoder.len() + net.head.len());
 }
 
@@ -522,7 +530,7 @@ fn relative_backward_on_the_device_matches_the_cpu_trainer() {
         .unwrap();
     let reads = read_gradients(&mut rec, &layers);
     let (r_ds, r_dt) = (rec.read(ds, 0, (rows * f * 4) as u64), rec.read(dt, 0, (rows * f * 4) as u64));
-    let bytes = rec.finish().unwrap();
+    let bytes = dpr_gpu::block_on(rec.finish()).unwrap();
     assert_gradients("relative backward", s, &bytes, &reads, &want, base..base + net.layers.len());
     for (part, r, expected) in [("source", r_ds, &want_ds), ("target", r_dt, &want_dt)] {
         let got = bytemuck::cast_slice::<u8, f32>(&bytes[r]).to_vec();
@@ -560,7 +568,7 @@ fn adam_step_matches_cpu_within_f32_rounding() {
         let (mut want_x, mut want_m, mut want_v) = (value.clone(), m.clone(), v.clone());
         AdamStep::CPU_TWIN(&step, decay, &mut want_x, &grad, &mut want_m, &mut want_v);
         let (mut got_x, mut got_m, mut got_v) = (value.clone(), m.clone(), v.clone());
-        gpu::adam_step::run(&g, &step, decay, &mut got_x, &grad, &mut got_m, &mut got_v).unwrap();
+        dpr_gpu::block_on(gpu::adam_step::run(&g, &step, decay, &mut got_x, &grad, &mut got_m, &mut got_v)).unwrap();
         let what = |part: &str| format!("adam_step t={t} decay={decay}: {part}");
         let b = |x: f64| x as f32;
         let tol_m = |i: usize| 4.0 * EPS * (b(beta1) * m[i].abs() + b(1.0 - beta1) * grad[i].abs());

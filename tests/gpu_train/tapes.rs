@@ -71,7 +71,7 @@ pub fn encode_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass() {
     let r_global = rec.read(&outs.global, 0, (want.global.len() * 4) as u64);
     let r_cw = rec.read(&outs.codewords, 0, (want.codeword.len() * 4) as u64);
     let reads = read_gradients(&mut rec, &layers);
-    let bytes = rec.finish().unwrap();
+    let bytes = dpr_gpu::block_on(rec.finish()).unwrap();
 
     let got = EncodeTape {
         patches,
@@ -127,7 +127,7 @@ pub fn decode_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass() {
     let r_fold2 = read_all(&mut rec, &outs[1], want.fold2.iter().map(Vec::len));
     let r_d_code = rec.read(d_code.raw(), 0, (codewords.len() * 4) as u64);
     let reads = read_gradients(&mut rec, &layers);
-    let bytes = rec.finish().unwrap();
+    let bytes = dpr_gpu::block_on(rec.finish()).unwrap();
 
     let got = DecodeTape {
         patches,
@@ -178,7 +178,7 @@ pub fn relative_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass()
     let r_outs = read_all(&mut rec, &outs, want.iter().map(Vec::len));
     let r_d_pairs = rec.read(d_pairs_b.raw(), 0, (pairs.len() * 4) as u64);
     let reads = read_gradients(&mut rec, &layers);
-    let bytes = rec.finish().unwrap();
+    let bytes = dpr_gpu::block_on(rec.finish()).unwrap();
 
     let got: Vec<Vec<f32>> = r_outs.iter().map(|&r| floats(&bytes, r)).collect();
     assert_activations("relative tape", s, &got, &want);

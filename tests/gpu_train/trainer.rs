@@ -60,7 +60,7 @@ pub fn device_objective_matches_the_cpu_trainer() {
     let (weights, batch, loss) = setup(s, 4);
     let (want_losses, want) = batch_objective(&weights, &batch, &loss).unwrap();
     let mut trainer = DeviceTrainer::new(&g, &weights, loss, &fresh_adam(&weights)).unwrap();
-    let (losses, grads) = trainer.gradients(&g, &batch).unwrap();
+    let (losses, grads) = dpr_gpu::block_on(trainer.gradients(&g, &batch)).unwrap();
     assert_losses("device objective", s, &losses, &want_losses, 1e-4);
     assert!(want_losses.contrast > 0.0 && want_losses.pose > 0.0, "a zero loss term tests nothing");
     assert_grads("device objective", s, &grads, &want);
@@ -85,14 +85,15 @@ pub fn device_step_applies_adamw_and_refreshes_the_forward_weights() {
     let s = seed(156);
     let (weights, batch, loss) = setup(s, 3);
     let adam = fresh_adam(&weights);
-    let (_, grads) = DeviceTrainer::new(&g, &weights, loss, &adam).unwrap().gradients(&g, &batch).unwrap();
+    let (_, grads) =
+        dpr_gpu::block_on(DeviceTrainer::new(&g, &weights, loss, &adam).unwrap().gradients(&g, &batch)).unwrap();
     let mut trainer = DeviceTrainer::new(&g, &weights, loss, &adam).unwrap();
-    trainer.step(&g, &batch).unwrap();
+    dpr_gpu::block_on(trainer.step(&g, &batch)).unwrap();
     assert_eq!(trainer.steps(), 1);
 
     let (mut want, mut want_adam) = (weights.clone(), adam.clone());
     apply_gradients(&mut want, &mut want_adam, &grads).unwrap();
-    let got = trainer.weights(&g).unwrap();
+    let got = dpr_gpu::block_on(trainer.weights(&g)).unwrap();
     let lr = adam.settings.lr as f32;
     for (name, w) in &want.tensors {
         let before = &weights.tensors[name];
@@ -101,7 +102,7 @@ pub fn device_step_applies_adamw_and_refreshes_the_forward_weights() {
             4.0 * EPS * before[i].abs() + 1e-4 * lr
         });
     }
-    let got_adam = trainer.adam(&g).unwrap();
+    let got_adam = dpr_gpu::block_on(trainer.adam(&g)).unwrap();
     assert_eq!(got_adam.steps, 1);
     for (k, (m, v)) in got_adam.m.iter().zip(&got_adam.v).enumerate() {
         assert_close(&format!("first moment {k}"), s, m, &want_adam.m[k], |i| 4.0 * EPS * want_adam.m[k][i].abs());
@@ -109,7 +110,7 @@ pub fn device_step_applies_adamw_and_refreshes_the_forward_weights() {
     }
     let moved = want.tensors.iter().any(|(name, w)| w != &weights.tensors[name]);
     assert!(moved, "the step changed nothing");
-    let (after, _) = trainer.gradients(&g, &batch).unwrap();
+    let (after, _) = dpr_gpu::block_on(trainer.gradients(&g, &batch)).unwrap();
     let want_after = batch_loss(&got, &batch, &loss).unwrap();
     let (before, _) = batch_objective(&weights, &batch, &loss).unwrap();
     assert!((want_after.total - before.total).abs() > 1e-6, "the step did not change the loss");
@@ -126,16 +127,24 @@ pub fn device_training_resumes_bit_for_bit() {
     let batches = [&batch[..2], &batch[2..], &batch[1..3]];
     let adam = fresh_adam(&weights);
     let mut straight = DeviceTrainer::new(&g, &weights, loss, &adam).unwrap();
-    let want: Vec<Losses> = batches.iter().map(|b| straight.step(&g, b).unwrap()).collect();
+    let want: Vec<Losses> = batches.iter().map(|b| dpr_gpu::block_on(straight.step(&g, b)).unwrap()).collect();
     let mut first = DeviceTrainer::new(&g, &weights, loss, &adam).unwrap();
-    let mut got: Vec<Losses> = batches[..2].iter().map(|b| first.step(&g, b).unwrap()).collect();
-    let (w2, a2) = (first.weights(&g).unwrap(), first.adam(&g).unwrap());
+    let mut got: Vec<Losses> = batches[..2].iter().map(|b| dpr_gpu::block_on(first.step(&g, b)).unwrap()).collect();
+    let (w2, a2) = (dpr_gpu::block_on(first.weights(&g)).unwrap(), dpr_gpu::block_on(first.adam(&g)).unwrap());
     assert_eq!(a2.steps, 2);
     let mut resumed = DeviceTrainer::new(&g, &w2, loss, &a2).unwrap();
-    got.push(resumed.step(&g, batches[2]).unwrap());
+    got.push(dpr_gpu::block_on(resumed.step(&g, batches[2])).unwrap());
     assert_eq!(got, want, "losses differ after resuming (seed {s})");
-    assert_eq!(resumed.weights(&g).unwrap().tensors, straight.weights(&g).unwrap().tensors, "weights differ");
-    assert_eq!(resumed.adam(&g).unwrap(), straight.adam(&g).unwrap(), "optimiser state differs");
+    assert_eq!(
+        dpr_gpu::block_on(resumed.weights(&g)).unwrap().tensors,
+        dpr_gpu::block_on(straight.weights(&g)).unwrap().tensors,
+        "weights differ"
+    );
+    assert_eq!(
+        dpr_gpu::block_on(resumed.adam(&g)).unwrap(),
+        dpr_gpu::block_on(straight.adam(&g)).unwrap(),
+        "optimiser state differs"
+    );
 }
 
 /// The `dpr-gpu` binary: Cargo's build of it, or (where the test binary was carried to another machine, as

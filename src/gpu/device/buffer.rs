@@ -1,6 +1,9 @@
 //! Typed storage buffers: upload, sentinel fill, readback through a staging buffer, and a [`Workspace`] of
 //! named buffers that are created once and reused (grown when a call needs more). Every host-to-device write
 //! goes through [`write`], which counts the bytes on the context ([`GpuContext::transfers`]).
+//!
+//! Readbacks are futures: a browser cannot block on the GPU, so a mapping is awaited ([`map_staging`]). Natively
+//! the device is polled to completion first and the future is ready when awaited; `crate::block_on` runs it.
 
 use super::context::GpuContext;
 use crate::error::{Error, Result};
@@ -78,15 +81,15 @@ impl<T: Pod> GpuBuffer<T> {
         self.len == 0
     }
 
-    /// Reads the contents back (waits for all submitted work).
-    pub fn read_back(&self, ctx: &GpuContext) -> Result<Vec<T>> {
-        let bytes = read_bytes(ctx, &self.buffer, 0, (self.len * std::mem::size_of::<T>()) as u64)?;
+    /// Reads the contents back (after all submitted work).
+    pub async fn read_back(&self, ctx: &GpuContext) -> Result<Vec<T>> {
+        let bytes = read_bytes(ctx, &self.buffer, 0, (self.len * std::mem::size_of::<T>()) as u64).await?;
         Ok(bytemuck::pod_collect_to_vec(&bytes))
     }
 }
 
-/// Copies `size` bytes at `offset` of `buffer` into a staging buffer and reads them (waits for the GPU).
-pub fn read_bytes(ctx: &GpuContext, buffer: &wgpu::Buffer, offset: u64, size: u64) -> Result<Vec<u8>> {
+/// Copies `size` bytes at `offset` of `buffer` into a staging buffer and reads them (after the GPU is done).
+pub async fn read_bytes(ctx: &GpuContext, buffer: &wgpu::Buffer, offset: u64, size: u64) -> Result<Vec<u8>> {
     if size == 0 {
         return Ok(Vec::new());
     }
@@ -100,22 +103,28 @@ pub fn read_bytes(ctx: &GpuContext, buffer: &wgpu::Buffer, offset: u64, size: u6
     encoder.copy_buffer_to_buffer(buffer, offset, &staging, 0, Some(size.next_multiple_of(4)));
     let index = ctx.queue.submit([encoder.finish()]);
     ctx.count_readback(size.next_multiple_of(4));
-    map_staging(ctx, &staging, index).map(|mut v| {
-        v.truncate(size as usize);
-        v
-    })
+    let mut bytes = map_staging(ctx, &staging, index).await?;
+    bytes.truncate(size as usize);
+    Ok(bytes)
 }
 
-/// Maps a `MAP_READ` buffer once `submission` is done and returns its bytes.
-pub fn map_staging(ctx: &GpuContext, staging: &wgpu::Buffer, submission: wgpu::SubmissionIndex) -> Result<Vec<u8>> {
-    let (tx, rx) = std::sync::mpsc::channel();
+/// Maps a `MAP_READ` buffer once `submission` is done and returns its bytes. Natively the device is polled until
+/// the submission is done, which runs the mapping's callback, so the future is ready when awaited; in a browser
+/// the poll returns at once and the page's event loop completes the mapping while the future waits.
+pub async fn map_staging(
+    ctx: &GpuContext,
+    staging: &wgpu::Buffer,
+    submission: wgpu::SubmissionIndex,
+) -> Result<Vec<u8>> {
+    let (tx, rx) = futures_channel::oneshot::channel();
     staging.map_async(wgpu::MapMode::Read, .., move |r| {
         let _ = tx.send(r);
     });
     ctx.wait(Some(submission))?;
-    rx.recv()
+    rx.await
         .map_err(|_| Error::Gpu("readback callback never ran".into()))?
         .map_err(|e| Error::Gpu(format!("mapping a readback buffer: {e}")))?;
+    ctx.deferred_errors("reading back")?;
     let bytes = staging.get_mapped_range(..).map_err(|e| Error::Gpu(format!("reading a mapped buffer: {e}")))?.to_vec();
     staging.unmap();
     Ok(bytes)

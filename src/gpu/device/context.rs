@@ -8,6 +8,11 @@
 //! limits the kernels rely on are met; a shortfall is an [`Error::Gpu`] naming the limit. Every operation runs
 //! inside validation and out-of-memory error scopes ([`GpuContext::scoped`]), so device errors come back as
 //! `Error::Gpu` instead of panicking.
+//!
+//! Nothing here blocks in a browser: the context is requested by an async constructor ([`GpuContext::request`];
+//! the native constructors run it with [`crate::block_on`]), [`GpuContext::wait`] is a no-op there, and a scope's
+//! errors, which the page's event loop delivers later, surface at the next readback
+//! ([`GpuContext::deferred_errors`]).
 
 use crate::error::{Error, Result};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -149,13 +154,18 @@ impl GpuContext {
         GpuContext::with_policy(backends, AdapterPolicy::Any)
     }
 
-    /// A context on one of `backends` on an adapter `policy` allows.
+    /// A context on one of `backends` on an adapter `policy` allows (blocks: [`GpuContext::request`] awaits).
     pub fn with_policy(backends: wgpu::Backends, policy: AdapterPolicy) -> Result<GpuContext> {
+        crate::block_on(GpuContext::request(backends, policy))
+    }
+
+    /// A context on one of `backends` on an adapter `policy` allows, the adapter and device awaited.
+    pub async fn request(backends: wgpu::Backends, policy: AdapterPolicy) -> Result<GpuContext> {
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
         desc.backends = backends;
         desc.flags = wgpu::InstanceFlags::default().with_env();
         let instance = wgpu::Instance::new(desc);
-        let adapter = pick_adapter(&instance, backends, policy)?;
+        let adapter = pick_adapter(&instance, backends, policy).await?;
         let info = adapter.get_info();
         let name = format!("{} ({:?})", info.name, info.backend);
         if !adapter.get_downlevel_capabilities().flags.contains(wgpu::DownlevelFlags::COMPUTE_SHADERS) {
@@ -178,14 +188,16 @@ impl GpuContext {
         } else {
             wgpu::ExperimentalFeatures::disabled()
         };
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-            label: Some("dpr-gpu"),
-            required_features: features,
-            required_limits: limits.clone(),
-            experimental_features: experimental,
-            ..Default::default()
-        }))
-        .map_err(|e| Error::Gpu(format!("requesting a device on {name}: {e}")))?;
+        let (device, queue) = adapter
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("dpr-gpu"),
+                required_features: features,
+                required_limits: limits.clone(),
+                experimental_features: experimental,
+                ..Default::default()
+            })
+            .await
+            .map_err(|e| Error::Gpu(format!("requesting a device on {name}: {e}")))?;
         let uncaptured = Arc::new(Mutex::new(Vec::new()));
         let sink = Arc::clone(&uncaptured);
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
@@ -276,21 +288,52 @@ impl GpuContext {
     }
 
     /// Runs `f` inside validation and out-of-memory error scopes; any captured (or uncaptured) device error
-    /// becomes `Error::Gpu("{what}: {error}")`.
+    /// becomes `Error::Gpu("{what}: {error}")`. Natively the scopes' errors are known when they are popped; in a
+    /// browser they arrive later, through the page's event loop, and the next readback reports them
+    /// ([`GpuContext::deferred_errors`]).
     pub fn scoped<T>(&self, what: &str, f: impl FnOnce() -> T) -> Result<T> {
         let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let out = f();
-        let errors = [pollster::block_on(validation.pop()), pollster::block_on(oom.pop())];
-        let mut messages: Vec<String> = errors.into_iter().flatten().map(|e| e.to_string()).collect();
-        if let Ok(mut v) = self.uncaptured.lock() {
-            messages.append(&mut v);
+        let popped = [validation.pop(), oom.pop()];
+        #[cfg(not(target_arch = "wasm32"))]
+        {
+            let messages: Vec<String> = popped.into_iter().flat_map(crate::block_on).map(|e| e.to_string()).collect();
+            if !messages.is_empty() {
+                return Err(Error::Gpu(format!("{what}: {}", messages.join("; "))));
+            }
         }
-        if messages.is_empty() { Ok(out) } else { Err(Error::Gpu(format!("{what}: {}", messages.join("; ")))) }
+        #[cfg(target_arch = "wasm32")]
+        {
+            let sink = Arc::clone(&self.uncaptured);
+            let what = what.to_string();
+            wasm_bindgen_futures::spawn_local(async move {
+                for scope in popped {
+                    if let Some(e) = scope.await
+                        && let Ok(mut v) = sink.lock()
+                    {
+                        v.push(format!("{what}: {e}"));
+                    }
+                }
+            });
+        }
+        self.deferred_errors(what)?;
+        Ok(out)
     }
 
-    /// Blocks until `submission` has finished (all work when `None`).
+    /// The device errors reported outside a scope (and, in a browser, those of earlier scopes that have arrived
+    /// since), as one `Error::Gpu("{what}: ...")`; taken, so each is reported once.
+    pub fn deferred_errors(&self, what: &str) -> Result<()> {
+        let messages = self.uncaptured.lock().map(|mut v| std::mem::take(&mut *v)).unwrap_or_default();
+        if messages.is_empty() { Ok(()) } else { Err(Error::Gpu(format!("{what}: {}", messages.join("; ")))) }
+    }
+
+    /// Blocks until `submission` has finished (all work when `None`). In a browser there is no blocking wait: it
+    /// returns at once, and readbacks await their mapping instead ([`super::buffer::map_staging`]).
     pub fn wait(&self, submission: Option<wgpu::SubmissionIndex>) -> Result<()> {
+        if cfg!(target_arch = "wasm32") {
+            return Ok(());
+        }
         self.device
             .poll(wgpu::PollType::Wait { submission_index: submission, timeout: None })
             .map(|_| ())
@@ -299,8 +342,12 @@ impl GpuContext {
 }
 
 /// The adapter named by `WGPU_ADAPTER_NAME`, else the default high-performance one.
-fn pick_adapter(instance: &wgpu::Instance, backends: wgpu::Backends, policy: AdapterPolicy) -> Result<wgpu::Adapter> {
-    let adapters = pollster::block_on(instance.enumerate_adapters(backends));
+async fn pick_adapter(
+    instance: &wgpu::Instance,
+    backends: wgpu::Backends,
+    policy: AdapterPolicy,
+) -> Result<wgpu::Adapter> {
+    let adapters = instance.enumerate_adapters(backends).await;
     let names =
         || adapters.iter().map(|a| format!("{} ({:?})", a.get_info().name, a.get_info().backend)).collect::<Vec<_>>();
     if let Ok(wanted) = std::env::var("WGPU_ADAPTER_NAME") {
@@ -349,7 +396,9 @@ fn pick_adapter(instance: &wgpu::Instance, backends: wgpu::Backends, policy: Ada
         power_preference: wgpu::PowerPreference::from_env().unwrap_or(wgpu::PowerPreference::HighPerformance),
         ..Default::default()
     };
-    pollster::block_on(instance.request_adapter(&options))
+    instance
+        .request_adapter(&options)
+        .await
         .map_err(|e| Error::Gpu(format!("no GPU adapter on backends {backends:?} ({e}); adapters seen: {:?}", names())))
 }
 

@@ -113,10 +113,10 @@ impl<'a> Recorder<'a> {
         ctx.scoped(label, || self.encode_and_submit())?
     }
 
-    /// Submits the batch and waits for its readbacks.
-    pub fn finish(self) -> Result<Readback> {
+    /// Submits the batch and awaits its readbacks.
+    pub async fn finish(self) -> Result<Readback> {
         let gpu = self.gpu;
-        self.submit()?.wait(gpu)
+        self.submit()?.wait(gpu).await
     }
 
     fn encode_and_submit(self) -> Result<Pending> {
@@ -268,14 +268,17 @@ fn record_readback(
 }
 
 impl Pending {
-    /// Waits for the submission and returns the bytes of each read.
-    pub fn wait(self, gpu: &Gpu) -> Result<Readback> {
+    /// Awaits the submission and returns the bytes of each read.
+    pub async fn wait(self, gpu: &Gpu) -> Result<Readback> {
         let ctx = &gpu.context;
         let Some(staging) = self.staging else {
             ctx.wait(Some(self.submission))?;
+            ctx.deferred_errors(self.label)?;
             return Ok(vec![Vec::new(); self.reads.len()]);
         };
-        let bytes = ctx.scoped(self.label, || super::buffer::map_staging(ctx, &staging, self.submission))??;
+        let bytes = super::buffer::map_staging(ctx, &staging, self.submission)
+            .await
+            .map_err(|e| Error::Gpu(format!("{}: {e}", self.label)))?;
         let mut out: Readback = self
             .reads
             .iter()

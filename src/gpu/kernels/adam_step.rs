@@ -88,7 +88,7 @@ pub fn record<'a>(
 }
 
 /// Runs the kernel on slices (all of one length), updating `value`, `m` and `v` in place.
-pub fn run(
+pub async fn run(
     gpu: &Gpu,
     step: &Step,
     decay: bool,
@@ -108,7 +108,7 @@ pub fn run(
     record(&mut rec, &AdamStepParams::new(step, decay, n)?, gb.raw(), xb.raw(), mb.raw(), vb.raw())?;
     let bytes = (n * 4) as u64;
     let reads = [rec.read(xb.raw(), 0, bytes), rec.read(mb.raw(), 0, bytes), rec.read(vb.raw(), 0, bytes)];
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     for (dst, r) in [value, m, v].into_iter().zip(reads) {
         dst.copy_from_slice(bytemuck::cast_slice(&out[r]));
     }

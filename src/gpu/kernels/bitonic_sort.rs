@@ -65,7 +65,7 @@ pub fn record(rec: &mut Recorder<'_>, keys: &wgpu::Buffer, padded: usize) -> Res
 }
 
 /// Sorts a slice on the GPU (padded with [`PAD_KEY`] to a power of two) and returns it sorted.
-pub fn run(gpu: &Gpu, keys: &[SortKey]) -> Result<Vec<SortKey>> {
+pub async fn run(gpu: &Gpu, keys: &[SortKey]) -> Result<Vec<SortKey>> {
     let padded = super::cell_keys::padded_len(keys.len())?;
     let mut data = keys.to_vec();
     data.resize(padded, PAD_KEY);
@@ -73,6 +73,6 @@ pub fn run(gpu: &Gpu, keys: &[SortKey]) -> Result<Vec<SortKey>> {
     let mut rec = Recorder::new(gpu, "bitonic_sort");
     record(&mut rec, kb.raw(), padded)?;
     let r = rec.read(kb.raw(), 0, (keys.len() * 16) as u64);
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     Ok(bytemuck::pod_collect_to_vec(&out[r]))
 }

@@ -76,7 +76,7 @@ pub fn decode(grid: &[i32], inv_cell: f32) -> Result<CellBox> {
 }
 
 /// Runs the kernel on a slice (the twin's input).
-pub fn run(gpu: &Gpu, points: &[[f32; 3]], inv_cell: f32) -> Result<CellBox> {
+pub async fn run(gpu: &Gpu, points: &[[f32; 3]], inv_cell: f32) -> Result<CellBox> {
     check_inv_cell(inv_cell)?;
     if points.is_empty() {
         return Err(Error::invalid("cell grid: no points"));
@@ -87,6 +87,6 @@ pub fn run(gpu: &Gpu, points: &[[f32; 3]], inv_cell: f32) -> Result<CellBox> {
     let mut rec = Recorder::new(gpu, "cell_bounds");
     record(&mut rec, points.len(), inv_cell, pb.raw(), gb.raw())?;
     let r = rec.read(gb.raw(), 0, 32);
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     decode(&bytemuck::pod_collect_to_vec::<u8, i32>(&out[r]), inv_cell)
 }

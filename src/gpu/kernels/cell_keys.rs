@@ -79,7 +79,7 @@ pub fn check_status(status: u32, b: &CellBox) -> Result<()> {
 }
 
 /// Runs the kernel on a slice with the box `b`: the padded keys (`padded_len(points.len())` of them).
-pub fn run(gpu: &Gpu, points: &[[f32; 3]], inv_cell: f32, b: &CellBox) -> Result<Vec<SortKey>> {
+pub async fn run(gpu: &Gpu, points: &[[f32; 3]], inv_cell: f32, b: &CellBox) -> Result<Vec<SortKey>> {
     let n = points.len();
     let padded = padded_len(n)?;
     let ctx = &gpu.context;
@@ -91,7 +91,7 @@ pub fn run(gpu: &Gpu, points: &[[f32; 3]], inv_cell: f32, b: &CellBox) -> Result
     let mut rec = Recorder::new(gpu, "cell_keys");
     record(&mut rec, n, padded, inv_cell, pb.raw(), gb.raw(), kb.raw(), sb.raw())?;
     let (rk, rs) = (rec.read(kb.raw(), 0, (padded * 16) as u64), rec.read(sb.raw(), 0, 4));
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     check_status(bytemuck::pod_read_unaligned(&out[rs][..4]), b)?;
     Ok(bytemuck::pod_collect_to_vec(&out[rk]))
 }

@@ -90,7 +90,7 @@ pub fn record<'a>(
 
 /// Runs the kernel on slices (shapes as [`crate::cpu::chamfer_grad::chamfer_grad`], distances in f32); returns
 /// the per-patch losses and the gradient.
-pub fn run(
+pub async fn run(
     gpu: &Gpu,
     [x, y]: [&[f32]; 2],
     dim: usize,
@@ -113,6 +113,6 @@ pub fn run(
     let mut rec = Recorder::new(gpu, "chamfer_grad");
     record(&mut rec, &params, [xb.raw(), yb.raw(), nb.raw(), db.raw()], [&grad, &loss])?;
     let (rg, rl) = (rec.read(&grad, 0, (y.len() * 4) as u64), rec.read(&loss, 0, (patches * 4) as u64));
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     Ok((bytemuck::pod_collect_to_vec(&bytes[rl]), bytemuck::pod_collect_to_vec(&bytes[rg])))
 }

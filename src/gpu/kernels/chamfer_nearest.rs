@@ -67,7 +67,7 @@ pub fn record<'a>(
 
 /// Runs the kernel on slices: `x` is `patches * n x dim`, `y` `patches * m x dim`; returns the nearest indices
 /// and distances as the twin orders them.
-pub fn run(gpu: &Gpu, x: &[f32], y: &[f32], dim: usize, (n, m): (usize, usize)) -> Result<(Vec<u32>, Vec<f32>)> {
+pub async fn run(gpu: &Gpu, x: &[f32], y: &[f32], dim: usize, (n, m): (usize, usize)) -> Result<(Vec<u32>, Vec<f32>)> {
     let patches = x.len() / (n * dim).max(1);
     if n == 0 || m == 0 || dim == 0 || x.len() != patches * n * dim || y.len() != patches * m * dim {
         return Err(Error::invalid("chamfer_nearest: slice lengths do not match the shape"));
@@ -81,6 +81,6 @@ pub fn run(gpu: &Gpu, x: &[f32], y: &[f32], dim: usize, (n, m): (usize, usize)) 
     let mut rec = Recorder::new(gpu, "chamfer_nearest");
     record(&mut rec, &ChamferNearestParams::new(patches, (n, m), dim)?, [xb.raw(), yb.raw()], [&nearest, &distance])?;
     let (rn, rd) = (rec.read(&nearest, 0, (rows * 4) as u64), rec.read(&distance, 0, (rows * 4) as u64));
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     Ok((bytemuck::pod_collect_to_vec(&bytes[rn]), bytemuck::pod_collect_to_vec(&bytes[rd])))
 }

@@ -78,7 +78,7 @@ pub fn record<'a>(
 
 /// Runs the kernel on slices in one dispatch; `out` (`ns x nt`) holds the initial contents (a sentinel in
 /// tests) and receives the distances.
-pub fn run(gpu: &Gpu, source: &[f32], target: &[f32], dim: usize, out: &mut [f32]) -> Result<()> {
+pub async fn run(gpu: &Gpu, source: &[f32], target: &[f32], dim: usize, out: &mut [f32]) -> Result<()> {
     if dim == 0 || !source.len().is_multiple_of(dim) || !target.len().is_multiple_of(dim) {
         return Err(Error::invalid("codeword_distance: codeword lengths must be multiples of dim"));
     }
@@ -93,7 +93,7 @@ pub fn run(gpu: &Gpu, source: &[f32], target: &[f32], dim: usize, out: &mut [f32
     let mut rec = Recorder::new(gpu, "codeword_distance");
     record(&mut rec, &CodewordDistanceParams::new(ns, nt, dim, 0)?, sb.raw(), tb.raw(), ob.raw())?;
     let r = rec.read(ob.raw(), 0, (out.len() * 4) as u64);
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     out.copy_from_slice(bytemuck::cast_slice(&bytes[r]));
     Ok(())
 }

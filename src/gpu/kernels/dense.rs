@@ -69,12 +69,19 @@ pub fn record_with<'a>(
 /// Runs one layer on slices with the device's GEMM variant, like the twin: `out` holds the initial contents
 /// (read when accumulating, a sentinel in tests) and receives the result. `group_term` is empty or
 /// `ceil(rows / rows_per_group) x out_dim`.
-pub fn run(gpu: &Gpu, shape: &DenseShape, x: &[f32], w_t: &[f32], group_term: &[f32], out: &mut [f32]) -> Result<()> {
-    run_with(gpu, gpu.gemm_variant(), shape, x, w_t, group_term, out)
+pub async fn run(
+    gpu: &Gpu,
+    shape: &DenseShape,
+    x: &[f32],
+    w_t: &[f32],
+    group_term: &[f32],
+    out: &mut [f32],
+) -> Result<()> {
+    run_with(gpu, gpu.gemm_variant(), shape, x, w_t, group_term, out).await
 }
 
 /// [`run`] with an explicit variant (an error when the device cannot run it).
-pub fn run_with(
+pub async fn run_with(
     gpu: &Gpu,
     variant: GemmVariant,
     shape: &DenseShape,
@@ -101,7 +108,7 @@ pub fn run_with(
     let group = (!group_term.is_empty()).then_some(gb.raw());
     record_with(&mut rec, gpu, variant, &params, [xb.raw(), wb.raw()], group, ob.raw())?;
     let r = rec.read(ob.raw(), 0, (out.len() * 4) as u64);
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     out.copy_from_slice(bytemuck::cast_slice(&bytes[r]));
     Ok(())
 }

@@ -70,7 +70,7 @@ pub fn record<'a>(
 }
 
 /// Runs the kernel on slices; `dx` holds what is added to and receives the sum.
-pub fn run(gpu: &Gpu, shape: &SliceShape, dz: &[f32], weight: &[f32], dx: &mut [f32]) -> Result<()> {
+pub async fn run(gpu: &Gpu, shape: &SliceShape, dz: &[f32], weight: &[f32], dx: &mut [f32]) -> Result<()> {
     let params = DenseInputGradParams::new(shape)?;
     if dz.len() != shape.rows * shape.out_dim
         || weight.len() != shape.out_dim * shape.in_dim
@@ -85,7 +85,7 @@ pub fn run(gpu: &Gpu, shape: &SliceShape, dz: &[f32], weight: &[f32], dx: &mut [
     let mut rec = Recorder::new(gpu, "dense_input_grad");
     record(&mut rec, &params, dzb.raw(), wb.raw(), dxb.raw())?;
     let r = rec.read(dxb.raw(), 0, (dx.len() * 4) as u64);
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     dx.copy_from_slice(bytemuck::cast_slice(&bytes[r]));
     Ok(())
 }

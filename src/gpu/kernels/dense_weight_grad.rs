@@ -87,7 +87,7 @@ pub fn record<'a>(
 }
 
 /// Runs the kernel on slices; the gradient buffers hold what is added to and receive the sums.
-pub fn run(
+pub async fn run(
     gpu: &Gpu,
     shape: &SliceShape,
     dz: &[f32],
@@ -114,7 +114,7 @@ pub fn run(
     record(&mut rec, &params, dzb.raw(), xb.raw(), wb.raw(), bb.raw())?;
     let rw = rec.read(wb.raw(), 0, (weight_grad.len() * 4) as u64);
     let rb = rec.read(bb.raw(), 0, (bias_init.len() * 4) as u64);
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     weight_grad.copy_from_slice(bytemuck::cast_slice(&bytes[rw]));
     if let Some(b) = bias_grad {
         b.copy_from_slice(bytemuck::cast_slice(&bytes[rb]));

@@ -52,7 +52,7 @@ impl GpuKernel for FarthestPoint {
 
 /// `count` points of the `n` in `points` (on the device) by farthest-point sampling from `start`; only the
 /// chosen indices come back.
-pub fn sample(gpu: &Gpu, points: &wgpu::Buffer, n: usize, count: usize, start: usize) -> Result<Vec<usize>> {
+pub async fn sample(gpu: &Gpu, points: &wgpu::Buffer, n: usize, count: usize, start: usize) -> Result<Vec<usize>> {
     if count > n || (count > 0 && start >= n) {
         return Err(Error::invalid(format!("farthest_point: {count} points from start {start} of {n}")));
     }
@@ -84,19 +84,19 @@ pub fn sample(gpu: &Gpu, points: &wgpu::Buffer, n: usize, count: usize, start: u
         pending.push(rec.submit()?);
     }
     for p in pending {
-        p.wait(gpu)?;
+        p.wait(gpu).await?;
     }
     let mut rec = Recorder::new(gpu, "farthest_point readback");
     let r = rec.read(chosen.raw(), 0, (count * 4) as u64);
-    let out: Vec<u32> = bytemuck::pod_collect_to_vec(&rec.finish()?[r]);
+    let out: Vec<u32> = bytemuck::pod_collect_to_vec(&rec.finish().await?[r]);
     Ok(out.into_iter().map(|i| i as usize).collect())
 }
 
 /// Runs the sampling on host points (the twin's inputs).
-pub fn run(gpu: &Gpu, points: &[[f32; 3]], count: usize, start: usize) -> Result<Vec<usize>> {
+pub async fn run(gpu: &Gpu, points: &[[f32; 3]], count: usize, start: usize) -> Result<Vec<usize>> {
     if points.is_empty() {
-        return sample(gpu, &gpu.dummy, 0, count, start);
+        return sample(gpu, &gpu.dummy, 0, count, start).await;
     }
     let pb = GpuBuffer::from_slice(&gpu.context, "fps_points", points)?;
-    sample(gpu, pb.raw(), points.len(), count, start)
+    sample(gpu, pb.raw(), points.len(), count, start).await
 }

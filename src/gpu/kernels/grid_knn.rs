@@ -89,7 +89,7 @@ pub fn record(
 }
 
 /// Runs the kernel on the twin's cell table: `k` slots of indices and squared distances per query.
-pub fn run(gpu: &Gpu, grid: &CellGrid, queries: &[u32], k: usize) -> Result<(Vec<u32>, Vec<f32>)> {
+pub async fn run(gpu: &Gpu, grid: &CellGrid, queries: &[u32], k: usize) -> Result<(Vec<u32>, Vec<f32>)> {
     check_k(k)?;
     if queries.iter().any(|&q| q as usize >= grid.points.len()) {
         return Err(Error::invalid("grid_knn: a query is not a point"));
@@ -113,7 +113,7 @@ pub fn run(gpu: &Gpu, grid: &CellGrid, queries: &[u32], k: usize) -> Result<(Vec
     let mut rec = Recorder::new(gpu, "grid_knn");
     record(&mut rec, &params, &g, qb.raw(), [oi.raw(), od.raw()])?;
     let (ri, rd) = (rec.read(oi.raw(), 0, (slots * 4) as u64), rec.read(od.raw(), 0, (slots * 4) as u64));
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     Ok((bytemuck::pod_collect_to_vec(&out[ri]), bytemuck::pod_collect_to_vec(&out[rd])))
 }
 

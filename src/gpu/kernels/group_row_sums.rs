@@ -63,7 +63,7 @@ pub fn record<'a>(
 
 /// Runs the kernel on slices: `x` is `groups * rows_per_group x width`; `sums` (`groups x width`) holds the
 /// initial contents (a sentinel in tests) and receives the result.
-pub fn run(gpu: &Gpu, x: &[f32], rows_per_group: usize, width: usize, sums: &mut [f32]) -> Result<()> {
+pub async fn run(gpu: &Gpu, x: &[f32], rows_per_group: usize, width: usize, sums: &mut [f32]) -> Result<()> {
     let groups = sums.len() / width.max(1);
     if rows_per_group == 0 || width == 0 || sums.is_empty() || x.len() != groups * rows_per_group * width {
         return Err(Error::invalid("group_row_sums: slice lengths do not match the shape"));
@@ -74,7 +74,7 @@ pub fn run(gpu: &Gpu, x: &[f32], rows_per_group: usize, width: usize, sums: &mut
     let mut rec = Recorder::new(gpu, "group_row_sums");
     record(&mut rec, &GroupRowSumsParams::new(groups, rows_per_group, width)?, xb.raw(), sb.raw())?;
     let r = rec.read(sb.raw(), 0, (sums.len() * 4) as u64);
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     sums.copy_from_slice(bytemuck::cast_slice(&bytes[r]));
     Ok(())
 }

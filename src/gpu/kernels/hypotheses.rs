@@ -69,7 +69,7 @@ pub fn record<'a>(
 }
 
 /// Runs the kernel on slices; `out` holds the initial contents (a sentinel in tests) and receives the result.
-pub fn run(
+pub async fn run(
     gpu: &Gpu,
     rotations: &[[f32; 9]],
     source: &[[f32; 3]],
@@ -89,7 +89,7 @@ pub fn run(
     let mut rec = Recorder::new(gpu, "hypotheses");
     record(&mut rec, rows, [q.raw(), s.raw(), t.raw()], o.raw())?;
     let r = rec.read(o.raw(), 0, (rows * HYPOTHESIS_FLOATS * 4) as u64);
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     let floats: Vec<f32> = bytemuck::pod_collect_to_vec(&bytes[r]);
     for (h, row) in out.iter_mut().zip(floats.chunks_exact(HYPOTHESIS_FLOATS)) {
         *h = from_row(row);

@@ -122,7 +122,7 @@ pub fn decode_total(bytes: &[u8]) -> Terms {
 }
 
 /// Runs the kernel on the twin's inputs (parity tests): both stages, every partial read back.
-pub fn run(
+pub async fn run(
     gpu: &Gpu,
     source: &[[f32; 3]],
     stride: usize,
@@ -144,7 +144,7 @@ pub fn run(
     let source_raw = source_buffer.as_ref().map_or(&gpu.dummy, GpuBuffer::raw);
     record(&mut rec, &p, source_raw, &up.buffers(), normals.raw(), &sums)?;
     let r = rec.read(&sums, 0, bytes);
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     let floats: Vec<f32> = bytemuck::pod_collect_to_vec(&out[r]);
     let mut chunks = floats.chunks_exact(TERMS).map(|c| {
         let mut t = [0.0f32; TERMS];

@@ -57,7 +57,14 @@ pub fn record<'a>(rec: &mut Recorder<'a>, params: &MaxPoolParams, x: &wgpu::Buff
 
 /// Runs the kernel on slices; `out` (`groups x channels`) holds the initial contents (a sentinel in tests)
 /// and receives the result.
-pub fn run(gpu: &Gpu, x: &[f32], groups: usize, rows_per_group: usize, channels: usize, out: &mut [f32]) -> Result<()> {
+pub async fn run(
+    gpu: &Gpu,
+    x: &[f32],
+    groups: usize,
+    rows_per_group: usize,
+    channels: usize,
+    out: &mut [f32],
+) -> Result<()> {
     if x.len() != groups * rows_per_group * channels || out.len() != groups * channels {
         return Err(Error::invalid("max_pool: slice lengths do not match the shape"));
     }
@@ -67,7 +74,7 @@ pub fn run(gpu: &Gpu, x: &[f32], groups: usize, rows_per_group: usize, channels:
     let mut rec = Recorder::new(gpu, "max_pool");
     record(&mut rec, &MaxPoolParams::new(groups, rows_per_group, channels)?, xb.raw(), ob.raw())?;
     let r = rec.read(ob.raw(), 0, (out.len() * 4) as u64);
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     out.copy_from_slice(bytemuck::cast_slice(&bytes[r]));
     Ok(())
 }

@@ -65,7 +65,7 @@ pub fn record<'a>(
 }
 
 /// Runs the kernel on slices; `dx` (the shape of `x`) holds what the gradient is added to and receives the sum.
-pub fn run(
+pub async fn run(
     gpu: &Gpu,
     x: &[f32],
     groups: usize,
@@ -84,7 +84,7 @@ pub fn run(
     let mut rec = Recorder::new(gpu, "max_pool_backward");
     record(&mut rec, &MaxPoolBackwardParams::new(groups, rows_per_group, channels)?, xb.raw(), db.raw(), dxb.raw())?;
     let r = rec.read(dxb.raw(), 0, (dx.len() * 4) as u64);
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     dx.copy_from_slice(bytemuck::cast_slice(&bytes[r]));
     Ok(())
 }

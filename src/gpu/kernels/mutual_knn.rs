@@ -177,7 +177,7 @@ pub fn compact(row_dist: &[f32], row_index: &[u32], flags: Option<&[u32]>, k: us
 
 /// Runs the matcher on a whole `ns x nt` distance matrix in one chunk (the twin's input); the GPU lists
 /// start filled with a sentinel so unwritten slots show up.
-pub fn run(gpu: &Gpu, distances: &[f32], ns: usize, nt: usize, mode: MatchMode) -> Result<Vec<Match>> {
+pub async fn run(gpu: &Gpu, distances: &[f32], ns: usize, nt: usize, mode: MatchMode) -> Result<Vec<Match>> {
     if distances.len() != ns * nt {
         return Err(Error::invalid("mutual_knn: distances must be ns x nt"));
     }
@@ -203,7 +203,7 @@ pub fn run(gpu: &Gpu, distances: &[f32], ns: usize, nt: usize, mode: MatchMode) 
     let bytes = (ns * K_MAX * 4) as u64;
     let (rd, ri, fl) =
         (rec.read(&b.row_dist, 0, bytes), rec.read(&b.row_index, 0, bytes), rec.read(&b.flags, 0, bytes));
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     let flags: Vec<u32> = bytemuck::pod_collect_to_vec(&out[fl]);
     Ok(compact(
         &bytemuck::pod_collect_to_vec::<u8, f32>(&out[rd]),

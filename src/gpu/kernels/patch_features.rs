@@ -76,7 +76,7 @@ pub fn record<'a>(rec: &mut Recorder<'a>, params: &PatchFeaturesParams, b: &Patc
 
 /// Runs the kernel on gathered patches in one dispatch (the inputs must fit the buffer cap). `ppf` and `pc` hold
 /// the initial buffer contents (a sentinel in tests) and receive the result, as the twin's outputs.
-pub fn run(
+pub async fn run(
     gpu: &Gpu,
     patches: &GatheredPatches,
     points_per_patch: usize,
@@ -125,7 +125,7 @@ pub fn run(
     record(&mut rec, &params, &buffers)?;
     let a = rec.read(ppf_buf.raw(), 0, (ppf.len() * 4) as u64);
     let b = rec.read(pc_buf.raw(), 0, (pc.len() * 4) as u64);
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     ppf.copy_from_slice(bytemuck::cast_slice(&out[a]));
     pc.copy_from_slice(bytemuck::cast_slice(&out[b]));
     Ok(())

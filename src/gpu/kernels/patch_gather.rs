@@ -69,7 +69,7 @@ pub fn record(
 }
 
 /// Runs the kernel on the twin's inputs.
-pub fn run(
+pub async fn run(
     gpu: &Gpu,
     points: &[[f32; 3]],
     normals: &[[f32; 3]],
@@ -104,7 +104,7 @@ pub fn run(
         rec.read(&op, 0, (rows * 12) as u64),
         rec.read(&on, 0, (rows * 12) as u64),
     ];
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     Ok((
         bytemuck::pod_collect_to_vec(&out[r[0]]),
         bytemuck::pod_collect_to_vec(&out[r[1]]),

@@ -150,7 +150,7 @@ pub fn record_write_and_sort(
 
 /// Runs the search on the twin's inputs (the cell table uploaded from `grid`): every keypoint's candidates,
 /// sorted, as [`crate::cpu::patch_sample::patch_sample`] returns them.
-pub fn run(gpu: &Gpu, grid: &CellGrid, keypoints: &[u32], radius: f32, seed: u64) -> Result<PatchCandidates> {
+pub async fn run(gpu: &Gpu, grid: &CellGrid, keypoints: &[u32], radius: f32, seed: u64) -> Result<PatchCandidates> {
     let params = params(keypoints.len(), grid.inv_cell, radius, seed)?;
     if let Some(&bad) = keypoints.iter().find(|&&k| k as usize >= grid.points.len()) {
         return Err(Error::invalid(format!("patch_sample: keypoint {bad} is not a point")));
@@ -166,7 +166,7 @@ pub fn run(gpu: &Gpu, grid: &CellGrid, keypoints: &[u32], radius: f32, seed: u64
     let mut rec = Recorder::new(gpu, "patch_sample count");
     record_count(&mut rec, &params, &g, kb.raw(), &gpu.dummy, &counts)?;
     let r = rec.read(&counts, 0, (keypoints.len() * BLOCK_CELLS * 4) as u64);
-    let counts: Vec<u32> = bytemuck::pod_collect_to_vec(&rec.finish()?[r]);
+    let counts: Vec<u32> = bytemuck::pod_collect_to_vec(&rec.finish().await?[r]);
     let (per_slot, offs, total) = offsets(&counts, keypoints, &params)?;
     let padded = super::cell_keys::padded_len(total)?;
     let ob = GpuBuffer::from_slice(ctx, "ps_offsets", &offs)?;
@@ -174,7 +174,7 @@ pub fn run(gpu: &Gpu, grid: &CellGrid, keypoints: &[u32], radius: f32, seed: u64
     let mut rec = Recorder::new(gpu, "patch_sample write");
     record_write_and_sort(&mut rec, &params, &g, kb.raw(), ob.raw(), &cands, total, padded)?;
     let r = rec.read(&cands, 0, (total.max(1) * 16) as u64);
-    let mut sorted: Vec<[u32; 4]> = bytemuck::pod_collect_to_vec(&rec.finish()?[r]);
+    let mut sorted: Vec<[u32; 4]> = bytemuck::pod_collect_to_vec(&rec.finish().await?[r]);
     sorted.truncate(total);
     Ok(PatchCandidates { counts: per_slot, sorted })
 }

@@ -60,7 +60,7 @@ pub fn record(
 }
 
 /// Runs the kernel on slices (the twin's inputs).
-pub fn run(
+pub async fn run(
     gpu: &Gpu,
     points: &[[f32; 3]],
     queries: &[u32],
@@ -88,6 +88,6 @@ pub fn run(
     let mut rec = Recorder::new(gpu, "pca_normals");
     record(&mut rec, &params, pb.raw(), qb.raw(), kb.raw(), ob.raw())?;
     let r = rec.read(ob.raw(), 0, (queries.len() * 12) as u64);
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     Ok(bytemuck::pod_collect_to_vec(&out[r]))
 }

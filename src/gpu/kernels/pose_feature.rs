@@ -57,7 +57,7 @@ pub fn record<'a>(
 }
 
 /// Runs the kernel on slices; `out` holds the initial contents (a sentinel in tests) and receives the result.
-pub fn run(gpu: &Gpu, pc: &[f32], ppf: &[f32], rows: &[u32], width: usize, out: &mut [f32]) -> Result<()> {
+pub async fn run(gpu: &Gpu, pc: &[f32], ppf: &[f32], rows: &[u32], width: usize, out: &mut [f32]) -> Result<()> {
     let scan_rows = ppf.len() / width.max(1);
     if width == 0
         || pc.len() != rows.len() * width
@@ -73,7 +73,7 @@ pub fn run(gpu: &Gpu, pc: &[f32], ppf: &[f32], rows: &[u32], width: usize, out: 
     let mut rec = Recorder::new(gpu, "pose_feature");
     record(&mut rec, (rows.len(), width), [p.raw(), f.raw(), r.raw()], o.raw())?;
     let read = rec.read(o.raw(), 0, (out.len() * 4) as u64);
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     out.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, f32>(&bytes[read]));
     Ok(())
 }

@@ -75,7 +75,7 @@ pub fn record(
 }
 
 /// Runs the scan on a slice: the exclusive sums and the total.
-pub fn run(gpu: &Gpu, values: &[u32]) -> Result<(Vec<u32>, u32)> {
+pub async fn run(gpu: &Gpu, values: &[u32]) -> Result<(Vec<u32>, u32)> {
     let n = values.len();
     let ctx = &gpu.context;
     let vb = GpuBuffer::from_slice(ctx, "scan_values", if n == 0 { &[0u32][..] } else { values })?;
@@ -84,6 +84,6 @@ pub fn run(gpu: &Gpu, values: &[u32]) -> Result<(Vec<u32>, u32)> {
     let mut rec = Recorder::new(gpu, "prefix_scan");
     record(&mut rec, n, vb.raw(), sb.raw(), bb.raw())?;
     let (rs, rt) = (rec.read(sb.raw(), 0, (n * 4) as u64), rec.read(bb.raw(), (blocks(n) * 4) as u64, 4));
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     Ok((bytemuck::pod_collect_to_vec(&out[rs]), bytemuck::pod_read_unaligned(&out[rt][..4])))
 }

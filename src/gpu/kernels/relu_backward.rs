@@ -58,7 +58,7 @@ pub fn record<'a>(
 
 /// Runs the kernel on slices; `dz` (the length of `out`) holds the initial contents (a sentinel in tests) and
 /// receives the result.
-pub fn run(gpu: &Gpu, out: &[f32], d_out: &[f32], dz: &mut [f32]) -> Result<()> {
+pub async fn run(gpu: &Gpu, out: &[f32], d_out: &[f32], dz: &mut [f32]) -> Result<()> {
     if d_out.len() != out.len() || dz.len() != out.len() || out.is_empty() {
         return Err(Error::invalid("relu_backward: slice lengths differ or are empty"));
     }
@@ -69,7 +69,7 @@ pub fn run(gpu: &Gpu, out: &[f32], d_out: &[f32], dz: &mut [f32]) -> Result<()> 
     let mut rec = Recorder::new(gpu, "relu_backward");
     record(&mut rec, &ReluBackwardParams::new(out.len())?, ob.raw(), db.raw(), zb.raw())?;
     let r = rec.read(zb.raw(), 0, (dz.len() * 4) as u64);
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     dz.copy_from_slice(bytemuck::cast_slice(&bytes[r]));
     Ok(())
 }

@@ -82,7 +82,7 @@ pub fn record<'a>(
 }
 
 /// Runs the kernel on slices; `out` holds the initial contents (a sentinel in tests) and receives the result.
-pub fn run(
+pub async fn run(
     gpu: &Gpu,
     raw: &[f32],
     output: RotationOutput,
@@ -104,7 +104,7 @@ pub fn run(
     let mut rec = Recorder::new(gpu, "rotation_head");
     record(&mut rec, &params, [rb.raw(), sb.raw(), tb.raw()], ob.raw())?;
     let r = rec.read(ob.raw(), 0, (out.len() * 36) as u64);
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     out.copy_from_slice(bytemuck::cast_slice(&bytes[r]));
     Ok(())
 }

@@ -85,7 +85,7 @@ fn correspondences(source: &[[f32; 3]], target: &[[f32; 3]]) -> Result<usize> {
 
 /// Runs the kernel on slices in one dispatch; `out` holds the initial contents (a sentinel in tests) and
 /// receives the scores.
-pub fn run(
+pub async fn run(
     gpu: &Gpu,
     hypotheses: &[Hypothesis],
     source: &[[f32; 3]],
@@ -117,7 +117,7 @@ pub fn run(
     record(&mut rec, &params, [hb.raw(), sb.raw(), tb.raw()], &bufs)?;
     let bytes = (out.len() * 4) as u64;
     let (a, b) = (rec.read(ib.raw(), 0, bytes), rec.read(rb.raw(), 0, bytes));
-    let data = rec.finish()?;
+    let data = rec.finish().await?;
     let counts: Vec<u32> = bytemuck::pod_collect_to_vec(&data[a]);
     let sums: Vec<f32> = bytemuck::pod_collect_to_vec(&data[b]);
     for ((s, &inliers), &residual_sum) in out.iter_mut().zip(&counts).zip(&sums) {
@@ -128,7 +128,7 @@ pub fn run(
 
 /// Per-correspondence inlier flags of one hypothesis (`|p_t - (R p_s + t)|^2 < threshold^2`), for the
 /// refinement on the best hypothesis's inliers; `mask` holds the initial contents and receives 0 or 1.
-pub fn inlier_mask(
+pub async fn inlier_mask(
     gpu: &Gpu,
     hypothesis: &Hypothesis,
     source: &[[f32; 3]],
@@ -156,7 +156,7 @@ pub fn inlier_mask(
     let bufs = ScoreBuffers { inliers: scratch.raw(), residual_sums: &gpu.dummy_rw, mask: mb.raw() };
     record(&mut rec, &params, [hb.raw(), sb.raw(), tb.raw()], &bufs)?;
     let r = rec.read(mb.raw(), 0, (c * 4) as u64);
-    let data = rec.finish()?;
+    let data = rec.finish().await?;
     mask.copy_from_slice(bytemuck::cast_slice(&data[r]));
     Ok(())
 }

@@ -99,7 +99,7 @@ pub fn record(rec: &mut Recorder<'_>, keys: &wgpu::Buffer, b: &SegmentBuffers) -
 }
 
 /// Runs the kernel on sorted keys: their runs.
-pub fn run(gpu: &Gpu, sorted: &[SortKey]) -> Result<Segments> {
+pub async fn run(gpu: &Gpu, sorted: &[SortKey]) -> Result<Segments> {
     let n = sorted.len();
     if n == 0 {
         return Ok(Segments { starts: vec![0], keys: Vec::new() });
@@ -110,11 +110,11 @@ pub fn run(gpu: &Gpu, sorted: &[SortKey]) -> Result<Segments> {
     let mut rec = Recorder::new(gpu, "segments");
     record(&mut rec, kb.raw(), &b)?;
     let rc = rec.read(&b.block_sums, b.count_offset(), 4);
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     let runs: u32 = bytemuck::pod_read_unaligned(&out[rc][..4]);
     let runs = (runs as usize).min(n);
     let mut rec = Recorder::new(gpu, "segments readback");
     let (rs, rk) = (rec.read(&b.starts, 0, ((runs + 1) * 4) as u64), rec.read(&b.run_keys, 0, (runs * 8) as u64));
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     Ok(Segments { starts: bytemuck::pod_collect_to_vec(&out[rs]), keys: bytemuck::pod_collect_to_vec(&out[rk]) })
 }

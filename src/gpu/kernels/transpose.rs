@@ -63,7 +63,7 @@ pub fn record<'a>(
 
 /// Runs the kernel on slices: `out` (`cols x rows`) holds the initial contents (a sentinel in tests) and
 /// receives the result.
-pub fn run(gpu: &Gpu, x: &[f32], rows: usize, cols: usize, out: &mut [f32]) -> Result<()> {
+pub async fn run(gpu: &Gpu, x: &[f32], rows: usize, cols: usize, out: &mut [f32]) -> Result<()> {
     if rows == 0 || cols == 0 || x.len() != rows * cols || out.len() != x.len() {
         return Err(Error::invalid("transpose: slice lengths do not match the shape"));
     }
@@ -73,7 +73,7 @@ pub fn run(gpu: &Gpu, x: &[f32], rows: usize, cols: usize, out: &mut [f32]) -> R
     let mut rec = Recorder::new(gpu, "transpose");
     record(&mut rec, &TransposeParams::new(rows, cols)?, xb.raw(), ob.raw())?;
     let r = rec.read(ob.raw(), 0, (out.len() * 4) as u64);
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     out.copy_from_slice(bytemuck::cast_slice(&bytes[r]));
     Ok(())
 }

@@ -96,7 +96,7 @@ pub fn record<'a>(
 }
 
 /// Runs the kernel on slices; `out` holds the initial contents (a sentinel in tests) and receives the block.
-pub fn run(gpu: &Gpu, input: &[f32], block: Block, out: &mut [f32]) -> Result<()> {
+pub async fn run(gpu: &Gpu, input: &[f32], block: Block, out: &mut [f32]) -> Result<()> {
     if block.width == 0 || !input.len().is_multiple_of(block.width) {
         return Err(Error::invalid("unit_rows: the input is not whole rows"));
     }
@@ -109,7 +109,7 @@ pub fn run(gpu: &Gpu, input: &[f32], block: Block, out: &mut [f32]) -> Result<()
     let mut rec = Recorder::new(gpu, "unit_rows");
     record(&mut rec, rows, block, i.raw(), o.raw())?;
     let read = rec.read(o.raw(), 0, (out.len() * 4) as u64);
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     out.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, f32>(&bytes[read]));
     Ok(())
 }

@@ -87,7 +87,7 @@ pub fn record(rec: &mut Recorder<'_>, gpu: &Gpu, n: usize, b: &VoxelAverageBuffe
 }
 
 /// Runs the kernel on slices (the twin's inputs).
-pub fn run(
+pub async fn run(
     gpu: &Gpu,
     points: &[[f32; 3]],
     normals: Option<&[[f32; 3]]>,
@@ -126,7 +126,7 @@ pub fn run(
     };
     record(&mut rec, gpu, n, &b)?;
     let (rp, rn) = (rec.read(op.raw(), 0, (runs * 12) as u64), rec.read(on.raw(), 0, (runs * 12) as u64));
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     let pts = bytemuck::pod_collect_to_vec(&out[rp]);
     Ok((pts, normals.map(|_| bytemuck::pod_collect_to_vec(&out[rn]))))
 }

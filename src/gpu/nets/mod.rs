@@ -214,10 +214,10 @@ fn tail<'a>(
 }
 
 /// Waits for every chunk and concatenates read `index` of each.
-fn collect(gpu: &Gpu, pending: Vec<Pending>, index: usize) -> Result<Vec<u8>> {
+async fn collect(gpu: &Gpu, pending: Vec<Pending>, index: usize) -> Result<Vec<u8>> {
     let mut out = Vec::new();
     for p in pending {
-        out.extend_from_slice(&p.wait(gpu)?[index]);
+        out.extend_from_slice(&p.wait(gpu).await?[index]);
     }
     Ok(out)
 }
@@ -315,7 +315,7 @@ pub fn record_encode<'a>(
 }
 
 /// Codewords (`patches x codeword`) of `input` (`patches x points x io_width`), as `FoldNet::encode`.
-pub fn encode(
+pub async fn encode(
     gpu: &Gpu,
     ws: &mut Workspace,
     f: &GpuFoldNet,
@@ -345,7 +345,7 @@ pub fn encode(
         rec.read(&codewords, 0, (cp * cw * 4) as u64);
         pending.push(rec.submit()?);
     }
-    Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0)?))
+    Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0).await?))
 }
 
 /// One folding MLP over `rows = patches x m` rows: `[codeword | x]` in, as `FoldNet::decode`'s `fold`;
@@ -400,7 +400,13 @@ pub fn record_decode_outputs<'a>(
 
 /// Reconstructions (`patches x grid_points x io_width`) of codewords (`patches x codeword`), as
 /// `FoldNet::decode`.
-pub fn decode(gpu: &Gpu, ws: &mut Workspace, f: &GpuFoldNet, codewords: &[f32], patches: usize) -> Result<Vec<f32>> {
+pub async fn decode(
+    gpu: &Gpu,
+    ws: &mut Workspace,
+    f: &GpuFoldNet,
+    codewords: &[f32],
+    patches: usize,
+) -> Result<Vec<f32>> {
     let cw = f.codeword_len();
     if codewords.len() != patches * cw {
         return Err(Error::invalid(format!("decode: {} values are not {patches} codewords of {cw}", codewords.len())));
@@ -426,7 +432,7 @@ pub fn decode(gpu: &Gpu, ws: &mut Workspace, f: &GpuFoldNet, codewords: &[f32], 
         rec.read(out, 0, (cp * m * d * 4) as u64);
         pending.push(rec.submit()?);
     }
-    Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0)?))
+    Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0).await?))
 }
 
 /// Checks RelativeNet's output width against the configured rotation head; returns the pose feature width.
@@ -505,7 +511,7 @@ pub fn record_relative_outputs<'a>(
 
 /// RelativeNet's rotations (row-major, fragment frames; `candidates` per row) for the rows of `pose`, as
 /// `RelativeNet::predict`.
-pub fn relative(
+pub async fn relative(
     gpu: &Gpu,
     ws: &mut Workspace,
     layers: &[GpuLinear],
@@ -538,5 +544,5 @@ pub fn relative(
         rec.read(&rotations, 0, (n * m * 36) as u64);
         pending.push(rec.submit()?);
     }
-    Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0)?))
+    Ok(bytemuck::pod_collect_to_vec(&collect(gpu, pending, 0).await?))
 }

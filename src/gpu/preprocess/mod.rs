@@ -86,14 +86,18 @@ impl CellTable {
 
 /// Voxel-grid downsampling on the GPU: [`crate::cpu::voxel_average::voxel_downsample`]'s definition (the CPU
 /// path's), with the same voxel membership bit for bit and averages within f32 rounding of the twin's.
-pub fn voxel_downsample(gpu: &Gpu, cloud: &PointCloud, voxel: f32) -> Result<PointCloud> {
-    Ok(voxel_downsample_held(gpu, cloud, voxel)?.0)
+pub async fn voxel_downsample(gpu: &Gpu, cloud: &PointCloud, voxel: f32) -> Result<PointCloud> {
+    Ok(voxel_downsample_held(gpu, cloud, voxel).await?.0)
 }
 
 /// [`voxel_downsample`], also returning the device buffer whose first `points.len()` entries hold the
 /// downsampled points (`None` for an empty cloud), so that a scan can be described from it without uploading
 /// the points again.
-pub fn voxel_downsample_held(gpu: &Gpu, cloud: &PointCloud, voxel: f32) -> Result<(PointCloud, Option<wgpu::Buffer>)> {
+pub async fn voxel_downsample_held(
+    gpu: &Gpu,
+    cloud: &PointCloud,
+    voxel: f32,
+) -> Result<(PointCloud, Option<wgpu::Buffer>)> {
     if let Some(empty) = crate::cpu::voxel_average::check_downsample(cloud, voxel)? {
         return Ok((empty, None));
     }
@@ -117,12 +121,12 @@ pub fn voxel_downsample_held(gpu: &Gpu, cloud: &PointCloud, voxel: f32) -> Resul
     };
     voxel_average::record(&mut rec, gpu, n, &b)?;
     let (rg, rs) = table.read_meta(&mut rec);
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     let (_, cells) = table.check(&out[rg], &out[rs])?;
     let mut rec = Recorder::new(gpu, "voxel_downsample readback");
     let rp = rec.read(&out_points, 0, (cells * 12) as u64);
     let rn = out_normals.as_ref().map(|o| rec.read(o, 0, (cells * 12) as u64));
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     let host = PointCloud {
         points: bytemuck::pod_collect_to_vec(&out[rp]),
         normals: rn.map(|r| bytemuck::pod_collect_to_vec(&out[r])),
@@ -201,7 +205,7 @@ fn check_cell(cell: f32) -> Result<f32> {
 /// The `k` nearest neighbours (itself included) of every point, found on a GPU grid of cells of side `cell`:
 /// `k` slots per point of indices and squared distances, ascending by (distance, index), unused slots
 /// `u32::MAX` and infinity. The same lists as [`crate::cpu::grid_knn::grid_knn`] (and a brute-force search).
-pub fn knn(gpu: &Gpu, points: &[[f32; 3]], k: usize, cell: f32) -> Result<(Vec<u32>, Vec<f32>)> {
+pub async fn knn(gpu: &Gpu, points: &[[f32; 3]], k: usize, cell: f32) -> Result<(Vec<u32>, Vec<f32>)> {
     let inv_cell = check_cell(cell)?;
     super::kernels::grid_knn::check_k(k)?;
     if points.is_empty() {
@@ -214,7 +218,7 @@ pub fn knn(gpu: &Gpu, points: &[[f32; 3]], k: usize, cell: f32) -> Result<(Vec<u
     let (rg, rs) = table.read_meta(&mut rec);
     let slots = (points.len() * k * 4) as u64;
     let (ri, rd) = (rec.read(&out.knn_index, 0, slots), rec.read(&out.knn_d2, 0, slots));
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     table.check(&bytes[rg], &bytes[rs])?;
     Ok((bytemuck::pod_collect_to_vec(&bytes[ri]), bytemuck::pod_collect_to_vec(&bytes[rd])))
 }
@@ -222,7 +226,13 @@ pub fn knn(gpu: &Gpu, points: &[[f32; 3]], k: usize, cell: f32) -> Result<(Vec<u
 /// PCA normals of every point from its `max(k, 3)` nearest neighbours, facing `viewpoint`, on the GPU
 /// (grid search on cells of side `cell`, then [`super::kernels::pca_normals`]): the definition of
 /// [`crate::cpu::pca_normals`].
-pub fn normals(gpu: &Gpu, points: &[[f32; 3]], k: usize, viewpoint: [f32; 3], cell: f32) -> Result<Vec<[f32; 3]>> {
+pub async fn normals(
+    gpu: &Gpu,
+    points: &[[f32; 3]],
+    k: usize,
+    viewpoint: [f32; 3],
+    cell: f32,
+) -> Result<Vec<[f32; 3]>> {
     let inv_cell = check_cell(cell)?;
     let k = k.max(3);
     super::kernels::grid_knn::check_k(k)?;
@@ -235,7 +245,7 @@ pub fn normals(gpu: &Gpu, points: &[[f32; 3]], k: usize, viewpoint: [f32; 3], ce
     let out = record_knn_normals(gpu, &mut rec, &table, k, Some(viewpoint))?;
     let (rg, rs) = table.read_meta(&mut rec);
     let rn = rec.read(&out.normals, 0, (points.len() * 12) as u64);
-    let bytes = rec.finish()?;
+    let bytes = rec.finish().await?;
     table.check(&bytes[rg], &bytes[rs])?;
     Ok(bytemuck::pod_collect_to_vec(&bytes[rn]))
 }
@@ -244,7 +254,7 @@ pub fn normals(gpu: &Gpu, points: &[[f32; 3]], k: usize, viewpoint: [f32; 3], ce
 /// keeps file normals), PCA normals from the `max(k, 3)` nearest neighbours facing `viewpoint`: both on the
 /// GPU, the downsampled points never leaving it in between. The host only uploads the points and reads the
 /// result (and one count).
-pub fn downsample_and_normals(
+pub async fn downsample_and_normals(
     gpu: &Gpu,
     cloud: &PointCloud,
     voxel: f32,
@@ -254,19 +264,19 @@ pub fn downsample_and_normals(
     let k = k.max(3);
     super::kernels::grid_knn::check_k(k)?;
     if cloud.normals.is_some() || cloud.is_empty() {
-        return voxel_downsample(gpu, cloud, voxel);
+        return voxel_downsample(gpu, cloud, voxel).await;
     }
     if !(voxel.is_finite() && voxel > 0.0) {
         return Err(Error::invalid(format!("voxel size must be positive, got {voxel}")));
     }
     let points = GpuBuffer::from_slice(&gpu.context, "voxel_points", &cloud.points)?.raw().clone();
-    let (out_points, cells) = downsample_buffer(gpu, points, cloud.len(), voxel)?;
+    let (out_points, cells) = downsample_buffer(gpu, points, cloud.len(), voxel).await?;
     let mut rec = Recorder::new(gpu, "normals");
     let grid = CellTable::record(gpu, &mut rec, out_points.clone(), cells, 1.0 / knn_cell(voxel, k))?;
     let nb = record_knn_normals(gpu, &mut rec, &grid, k, Some(viewpoint))?;
     let (rg, rs) = grid.read_meta(&mut rec);
     let (rp, rn) = (rec.read(&out_points, 0, (cells * 12) as u64), rec.read(&nb.normals, 0, (cells * 12) as u64));
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     grid.check(&out[rg], &out[rs])?;
     Ok(PointCloud {
         points: bytemuck::pod_collect_to_vec(&out[rp]),
@@ -277,7 +287,7 @@ pub fn downsample_and_normals(
 /// Voxel downsampling of the `n` points in `points` on the device ([`voxel_downsample`]'s definition), the
 /// result left there: a buffer of the voxel averages (sized for `n`) and how many there are. Reads back only
 /// the grid words.
-pub fn downsample_buffer(gpu: &Gpu, points: wgpu::Buffer, n: usize, voxel: f32) -> Result<(wgpu::Buffer, usize)> {
+pub async fn downsample_buffer(gpu: &Gpu, points: wgpu::Buffer, n: usize, voxel: f32) -> Result<(wgpu::Buffer, usize)> {
     if !(voxel.is_finite() && voxel > 0.0) {
         return Err(Error::invalid(format!("voxel size must be positive, got {voxel}")));
     }
@@ -295,7 +305,7 @@ pub fn downsample_buffer(gpu: &Gpu, points: wgpu::Buffer, n: usize, voxel: f32) 
     };
     voxel_average::record(&mut rec, gpu, n, &b)?;
     let (rg, rs) = table.read_meta(&mut rec);
-    let out = rec.finish()?;
+    let out = rec.finish().await?;
     let (_, cells) = table.check(&out[rg], &out[rs])?;
     Ok((out_points, cells))
 }
@@ -345,18 +355,18 @@ pub struct SampledPatches {
 
 impl DeviceCloud {
     /// Uploads `points` and builds the cloud (see [`DeviceCloud::from_buffer`]).
-    pub fn new(gpu: &Gpu, points: &[[f32; 3]], normals: NormalSource<'_>, radius: f32) -> Result<DeviceCloud> {
+    pub async fn new(gpu: &Gpu, points: &[[f32; 3]], normals: NormalSource<'_>, radius: f32) -> Result<DeviceCloud> {
         if points.is_empty() {
             return Err(Error::invalid("device cloud: no points"));
         }
         let pb = GpuBuffer::from_slice(&gpu.context, "cloud_points", points)?.raw().clone();
-        DeviceCloud::from_buffer(gpu, pb, points.len(), normals, radius)
+        DeviceCloud::from_buffer(gpu, pb, points.len(), normals, radius).await
     }
 
     /// The cloud of the `n` points already in `points` (e.g. downsampled on the device): the cell table of
     /// cells `radius` wide and the normals (uploaded, or estimated on the device on a second grid whose cells
     /// suit the neighbour count). Reads back only the grid words.
-    pub fn from_buffer(
+    pub async fn from_buffer(
         gpu: &Gpu,
         points: wgpu::Buffer,
         n: usize,
@@ -367,7 +377,7 @@ impl DeviceCloud {
         let mut rec = Recorder::new(gpu, "device cloud");
         let table = CellTable::record(gpu, &mut rec, points, n, 1.0 / radius)?;
         let (rg, rs) = table.read_meta(&mut rec);
-        let out = rec.finish()?;
+        let out = rec.finish().await?;
         let (_, cells) = table.check(&out[rg], &out[rs])?;
         let normals = match normals {
             NormalSource::Given(ns) => {
@@ -385,7 +395,7 @@ impl DeviceCloud {
                 let grid = CellTable::record(gpu, &mut rec, table.points.clone(), n, 1.0 / knn_cell(spacing, k))?;
                 let nb = record_knn_normals(gpu, &mut rec, &grid, k, Some(viewpoint))?;
                 let (rg, rs) = grid.read_meta(&mut rec);
-                let out = rec.finish()?;
+                let out = rec.finish().await?;
                 grid.check(&out[rg], &out[rs])?;
                 nb.normals
             }
@@ -415,13 +425,13 @@ impl DeviceCloud {
 
     /// `count` points by farthest-point sampling from `start` ([`super::kernels::farthest_point`]); only the chosen
     /// indices come back.
-    pub fn farthest_points(&self, gpu: &Gpu, count: usize, start: usize) -> Result<Vec<usize>> {
-        super::kernels::farthest_point::sample(gpu, &self.table.points, self.n, count, start)
+    pub async fn farthest_points(&self, gpu: &Gpu, count: usize, start: usize) -> Result<Vec<usize>> {
+        super::kernels::farthest_point::sample(gpu, &self.table.points, self.n, count, start).await
     }
 
     /// The normals, read back (every point's: a per-point readback, for callers that ask for the whole cloud).
-    pub fn read_normals(&self, gpu: &Gpu) -> Result<Vec<[f32; 3]>> {
-        let bytes = super::device::buffer::read_bytes(&gpu.context, &self.normals, 0, (self.n * 12) as u64)?;
+    pub async fn read_normals(&self, gpu: &Gpu) -> Result<Vec<[f32; 3]>> {
+        let bytes = super::device::buffer::read_bytes(&gpu.context, &self.normals, 0, (self.n * 12) as u64).await?;
         Ok(bytemuck::pod_collect_to_vec(&bytes))
     }
 
@@ -439,12 +449,18 @@ impl DeviceCloud {
     /// gather the centres); the per-(keypoint, cell) counts and the kept centres come back. `None` when their
     /// candidates (16 bytes each, padded to a power of two) would not fit one buffer: the caller splits the
     /// keypoints.
-    pub fn sample(&self, gpu: &Gpu, keypoints: &[u32], seed: u64) -> Result<Option<SampledPatches>> {
-        self.sample_at(gpu, keypoints, seed, self.radius)
+    pub async fn sample(&self, gpu: &Gpu, keypoints: &[u32], seed: u64) -> Result<Option<SampledPatches>> {
+        self.sample_at(gpu, keypoints, seed, self.radius).await
     }
 
     /// [`DeviceCloud::sample`] with patches of `radius`, at most the cell size (the cloud's radius).
-    pub fn sample_at(&self, gpu: &Gpu, keypoints: &[u32], seed: u64, radius: f32) -> Result<Option<SampledPatches>> {
+    pub async fn sample_at(
+        &self,
+        gpu: &Gpu,
+        keypoints: &[u32],
+        seed: u64,
+        radius: f32,
+    ) -> Result<Option<SampledPatches>> {
         if radius > self.radius {
             return Err(Error::invalid(format!(
                 "patch_sample: radius {radius} is larger than the cells ({}) of the cloud's table",
@@ -475,7 +491,7 @@ impl DeviceCloud {
         let mut rec = Recorder::new(gpu, "patch_sample count");
         patch_sample::record_count(&mut rec, &params, &g, kb.raw(), &gpu.dummy, &counts)?;
         let r = rec.read(&counts, 0, count_bytes);
-        let counts: Vec<u32> = bytemuck::pod_collect_to_vec(&rec.finish()?[r]);
+        let counts: Vec<u32> = bytemuck::pod_collect_to_vec(&rec.finish().await?[r]);
         let (per_slot, offsets, total) = patch_sample::offsets(&counts, keypoints, &params)?;
         let mut start = 0u32;
         for (slot, &count) in per_slot.iter().enumerate() {
@@ -513,7 +529,7 @@ impl DeviceCloud {
         patch_sample::record_write_and_sort(&mut rec, &params, &g, kb.raw(), ob.raw(), &cands, total, padded)?;
         self.record_gather(&mut rec, &cands, tb.raw(), (p, 1, true), [&ci, &cp, &cn])?;
         let (rp, rn) = (rec.read(&cp, 0, (p * 12) as u64), rec.read(&cn, 0, (p * 12) as u64));
-        let bytes = rec.finish()?;
+        let bytes = rec.finish().await?;
         out.centers = bytemuck::pod_collect_to_vec(&bytes[rp]);
         out.center_normals = bytemuck::pod_collect_to_vec(&bytes[rn]);
         out.candidates = Some(cands);
@@ -522,22 +538,27 @@ impl DeviceCloud {
 
     /// [`DeviceCloud::sample`], splitting `keypoints` in halves until each part's candidates fit a buffer;
     /// `each` receives every part's patches in order with the position of its first keypoint.
-    pub fn sample_in_parts(
+    pub async fn sample_in_parts(
         &self,
         gpu: &Gpu,
         (keypoints, radius): (&[u32], f32),
         seed: u64,
         first: usize,
-        each: &mut dyn FnMut(usize, SampledPatches) -> Result<()>,
+        mut each: impl AsyncFnMut(usize, SampledPatches) -> Result<()>,
     ) -> Result<()> {
-        match self.sample_at(gpu, keypoints, seed, radius)? {
-            Some(sampled) => each(first, sampled),
-            None => {
-                let half = keypoints.len() / 2;
-                self.sample_in_parts(gpu, (&keypoints[..half], radius), seed, first, each)?;
-                self.sample_in_parts(gpu, (&keypoints[half..], radius), seed, first + half, each)
+        // Parts still to sample, the next one last: a part whose candidates do not fit is split in halves.
+        let mut parts = vec![(first, keypoints)];
+        while let Some((first, part)) = parts.pop() {
+            match self.sample_at(gpu, part, seed, radius).await? {
+                Some(sampled) => each(first, sampled).await?,
+                None => {
+                    let half = part.len() / 2;
+                    parts.push((first + half, &part[half..]));
+                    parts.push((first, &part[..half]));
+                }
             }
         }
+        Ok(())
     }
 
     /// Records the gather of the patches of `table` (a device copy of entries of `sampled.table`): `n` rows
@@ -563,7 +584,7 @@ impl SampledPatches {
 
 /// Patches of `keypoints` sampled entirely on the GPU (cell table, search, sort, gather), read back as the CPU
 /// path's [`Patches`]: the same patches as [`crate::preprocess::extract_patches`].
-pub fn sample_patches(
+pub async fn sample_patches(
     gpu: &Gpu,
     points: &[[f32; 3]],
     keypoints: &[u32],
@@ -572,26 +593,28 @@ pub fn sample_patches(
     seed: u64,
 ) -> Result<Patches> {
     // The points stand in for normals: only indices are read back.
-    let cloud = DeviceCloud::new(gpu, points, NormalSource::Given(points), radius)?;
+    let cloud = DeviceCloud::new(gpu, points, NormalSource::Given(points), radius).await?;
     let n = points_per_patch;
     let mut out = Patches { points_per_patch: n, ..Patches::default() };
-    cloud.sample_in_parts(gpu, (keypoints, radius), seed, 0, &mut |first, sampled| {
-        out.keypoints.extend(sampled.kept.iter().map(|&s| keypoints[first + s] as usize));
-        out.empty.extend(sampled.empty.iter().map(|&s| keypoints[first + s] as usize));
-        let rows = sampled.table.len() * n;
-        let Some(cands) = sampled.candidates().filter(|_| rows > 0) else { return Ok(()) };
-        let ctx = &gpu.context;
-        let tb = GpuBuffer::from_slice(ctx, "sp_table", &sampled.table)?;
-        let (oi, op, on) = (
-            storage_buffer(ctx, "sp_index", (rows * 4) as u64)?,
-            storage_buffer(ctx, "sp_points", (rows * 12) as u64)?,
-            storage_buffer(ctx, "sp_normals", (rows * 12) as u64)?,
-        );
-        let mut rec = Recorder::new(gpu, "sample_patches");
-        cloud.record_gather(&mut rec, cands, tb.raw(), (sampled.table.len(), n, false), [&oi, &op, &on])?;
-        let r = rec.read(&oi, 0, (rows * 4) as u64);
-        out.neighbors.extend(bytemuck::pod_collect_to_vec::<u8, u32>(&rec.finish()?[r]));
-        Ok(())
-    })?;
+    cloud
+        .sample_in_parts(gpu, (keypoints, radius), seed, 0, async |first, sampled| {
+            out.keypoints.extend(sampled.kept.iter().map(|&s| keypoints[first + s] as usize));
+            out.empty.extend(sampled.empty.iter().map(|&s| keypoints[first + s] as usize));
+            let rows = sampled.table.len() * n;
+            let Some(cands) = sampled.candidates().filter(|_| rows > 0) else { return Ok(()) };
+            let ctx = &gpu.context;
+            let tb = GpuBuffer::from_slice(ctx, "sp_table", &sampled.table)?;
+            let (oi, op, on) = (
+                storage_buffer(ctx, "sp_index", (rows * 4) as u64)?,
+                storage_buffer(ctx, "sp_points", (rows * 12) as u64)?,
+                storage_buffer(ctx, "sp_normals", (rows * 12) as u64)?,
+            );
+            let mut rec = Recorder::new(gpu, "sample_patches");
+            cloud.record_gather(&mut rec, cands, tb.raw(), (sampled.table.len(), n, false), [&oi, &op, &on])?;
+            let r = rec.read(&oi, 0, (rows * 4) as u64);
+            out.neighbors.extend(bytemuck::pod_collect_to_vec::<u8, u32>(&rec.finish().await?[r]));
+            Ok(())
+        })
+        .await?;
     Ok(out)
 }

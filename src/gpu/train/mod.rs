@@ -140,14 +140,14 @@ impl DeviceTrainer {
     }
 
     /// The loss of `batch` and its gradient, without a step (read back; for checks).
-    pub fn gradients(&mut self, gpu: &Gpu, batch: &[PairSample]) -> Result<(Losses, Gradients)> {
-        let fwd = self.record_forward(gpu, batch)?;
+    pub async fn gradients(&mut self, gpu: &Gpu, batch: &[PairSample]) -> Result<(Losses, Gradients)> {
+        let fwd = self.record_forward(gpu, batch).await?;
         let mut rec = Recorder::new(gpu, "train backward");
         self.record_backward(&mut rec, &fwd)?;
         let reads: Vec<[usize; 2]> = (self.layers.weight_grads.iter().zip(&self.layers.bias_grads))
             .map(|(w, b)| [w, b].map(|t| rec.read(t.raw(), 0, (t.len() * 4) as u64)))
             .collect();
-        let bytes = rec.finish()?;
+        let bytes = rec.finish().await?;
         let mut grads = Gradients::zeros(&self.model.config);
         for (layer, [w, b]) in grads.layers.iter_mut().zip(reads) {
             layer.weight = bytemuck::pod_collect_to_vec(&bytes[w]);
@@ -158,8 +158,8 @@ impl DeviceTrainer {
 
     /// One training step on `batch`: the loss, its gradient and an AdamW update, all on the device. Returns
     /// the losses (the batch means); an error, with nothing changed, when the loss is not finite.
-    pub fn step(&mut self, gpu: &Gpu, batch: &[PairSample]) -> Result<Losses> {
-        let fwd = self.record_forward(gpu, batch)?;
+    pub async fn step(&mut self, gpu: &Gpu, batch: &[PairSample]) -> Result<Losses> {
+        let fwd = self.record_forward(gpu, batch).await?;
         if !fwd.losses.total.is_finite() {
             return Err(Error::invalid(format!(
                 "the loss is not finite at step {} ({:?})",
@@ -174,13 +174,13 @@ impl DeviceTrainer {
     }
 
     /// The weights as they are now (read back).
-    pub fn weights(&self, gpu: &Gpu) -> Result<Weights> {
+    pub async fn weights(&self, gpu: &Gpu) -> Result<Weights> {
         let mut rec = Recorder::new(gpu, "train weights");
         let biases = forward_layers(&self.forward);
         let reads: Vec<[usize; 2]> = (self.layers.weights.iter().zip(&biases))
             .map(|(w, l)| [rec.read(w.raw(), 0, (w.len() * 4) as u64), rec.read(&l.bias, 0, (l.out_dim * 4) as u64)])
             .collect();
-        let bytes = rec.finish()?;
+        let bytes = rec.finish().await?;
         let config = self.model.config.clone();
         let mut tensors = std::collections::BTreeMap::new();
         for (spec, [w, b]) in crate::model::params::all_layers(&config).iter().zip(reads) {
@@ -191,11 +191,11 @@ impl DeviceTrainer {
     }
 
     /// The optimiser state as it is now (read back), for a checkpoint.
-    pub fn adam(&self, gpu: &Gpu) -> Result<Adam> {
+    pub async fn adam(&self, gpu: &Gpu) -> Result<Adam> {
         let mut rec = Recorder::new(gpu, "train adam");
         let reads: Vec<[usize; 2]> =
             self.moments.iter().map(|mv| mv.each_ref().map(|t| rec.read(t.raw(), 0, (t.len() * 4) as u64))).collect();
-        let bytes = rec.finish()?;
+        let bytes = rec.finish().await?;
         let mut adam = self.adam.clone();
         for [m, v] in reads {
             adam.m.push(bytemuck::pod_collect_to_vec(&bytes[m]));
@@ -237,9 +237,9 @@ impl DeviceTrainer {
     }
 
     /// The first submission (see the module docs) and the host's loss heads.
-    fn record_forward(&mut self, gpu: &Gpu, batch: &[PairSample]) -> Result<Forward> {
+    async fn record_forward(&mut self, gpu: &Gpu, batch: &[PairSample]) -> Result<Forward> {
         if let Some(last) = self.in_flight.take() {
-            last.wait(gpu)?;
+            last.wait(gpu).await?;
         }
         let config = &self.model.config;
         let n = config.points_per_patch;
@@ -280,7 +280,7 @@ impl DeviceTrainer {
         )?;
         let r_cw = rec.read(&ppf.encode.codewords, 0, (patches * cw * 4) as u64);
         let r_raw = rec.read(&relative[relative.len() - 1], 0, (pairs * k * 4) as u64);
-        let bytes = rec.finish()?;
+        let bytes = rec.finish().await?;
         let floats = |i: usize| -> Vec<f32> { bytemuck::pod_collect_to_vec(&bytes[i]) };
         let (loss_ppf, loss_pc, ppf_cw, raw) = (floats(r_ppf), floats(r_pc), floats(r_cw), floats(r_raw));
 
