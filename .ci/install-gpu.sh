@@ -16,17 +16,7 @@ done
 if [ "${#missing[@]}" -eq 0 ]; then
     echo "install-gpu: ${packages[*]} already installed"
 else
-    if ! command -v apt-get >/dev/null; then
-        echo "install-gpu: apt-get not found; install ${missing[*]} (Mesa lavapipe + Vulkan loader) by hand" >&2
-        exit 1
-    fi
-    sudo=()
-    if [ "$(id -u)" -ne 0 ]; then
-        sudo=(sudo)
-    fi
-    echo "install-gpu: installing ${missing[*]}"
-    "${sudo[@]}" apt-get update -q
-    "${sudo[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends "${missing[@]}"
+    bash "$(dirname "$0")/apt-install.sh" install-gpu "${missing[@]}"
 fi
 
 if ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1; then

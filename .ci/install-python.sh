@@ -20,15 +20,5 @@ else
     missing=(python3-venv python3-pip)
 fi
 
-if ! command -v apt-get >/dev/null; then
-    echo "install-python: apt-get not found; install ${missing[*]} by hand (python3 -m venv must work)" >&2
-    exit 1
-fi
-sudo=()
-if [ "$(id -u)" -ne 0 ]; then
-    sudo=(sudo)
-fi
-echo "install-python: installing ${missing[*]}"
-"${sudo[@]}" apt-get update -q
-"${sudo[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends "${missing[@]}"
+bash "$(dirname "$0")/apt-install.sh" install-python "${missing[@]}"
 python3 -m venv --help >/dev/null

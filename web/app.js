@@ -80,7 +80,9 @@ function showResult(result, seconds) {
   }));
   $("result").hidden = false;
   const verdict = result.success ? "success" : `NOT TRUSTED: ${result.reason}`;
-  status(`Verdict: ${verdict}. ${seconds.toFixed(2)} s on ${result.backend}.`,
+  const on = result.backend.startsWith("gpu") && window.dpr.adapter ?
+    `WebGPU (${window.dpr.adapter}; ${result.backend})` : result.backend;
+  status(`Verdict: ${verdict}. ${seconds.toFixed(2)} s on ${on}.`,
     result.success ? "success" : "untrusted");
   const picture = snapshot(scans.source.cloud, scans.target.cloud, t, 300);
   const canvas = $("picture");
@@ -92,6 +94,13 @@ function showResult(result, seconds) {
   $("picture-title").hidden = false;
 }
 
+// The WebGPU adapter as the browser names it (vendor / architecture), for the page; wgpu's name is often empty.
+async function adapterName() {
+  const adapter = navigator.gpu ? await navigator.gpu.requestAdapter() : null;
+  const info = adapter?.info;
+  return info ? [info.vendor, info.architecture, info.description].filter((s) => s).join(" / ") : null;
+}
+
 async function registerPair() {
   $("register").disabled = true;
   window.dpr.state = "running";
@@ -100,6 +109,7 @@ async function registerPair() {
     status("Preparing the backend...");
     const session = await Session.create({ backend: $("backend").value });
     window.dpr.backend = session.backend;
+    window.dpr.adapter = await adapterName();
     const started = performance.now();
     const ticker = setInterval(() => {
       const stage = session.progress;

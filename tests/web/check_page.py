@@ -194,7 +194,8 @@ def check_backend(browser, base, backend, native):
         raise RuntimeError(f"{backend}: the page reported: {browser.eval('window.dpr.error')}")
     result = browser.eval("window.dpr.result")
     seconds = browser.eval("window.dpr.seconds")
-    adapter = browser.eval("window.dpr.backend")
+    adapter = browser.eval("window.dpr.backend + (window.dpr.backend.startsWith('gpu') && window.dpr.adapter ? "
+                           "' on ' + window.dpr.adapter : '')")
     failures = []
     if not result["success"]:
         failures.append(f"{backend}: verdict not trusted: {result['reason']}")
@@ -208,12 +209,13 @@ def check_backend(browser, base, backend, native):
                         clip={**box, "scale": 1})
     png = base64.b64decode(shot["data"])
     source_pixels, target_pixels = count_colours(png)
+    page = base64.b64decode(browser.call("Page.captureScreenshot", format="png", captureBeyondViewport=True)["data"])
     if source_pixels < MIN_SCAN_PIXELS or target_pixels < MIN_SCAN_PIXELS:
         failures.append(f"{backend}: the picture shows {source_pixels} source and {target_pixels} target pixels "
                         f"(at least {MIN_SCAN_PIXELS} each expected)")
     return failures, {"backend": adapter, "seconds": round(seconds, 3), "rotation_error_deg": round(angle, 5),
                       "translation_error": round(shift, 7), "source_pixels": source_pixels,
-                      "target_pixels": target_pixels}, png
+                      "target_pixels": target_pixels}, page
 
 
 def check_corrupt_file(browser, base):
@@ -243,7 +245,7 @@ def main():
     parser.add_argument("--backends", nargs="+", default=["cpu", "gpu"], choices=["cpu", "gpu", "auto"])
     parser.add_argument("--chromium", default=shutil.which("chromium-headless-shell") or "chromium-headless-shell")
     parser.add_argument("--adapter", default="swiftshader", help="--use-webgpu-adapter ('' for the default)")
-    parser.add_argument("--screenshot", help="write the page's picture after the last registration here (PNG)")
+    parser.add_argument("--screenshot", help="write a screenshot of the page after the last registration here (PNG)")
     args = parser.parse_args()
     with open(args.native_pose) as f:
         native = [float(v) for v in f.read().split()]
