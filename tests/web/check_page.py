@@ -7,7 +7,8 @@ adapter, SwiftShader in CI):
   (`--native-pose`: the file `dpr-gpu register ... --out` wrote) within 0.1 degree and 1 mm;
 - after registering, a screenshot of the page's picture holds both scans: at least `MIN_SCAN_PIXELS` pixels of the
   source colour and of the target colour (src/snapshot's SOURCE_RGB and TARGET_RGB), as tests/snapshot.rs counts;
-- a corrupt file shows a clear error on the page, naming the file.
+- a corrupt file shows a clear error on the page, naming the file;
+- the one-call API `register(sourceXyz, targetXyz, options)` undoes a known motion of the example target.
 Prints one JSON line of figures (wasm size, the page's time per backend, the adapter) and exits non-zero on any
 failure. Needs `websocket-client` (PyPI) and Debian's `chromium-headless-shell`; build the package first
 (`bash web/build.sh`).
@@ -239,6 +240,43 @@ def check_corrupt_file(browser, base):
     return [], text
 
 
+def check_xyz_api(browser, base):
+    """The one-call API `register(sourceXyz, targetXyz, options)` on the CPU path, against a known motion: the
+    example target's points (every third) as the target, the same points moved by `KNOWN` as the source; the
+    pose must undo the motion."""
+    angle, axis, shift = math.radians(40.0), (0.36, 0.48, 0.8), (0.3, -0.2, 0.1)
+    c, s_, (x, y, z) = math.cos(angle), math.sin(angle), axis
+    rotation = [[c + x * x * (1 - c), x * y * (1 - c) - z * s_, x * z * (1 - c) + y * s_],
+                [y * x * (1 - c) + z * s_, c + y * y * (1 - c), y * z * (1 - c) - x * s_],
+                [z * x * (1 - c) - y * s_, z * y * (1 - c) + x * s_, c + z * z * (1 - c)]]
+    known = [v for r in range(3) for v in rotation[r] + [shift[r]]] + [0, 0, 0, 1]
+    result = browser.eval("""(async () => {
+        const m = await import('/web/pkg/dpr_gpu_web.js');
+        const bytes = new Uint8Array(await (await fetch('/examples/pair/cloud_bin_0.ply')).arrayBuffer());
+        const all = m.readCloud('cloud_bin_0.ply', bytes).points;
+        const T = %s;
+        const n = Math.floor(all.length / 9);
+        const target = new Float32Array(3 * n), source = new Float32Array(3 * n);
+        for (let i = 0; i < n; i++) {
+            const [x, y, z] = [all[9 * i], all[9 * i + 1], all[9 * i + 2]];
+            target.set([x, y, z], 3 * i);
+            for (let r = 0; r < 3; r++) source[3 * i + r] = T[4 * r] * x + T[4 * r + 1] * y + T[4 * r + 2] * z + T[4 * r + 3];
+        }
+        const r = await m.register(source, target, { backend: 'cpu' });
+        return { pose: r.targetFromSource, success: r.success, reason: r.reason };
+    })()""" % json.dumps(known))
+    # target_from_source undoes KNOWN: its rotation is KNOWN's transposed, its translation -R^T t.
+    inverse = [rotation[c][r] for r in range(3) for c in range(3)]
+    t = [-sum(rotation[k][r] * shift[k] for k in range(3)) for r in range(3)]
+    expected = inverse[0:3] + [t[0]] + inverse[3:6] + [t[1]] + inverse[6:9] + [t[2]] + [0, 0, 0, 1]
+    angle_error, shift_error = pose_error(result["pose"], expected)
+    figures = {"rotation_error_deg": round(angle_error, 5), "translation_error": round(shift_error, 7)}
+    if not result["success"] or angle_error > 0.5 or shift_error > 0.01:
+        return [f"register(xyz, xyz): success {result['success']} ({result['reason']}), {angle_error:.3f} deg, "
+                f"{shift_error:.4f} from the known motion (limits 0.5 deg, 0.01)"], figures
+    return [], figures
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--native-pose", required=True, help="target_from_source written by `register --out`")
@@ -270,6 +308,8 @@ def main():
                 with open(args.screenshot, "wb") as f:
                     f.write(png)
         found, figures["corrupt_file_message"] = check_corrupt_file(browser, base)
+        failures += found
+        found, figures["xyz_api_known_motion"] = check_xyz_api(browser, base)
         failures += found
     finally:
         browser.close()
