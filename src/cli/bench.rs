@@ -135,8 +135,8 @@ pub struct CpuInfo {
     pub threads: usize,
     /// The GEMM micro-kernel the CPU backend uses (`avx512`, `avx2`, `portable`).
     pub gemm_path: &'static str,
-    /// The encoders' arithmetic on the CPU (`bf16` where the CPU has AVX-512 BF16, else `f32`;
-    /// `DPR_GPU_CPU_PRECISION=f32` or `bf16` overrides it).
+    /// The arithmetic of the encoders and of the training stages on the CPU (`bf16` where the CPU has AVX-512
+    /// BF16, else `f32`; `DPR_GPU_CPU_PRECISION=f32` or `bf16` overrides it).
     pub precision: &'static str,
 }
 
@@ -520,12 +520,13 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
     let (ppf, pc) = (&inputs.ppf, &inputs.pc);
     let mut stages = measure_stages(args, &model, &inputs, cpu.as_ref(), gpu.as_ref())?;
     let backward_patches = k.min(BACKWARD_PATCHES);
-    stages.push(measure_encode_backward(args, &weights, &model, ppf, backward_patches, cpu.is_some(), gpu.as_ref())?);
+    let cpu_precision = cpu.is_some().then_some(precision);
+    stages.push(measure_encode_backward(args, &weights, &model, ppf, backward_patches, cpu_precision, gpu.as_ref())?);
     let train_pairs = (k / 2).clamp(1, TRAIN_PAIRS);
     let batch = train_batch(args.seed, &model, [ppf, pc], k, train_pairs);
     // The weights as the model runs them (`--points` changes no tensor).
     let train_weights = Weights { config: model.config.clone(), ..weights.clone() };
-    stages.push(measure_train_step(args, &train_weights, &batch, cpu.is_some(), gpu.as_ref())?);
+    stages.push(measure_train_step(args, &train_weights, &batch, cpu_precision, gpu.as_ref())?);
     let (gemm, gemm_unavailable) =
         gemm_variants(args, gpu.as_ref().map(GpuBackend::gpu), use_cpu.then_some(precision), k * p)?;
     let pair = if args.pair_points == 0 {
@@ -728,7 +729,8 @@ fn measure_stages(
 const BACKWARD_PATCHES: usize = 128;
 
 /// The training stage `encode_backward ppf`: PPF-FoldNet's encoder backward pass over `patches` of the
-/// synthetic patches, from a codeword gradient, on the CPU trainer (`train::backward::encode_backward`) and on
+/// synthetic patches, from a codeword gradient, on the CPU trainer (`train::backward::encode_backward`, at the
+/// CPU's precision `cpu` when it is timed) and on
 /// the device (`gpu::backward::record_encode_backward`, activations and weights uploaded before timing, so a
 /// call moves no bytes: gradients stay there). Flops: twice the forward's (weight and input gradients).
 fn measure_encode_backward(
@@ -737,7 +739,7 @@ fn measure_encode_backward(
     model: &Model,
     ppf: &[f32],
     patches: usize,
-    use_cpu: bool,
+    cpu: Option<Precision>,
     gpu: Option<&GpuBackend>,
 ) -> anyhow::Result<StageReport> {
     use crate::gpu::backward::{DeviceEncodeTapeBuffers, DeviceLayerBuffers, record_encode_backward};
@@ -751,10 +753,11 @@ fn measure_encode_backward(
     let layer_weights = LayerWeights::new(weights)?;
     let flops = Some(2.0 * encode_flops(model, patches, p));
     let mut row = StageReport { stage: "encode_backward ppf".into(), flops, cpu: None, gpu: None };
-    if use_cpu {
+    if let Some(precision) = cpu {
+        let cpu_weights = LayerWeights::with_precision(weights, precision)?;
         let m = measure(args.repeat, None, || -> anyhow::Result<()> {
             let mut grads = Gradients::zeros(&weights.config);
-            encode_backward(net, &layer_weights, 0, input, &tape, &d_codeword, &mut grads);
+            encode_backward(net, &cpu_weights, 0, input, &tape, &d_codeword, &mut grads);
             Ok(())
         })?;
         row.cpu = Some(cpu_timing(m, flops));
@@ -799,7 +802,8 @@ fn train_batch(seed: u64, model: &Model, [ppf, pc]: [&[f32]; 2], k: usize, pairs
 }
 
 /// The training stage `train_step`: one whole step (every loss term of the recipe, contrastive included; the
-/// gradient; AdamW) on `batch`, on the CPU trainer (`batch_objective` + `apply_gradients`) and on the device
+/// gradient; AdamW) on `batch`, on the CPU trainer (`batch_objective_at` the CPU's precision `cpu` +
+/// `apply_gradients`, as `dpr-gpu train` runs it) and on the device
 /// (`gpu::train::DeviceTrainer::step`, on an f32 GEMM: a device of its own where the backend's GEMM is not).
 /// Each repetition continues from the last one's weights. The device moves the batch's inputs and the loss
 /// heads' values and gradients per step.
@@ -807,19 +811,19 @@ fn measure_train_step(
     args: &Args,
     weights: &Weights,
     batch: &[PairSample],
-    use_cpu: bool,
+    cpu: Option<Precision>,
     gpu: Option<&GpuBackend>,
 ) -> anyhow::Result<StageReport> {
     use crate::train::trainer::{apply_gradients, tensor_order};
-    use crate::train::{Adam, AdamSettings, LossSettings, batch_objective};
+    use crate::train::{Adam, AdamSettings, LossSettings, batch_objective_at};
     let loss = LossSettings { contrast: true, ..LossSettings::default() };
     let sizes: Vec<usize> = tensor_order(&weights.config).iter().map(|t| t.1).collect();
     let adam = Adam::new(AdamSettings::default(), &sizes);
     let mut row = StageReport { stage: "train_step".into(), flops: None, cpu: None, gpu: None };
-    if use_cpu {
+    if let Some(precision) = cpu {
         let (mut w, mut a) = (weights.clone(), adam.clone());
         let m = measure(args.repeat, None, || -> anyhow::Result<()> {
-            let (_, grads) = batch_objective(&w, batch, &loss)?;
+            let (_, grads) = batch_objective_at(precision, &w, batch, &loss)?;
             apply_gradients(&mut w, &mut a, &grads)?;
             Ok(())
         })?;

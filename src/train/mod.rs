@@ -42,5 +42,5 @@ pub use adam::{Adam, AdamSettings};
 pub use backward::Gradients;
 pub use checkpoint::{load_checkpoint, save_checkpoint};
 pub use data::{DataSettings, FragmentPair, Sampler};
-pub use objective::{LossSettings, Losses, PairSample, batch_loss, batch_objective};
+pub use objective::{LossSettings, Losses, PairSample, batch_loss, batch_objective, batch_objective_at};
 pub use trainer::{TrainSettings, Trainer};
