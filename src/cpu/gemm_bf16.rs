@@ -610,6 +610,10 @@ mod tests {
                 (v(rows * in_dim), v(in_dim * out_dim), v(rows.div_ceil(rpg) * out_dim), v(rows * out_dim));
             let mut got = init.clone();
             dense_bf16(&s, &x, &w, &g, &mut got);
+            // The AMX tiles (where the CPU has them) within f32 summation of the vector unit's layer.
+            let parts = [(&x[..], in_dim)];
+            let mut tiles = init.clone();
+            dense_bf16_packed_on(Bf16Unit::Tiles, &s, &parts, &pack_weight(&w, in_dim, out_dim), &g, &mut tiles);
             let mut twin = init.clone();
             dense_bf16_reference(&s, &x, &w, &g, &mut twin);
             let mut f32_layer = init.clone();
@@ -625,6 +629,8 @@ mod tests {
                     // Twin and SIMD differ by f32 summation only (same rounded factors; ReLU is 1-Lipschitz).
                     let sum_only = 2.0 * gamma_f32(in_dim + 2) * mag * 1.01 + 1e-30;
                     assert!(f64::from((got[i] - twin[i]).abs()) <= sum_only, "{s:?} at {i}: {} vs {}", got[i], twin[i]);
+                    let tiles_off = f64::from((tiles[i] - twin[i]).abs());
+                    assert!(tiles_off <= sum_only, "{s:?} at {i}: tiles {} vs {}", tiles[i], twin[i]);
                     let bound = bf16_dense_bound(in_dim, mag);
                     let d = f64::from((got[i] - f32_layer[i]).abs());
                     assert!(d <= bound, "{s:?} at {i}: {} vs f32 {} (bound {bound})", got[i], f32_layer[i]);
