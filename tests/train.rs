@@ -586,7 +586,9 @@ fn bf16_step_gradients_match_the_f32_step_within_the_bf16_bound() {
     };
     let (l16, g16) = run(1);
     assert_eq!(run(3), (l16, g16.clone()), "the bf16 step depends on the thread count");
-    for (name, a, b) in [("total", l16.total, l32.total), ("rec", l16.rec, l32.rec), ("contrast", l16.contrast, l32.contrast)] {
+    for (name, a, b) in
+        [("total", l16.total, l32.total), ("rec", l16.rec, l32.rec), ("contrast", l16.contrast, l32.contrast)]
+    {
         assert!((a - b).abs() <= BF16_STEP_BOUND * b.abs(), "loss {name}: bf16 {a} vs f32 {b}");
     }
     let mut worst = 0.0f64;
@@ -598,7 +600,8 @@ fn bf16_step_gradients_match_the_f32_step_within_the_bf16_bound() {
             worst = worst.max(d / scale);
         }
     }
-    let flat = |g: &Gradients| g.layers.iter().flat_map(|l| l.weight.iter().chain(&l.bias)).copied().collect::<Vec<f32>>();
+    let flat =
+        |g: &Gradients| g.layers.iter().flat_map(|l| l.weight.iter().chain(&l.bias)).copied().collect::<Vec<f32>>();
     let (a, b) = (flat(&g16), flat(&g32));
     let whole = distance(&a, &b) / distance(&b, &vec![0.0; b.len()]);
     eprintln!("bf16 step vs f32: worst tensor {worst:.4} (bound {BF16_STEP_BOUND}), whole gradient {whole:.4}");

@@ -205,7 +205,13 @@ fn train_precision(args: &Args) -> anyhow::Result<Precision> {
         (Some("bf16"), "gpu") => bail!("--precision bf16 is for the CPU trainer; --backend gpu trains in f32"),
         (_, "gpu") | (Some("f32"), _) => Precision::F32,
         (Some("bf16"), _) if !bf16 => bail!("--precision bf16: this CPU has no AVX-512 BF16 (use f32 or auto)"),
-        (Some(_), _) => if bf16 { Precision::Bf16 } else { Precision::F32 },
+        (Some(_), _) => {
+            if bf16 {
+                Precision::Bf16
+            } else {
+                Precision::F32
+            }
+        }
         (None, _) => Precision::from_env()?.0,
     })
 }

@@ -53,7 +53,13 @@ pub fn dense_weight_grad_bf16(
 /// `dx[r, c] += sum_o dz[r, o] W[o, offset + c]` into `dx` (`rows x width`), given the layer's weight
 /// (`out_dim x in_dim`, PyTorch layout). Panics when the CPU lacks AVX-512 BF16, or a size disagrees with
 /// `shape`.
-pub fn dense_input_grad_bf16(unit: Bf16Unit, shape: &SliceShape, dz: &PackedOutputGrad, weight: &[f32], dx: &mut [f32]) {
+pub fn dense_input_grad_bf16(
+    unit: Bf16Unit,
+    shape: &SliceShape,
+    dz: &PackedOutputGrad,
+    weight: &[f32],
+    dx: &mut [f32],
+) {
     assert!(dz.rows == shape.rows && dz.out_dim == shape.out_dim, "dense_input_grad_bf16: dz has another shape");
     let w_pairs = pack_row_pairs(&weight[shape.offset..], shape.out_dim, shape.width, shape.in_dim);
     let sizes = (shape.rows, shape.width, shape.out_dim.div_ceil(2));
@@ -94,14 +100,25 @@ mod tests {
                 dense_weight_grad_bf16(unit, &shape, &packed, &x, &mut dw);
                 dense_input_grad_bf16(unit, &shape, &packed, &weight, &mut dx);
                 let what = format!("{shape:?} on {:?}", unit.effective());
-                check_within_bound(&what, (&dw, &dw_f32, &dw0), |o, col| {
-                    let c = col.checked_sub(offset).filter(|&c| c < width)?;
-                    Some((rows, (0..rows).map(|r| f64::from((dz[r * out_dim + o] * x[r * width + c]).abs())).sum()))
-                }, in_dim);
-                check_within_bound(&what, (&dx, &dx_f32, &dx0), |r, c| {
-                    let products = (0..out_dim).map(|o| f64::from((dz[r * out_dim + o] * weight[o * in_dim + offset + c]).abs()));
-                    Some((out_dim, products.sum()))
-                }, width);
+                check_within_bound(
+                    &what,
+                    (&dw, &dw_f32, &dw0),
+                    |o, col| {
+                        let c = col.checked_sub(offset).filter(|&c| c < width)?;
+                        Some((rows, (0..rows).map(|r| f64::from((dz[r * out_dim + o] * x[r * width + c]).abs())).sum()))
+                    },
+                    in_dim,
+                );
+                check_within_bound(
+                    &what,
+                    (&dx, &dx_f32, &dx0),
+                    |r, c| {
+                        let products = (0..out_dim)
+                            .map(|o| f64::from((dz[r * out_dim + o] * weight[o * in_dim + offset + c]).abs()));
+                        Some((out_dim, products.sum()))
+                    },
+                    width,
+                );
             }
         }
     }

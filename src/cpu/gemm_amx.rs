@@ -118,7 +118,8 @@ mod x86 {
         c: *mut f32,
         ldc: usize,
     ) {
-        let mut config = TileConfig { palette: 1, start_row: 0, reserved: [0; 14], bytes_per_row: [0; 16], rows: [0; 16] };
+        let mut config =
+            TileConfig { palette: 1, start_row: 0, reserved: [0; 14], bytes_per_row: [0; 16], rows: [0; 16] };
         for t in 0..8 {
             config.bytes_per_row[t] = 64;
             config.rows[t] = 16;

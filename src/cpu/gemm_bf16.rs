@@ -179,20 +179,29 @@ impl Bf16Unit {
 /// words, [`pack_row_pairs`]), the products summed in f32 on `unit` onto the old value of `c`. Within
 /// [`bf16_dense_bound`] (with `in_dim = 2 kp`) of the f32 product. Panics when the CPU lacks AVX-512 BF16
 /// ([`is_available`]) or a slice is too short.
-pub fn gemm_acc_packed(unit: Bf16Unit, (m, n, kp): (usize, usize, usize), a: &[u32], b: &[u32], c: &mut [f32], ldc: usize) {
+pub fn gemm_acc_packed(
+    unit: Bf16Unit,
+    (m, n, kp): (usize, usize, usize),
+    a: &[u32],
+    b: &[u32],
+    c: &mut [f32],
+    ldc: usize,
+) {
     assert!(is_available(), "gemm_acc_packed: this CPU has no AVX-512 BF16");
     if m == 0 || n == 0 {
         return;
     }
     assert!(a.len() >= m * kp && b.len() >= kp * n && c.len() >= (m - 1) * ldc + n, "gemm_acc_packed: sizes");
     if unit.effective() == Bf16Unit::Tiles {
-        return gemm_acc_tiles_padded((m, n, kp), a, b, c, ldc);
-    }
-    let shape = DenseShape { rows: m, in_dim: 2 * kp, out_dim: n, rows_per_group: 1, accumulate: true, relu: false };
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: the CPU has AVX-512F and AVX-512 BF16 (asserted above); the operands have the packed sizes.
-    unsafe {
-        x86::body(&shape, a, b, &[], c, ldc)
+        gemm_acc_tiles_padded((m, n, kp), a, b, c, ldc);
+    } else {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let shape =
+                DenseShape { rows: m, in_dim: 2 * kp, out_dim: n, rows_per_group: 1, accumulate: true, relu: false };
+            // SAFETY: the CPU has AVX-512F and AVX-512 BF16 (asserted above); the operands have the packed sizes.
+            unsafe { x86::body(&shape, a, b, &[], c, ldc) }
+        }
     }
 }
 
@@ -227,7 +236,11 @@ fn gemm_acc_tiles_padded((m, n, kp): (usize, usize, usize), a: &[u32], b: &[u32]
 }
 
 /// The `rows x cols` matrix `x` (row stride `ld`) in a zero `rows_to x cols_to` one (row stride `cols_to`).
-fn padded<T: Copy + Default>(x: &[T], (rows, cols, ld): (usize, usize, usize), (rows_to, cols_to): (usize, usize)) -> Vec<T> {
+fn padded<T: Copy + Default>(
+    x: &[T],
+    (rows, cols, ld): (usize, usize, usize),
+    (rows_to, cols_to): (usize, usize),
+) -> Vec<T> {
     let mut out = vec![T::default(); rows_to * cols_to];
     for (r, dst) in out.chunks_exact_mut(cols_to).enumerate().take(rows) {
         dst[..cols].copy_from_slice(&x[r * ld..][..cols]);
@@ -279,7 +292,7 @@ pub fn dense_bf16_packed_on(
     out: &mut [f32],
 ) {
     assert!(is_available(), "dense_bf16: this CPU has no AVX-512 BF16");
-    let DenseShape { rows, in_dim, out_dim, rows_per_group, accumulate, relu } = *shape;
+    let DenseShape { rows, in_dim, out_dim, rows_per_group, .. } = *shape;
     let total: usize = segments.iter().map(|s| s.1).sum();
     assert!(total == in_dim && segments.iter().rev().skip(1).all(|s| s.1 % 2 == 0), "dense_bf16: widths");
     assert!(segments.iter().all(|s| s.0.len() >= rows * s.1), "dense_bf16: input too short");
@@ -291,29 +304,36 @@ pub fn dense_bf16_packed_on(
     PACKED_ROWS.with_borrow_mut(|a| {
         pack_rows(segments, rows, a);
         if unit.effective() == Bf16Unit::Tiles {
-            let out = &mut out[..rows * out_dim];
-            for (r, row) in out.chunks_exact_mut(out_dim).enumerate() {
-                if !accumulate {
-                    row.fill(0.0);
-                }
-                if !group_term.is_empty() {
-                    let g = &group_term[(r / rows_per_group.max(1)) * out_dim..][..out_dim];
-                    row.iter_mut().zip(g).for_each(|(v, gv)| *v += gv);
-                }
+            dense_on_tiles(shape, a, w_packed, group_term, out);
+        } else {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: the CPU has AVX-512F and AVX-512 BF16 (asserted above); `a` and `w_packed` have the packed
+            // sizes.
+            unsafe {
+                x86::body(shape, a, w_packed, group_term, out, out_dim)
             }
-            gemm_acc_tiles_padded((rows, out_dim, in_dim.div_ceil(2)), a, w_packed, out, out_dim);
-            if relu {
-                out.iter_mut().for_each(|v| *v = v.max(0.0));
-            }
-            return;
-        }
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: the CPU has AVX-512F and AVX-512 BF16 (asserted above); `a` and `w_packed` have the packed
-        // sizes.
-        unsafe {
-            x86::body(shape, a, w_packed, group_term, out, out_dim)
         }
     })
+}
+
+/// The dense layer on the AMX tiles, from the packed rows `a` and weight `w_packed`: the output starts as the
+/// old output (when accumulating) plus the group term, the product is added, then ReLU.
+fn dense_on_tiles(shape: &DenseShape, a: &[u32], w_packed: &[u32], group_term: &[f32], out: &mut [f32]) {
+    let DenseShape { rows, in_dim, out_dim, rows_per_group, accumulate, relu } = *shape;
+    let out = &mut out[..rows * out_dim];
+    for (r, row) in out.chunks_exact_mut(out_dim).enumerate() {
+        if !accumulate {
+            row.fill(0.0);
+        }
+        if !group_term.is_empty() {
+            let g = &group_term[(r / rows_per_group.max(1)) * out_dim..][..out_dim];
+            row.iter_mut().zip(g).for_each(|(v, gv)| *v += gv);
+        }
+    }
+    gemm_acc_tiles_padded((rows, out_dim, in_dim.div_ceil(2)), a, w_packed, out, out_dim);
+    if relu {
+        out.iter_mut().for_each(|v| *v = v.max(0.0));
+    }
 }
 
 /// The tile's starting values: the old output (row stride `ldc`) when accumulating, plus the group term.

@@ -18,9 +18,9 @@
 use super::backward::{Gradients, LayerWeights, decode_backward, encode_backward, relative_backward};
 use super::contrast::hardest_negative_loss;
 use super::loss::{chamfer, feat_loss, rotation_loss};
-use crate::error::{Error, Result};
 use crate::cpu::gemm::Precision;
 use crate::cpu::gemm_bf16::Bf16Unit;
+use crate::error::{Error, Result};
 use crate::model::config::RotationOutput;
 use crate::model::foldnet::EncodeTape;
 use crate::model::params::foldnet_layers;
