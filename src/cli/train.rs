@@ -162,9 +162,10 @@ pub struct Args {
     /// sampling, checkpoints and logs are the same; `--pose-trains-ppf` is CPU-only.
     #[arg(long, default_value = "cpu", value_parser = ["cpu", "gpu"])]
     pub backend: String,
-    /// Arithmetic of the CPU step's multiplies: f32, bf16 (bf16 products summed in f32 in the wide layers,
-    /// about twice as fast; weights and Adam stay f32; needs AVX-512 BF16) or auto (bf16 where the CPU has it)
-    /// [default: DPR_GPU_CPU_PRECISION, else auto; f32 with --backend gpu]. A resumed run keeps its own.
+    /// Arithmetic of the CPU step's multiplies: f32, bf16 (bf16 products summed in f32 in the wide layers, on
+    /// AMX tiles where the CPU has them; weights and Adam stay f32; needs AVX-512 BF16) or auto (bf16 where the
+    /// CPU has it) [default: DPR_GPU_CPU_PRECISION, else auto; f32 with --backend gpu]. A resumed run keeps its
+    /// own.
     #[arg(long, value_parser = ["f32", "bf16", "auto"])]
     pub precision: Option<String>,
     /// Append per-step losses to this CSV file (the header is written only when the file is new or empty; a
