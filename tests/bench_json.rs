@@ -41,6 +41,7 @@ fn small_args() -> Args {
         peak_tflops: Some(2.5),
         pair_points: 3000,
         pose_graph: None,
+        full_sizes: false,
     }
 }
 

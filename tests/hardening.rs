@@ -344,6 +344,35 @@ fn train_on_the_gpu_backend_fails_cleanly_without_a_device_or_with_a_cpu_only_op
     assert!(!out.exists(), "a failed run wrote its output");
 }
 
+#[test]
+fn train_precision_is_saved_with_the_run_and_cannot_change_on_resume() {
+    let dir = temp_dir("hard-train-precision");
+    let data = tiny_dataset(&dir);
+    let out = dir.join("w.safetensors");
+    let small = ["--points", "8", "--grid", "3", "--batch", "2", "--voxel", "0.03", "--steps", "1"];
+    let args = [&["train", "--data", s(&data), "--out", s(&out)], &small[..]].concat();
+    let train = |extra: &[&str]| dpr(&[&args[..], extra].concat());
+    assert_clean_failure(&train(&["--precision", "bf16", "--backend", "gpu"]), &["--precision bf16", "--backend gpu"]);
+    assert!(!out.exists(), "a failed run wrote its output");
+    let saved_precision = || {
+        let notes = Weights::load(&out).unwrap().notes;
+        let settings: serde_json::Value = serde_json::from_str(&notes["dpr_gpu.train.settings"]).unwrap();
+        settings["precision"].as_str().unwrap().to_string()
+    };
+    let o = train(&["--precision", "f32"]);
+    assert!(o.status.success(), "{:?}", text(&o));
+    assert_eq!(saved_precision(), "f32");
+    // A resumed run keeps the checkpoint's precision, and refuses another one.
+    let ckpt = dir.join("w.ckpt.safetensors");
+    let resume = |extra: &[&str]| dpr(&[&["train", "--resume", s(&ckpt), "--out", s(&out)], extra].concat());
+    if dpr_gpu::cpu::gemm::Precision::Bf16.is_available() {
+        assert_clean_failure(&resume(&["--steps", "2", "--precision", "bf16"]), &["--precision", "cannot change"]);
+    }
+    let o = resume(&["--steps", "2"]);
+    assert!(o.status.success(), "{:?}", text(&o));
+    assert_eq!(saved_precision(), "f32");
+}
+
 // ------------------------------------------------------------------------------ 4. awkward input
 
 #[test]

@@ -9,19 +9,21 @@
 
 mod common;
 use dpr_gpu::PointCloud;
+use dpr_gpu::cpu::gemm::Precision;
 use dpr_gpu::model::config::{PoseFrame, RotationOutput};
-use dpr_gpu::model::params::tensor_specs;
+use dpr_gpu::model::params::{foldnet_layers, tensor_specs};
 use dpr_gpu::model::{FoldNet, ModelConfig, Net, RelativeNet, Weights};
 use dpr_gpu::pose::matrix_from_quaternion;
 use dpr_gpu::rng::Rng;
 use dpr_gpu::train::adam::{Adam, AdamSettings, Param};
+use dpr_gpu::train::backward::{Gradients, LayerWeights, decode_backward, encode_backward};
 use dpr_gpu::train::grad::{DenseGrads, DenseLayer, Segment, dense_backward, max_pool_backward, relu_backward};
 use dpr_gpu::train::loss::{
     chamfer, feat_loss, normalize_quaternion, normalize_quaternion_backward, pose_loss, rotation_loss, six_d_pose_loss,
 };
 use dpr_gpu::train::{
     DataSettings, LossSettings, PairSample, Sampler, TrainSettings, Trainer, batch_loss, batch_objective,
-    contrast::hardest_negative_loss,
+    batch_objective_at, contrast::hardest_negative_loss,
 };
 use nalgebra::{Matrix3, Matrix4, Vector3};
 use std::path::Path;
@@ -525,6 +527,125 @@ fn whole_model_gradient_matches(config: ModelConfig) {
         assert_eq!(d.get(&config, name).unwrap(), grads.get(&config, name).unwrap(), "{name}");
     }
     assert_ne!(d.get(&config, "ppf.encoder.0.weight").unwrap(), grads.get(&config, "ppf.encoder.0.weight").unwrap());
+}
+
+/// A model wide enough for the bf16 trainer (`train::grad::bf16_backward`: layers at least 32 wide in and out,
+/// 32 rows or more): 24 points per patch and a 4 x 6 grid, so a pair's two patches are 48 rows.
+/// `None`, and says the test is skipped, where the CPU has no AVX-512 BF16 (the bf16 trainer never runs there).
+fn bf16_config() -> Option<ModelConfig> {
+    if !Precision::Bf16.is_available() {
+        eprintln!("SKIPPED: this CPU has no AVX-512 BF16 (the bf16 trainer is never selected here)");
+        return None;
+    }
+    Some(ModelConfig {
+        points_per_patch: 24,
+        encoder_widths: vec![32, 48],
+        head_widths: vec![64, 40],
+        fold_widths: vec![34, 32],
+        grid: [4, 6],
+        relative_widths: vec![40, 32],
+        ..tiny_config()
+    })
+}
+
+/// Euclidean distance of two vectors, in f64.
+fn distance(a: &[f32], b: &[f32]) -> f64 {
+    a.iter().zip(b).map(|(&x, &y)| (f64::from(x) - f64::from(y)).powi(2)).sum::<f64>().sqrt()
+}
+
+/// The relative distance of a bf16 backward pass from the f32 one on the same forward, per tensor: each bf16
+/// layer rounds both factors of its products (relative `2u` at most, u = 2^-8), the input gradient carries
+/// the error of every layer above it, and a FoldNet's deepest weight gradient lies behind up to seven bf16
+/// multiplies (the decoder's folds, then the encoder's head and layers): `16u`.
+const BF16_BACKWARD_BOUND: f64 = 16.0 / 256.0;
+
+/// The bf16 step's relative distance from the f32 step, per tensor. Unlike [`BF16_BACKWARD_BOUND`] this is
+/// not rounding alone: the bf16 forward moves the loss's kinks (a max-pool's argmax, a Chamfer nearest
+/// neighbour, a ReLU, the hardest negative) for a few rows, so the step follows another, equally valid,
+/// gradient there; the deep encoder layers collect the most of it (0.17 at most here, 0.004 from rounding).
+const BF16_STEP_BOUND: f64 = 0.25;
+
+/// [`BF16_STEP_BOUND`] for the whole gradient (every tensor as one vector), which the large tensors dominate.
+const BF16_STEP_BOUND_WHOLE: f64 = 0.1;
+
+/// The bf16 trainer against the f32 one (the oracle, itself checked against finite differences above): the same
+/// batch (every loss term on, the contrastive one included) gives losses within the bound, every gradient
+/// tensor within [`BF16_STEP_BOUND`] of the f32 one and the whole gradient within [`BF16_STEP_BOUND_WHOLE`],
+/// the rounding visible (not bit-identical, so the bf16 layers ran); and the bf16 gradient is bit-identical
+/// for any thread count, as the f32 one.
+#[test]
+fn bf16_step_gradients_match_the_f32_step_within_the_bf16_bound() {
+    let Some(config) = bf16_config() else { return };
+    let weights = weights_with_biases(&config, 41);
+    let mut rng = Rng::new(42);
+    let samples: Vec<PairSample> = (0..6).map(|_| random_sample(&config, &mut rng)).collect();
+    let settings = LossSettings { contrast: true, ..LossSettings::default() };
+    let (l32, g32) = batch_objective(&weights, &samples, &settings).unwrap();
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| batch_objective_at(Precision::Bf16, &weights, &samples, &settings).unwrap())
+    };
+    let (l16, g16) = run(1);
+    assert_eq!(run(3), (l16, g16.clone()), "the bf16 step depends on the thread count");
+    for (name, a, b) in
+        [("total", l16.total, l32.total), ("rec", l16.rec, l32.rec), ("contrast", l16.contrast, l32.contrast)]
+    {
+        assert!((a - b).abs() <= BF16_STEP_BOUND * b.abs(), "loss {name}: bf16 {a} vs f32 {b}");
+    }
+    let mut worst = 0.0f64;
+    for (name, _) in tensor_specs(&config) {
+        let (a, b) = (g16.get(&config, &name).unwrap(), g32.get(&config, &name).unwrap());
+        let (d, scale) = (distance(a, b), distance(b, &vec![0.0; b.len()]));
+        assert!(d <= BF16_STEP_BOUND * scale, "{name}: |bf16 - f32| = {d:.3e}, |f32| = {scale:.3e}");
+        if scale > 0.0 {
+            worst = worst.max(d / scale);
+        }
+    }
+    let flat =
+        |g: &Gradients| g.layers.iter().flat_map(|l| l.weight.iter().chain(&l.bias)).copied().collect::<Vec<f32>>();
+    let (a, b) = (flat(&g16), flat(&g32));
+    let whole = distance(&a, &b) / distance(&b, &vec![0.0; b.len()]);
+    eprintln!("bf16 step vs f32: worst tensor {worst:.4} (bound {BF16_STEP_BOUND}), whole gradient {whole:.4}");
+    assert!(whole <= BF16_STEP_BOUND_WHOLE, "whole gradient: {whole:.4} of its norm apart");
+    assert!(worst > 0.0, "the bf16 layers did not run: the gradients are the f32 ones");
+}
+
+/// The bf16 backward passes alone, against the f32 ones on the same forward tapes and the same upstream
+/// gradients (so no kink of the forward moves): every parameter gradient of both FoldNets within
+/// [`BF16_BACKWARD_BOUND`] of the f32 one, relative, per tensor.
+#[test]
+fn bf16_backward_passes_match_the_f32_ones_within_the_rounding_bound() {
+    let Some(config) = bf16_config() else { return };
+    let weights = weights_with_biases(&config, 51);
+    let mut rng = Rng::new(52);
+    let (patches, n) = (4, config.points_per_patch);
+    let mut worst = 0.0f64;
+    for (net, base) in [(Net::Ppf, 0), (Net::Pc, foldnet_layers(&config, Net::Ppf).len())] {
+        let f = FoldNet::from_weights(&weights, net).unwrap();
+        let input: Vec<f32> = (0..patches * n * net.io_width()).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
+        let tape = f.encode_tape(&input, patches, n);
+        let dec = f.decode_tape(&tape.codeword, patches);
+        let d_codeword = randn(&mut rng, tape.codeword.len(), 1.0);
+        let d_recon = randn(&mut rng, dec.output().len(), 1.0);
+        let grads = |precision: Precision| {
+            let w = LayerWeights::with_precision(&weights, precision).unwrap();
+            let mut g = Gradients::zeros(&config);
+            let mut d_cw = d_codeword.clone();
+            decode_backward(&f, &w, base, &tape.codeword, &dec, d_recon.clone(), &mut d_cw, &mut g);
+            encode_backward(&f, &w, base, &input, &tape, &d_cw, &mut g);
+            g
+        };
+        let (g16, g32) = (grads(Precision::Bf16), grads(Precision::F32));
+        for (i, (a, b)) in g16.layers.iter().zip(&g32.layers).enumerate() {
+            for (what, x, y) in [("weight", &a.weight, &b.weight), ("bias", &a.bias, &b.bias)] {
+                let (d, scale) = (distance(x, y), distance(y, &vec![0.0; y.len()]));
+                assert!(d <= BF16_BACKWARD_BOUND * scale, "{net:?} layer {i} {what}: {d:.3e} of {scale:.3e}");
+                worst = worst.max(if scale > 0.0 { d / scale } else { 0.0 });
+            }
+        }
+    }
+    eprintln!("worst relative gradient distance of the bf16 backward: {worst:.5} (bound {BF16_BACKWARD_BOUND:.5})");
+    assert!(worst > 0.0, "the bf16 layers did not run");
 }
 
 #[test]

@@ -36,10 +36,11 @@ pub const SCHEMA: &str = "dpr-gpu-bench/2";
 /// Arguments of `dpr-gpu bench`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
-    /// Keypoints (patches) per scan; also the number of correspondences and hypotheses.
-    #[arg(long, default_value_t = 1000)]
+    /// Keypoints (patches) per scan; also the number of correspondences and hypotheses [default: 1000; 16 on a
+    /// software adapter, see --full-sizes].
+    #[arg(long, default_value_t = DEFAULT_KEYPOINTS, hide_default_value = true)]
     pub keypoints: usize,
-    /// Points per patch (default: the model's, 256 for the default configuration).
+    /// Points per patch (default: the model's, 256 for the default configuration; 32 on a software adapter).
     #[arg(long)]
     pub points: Option<usize>,
     /// Backends to time: gpu, cpu or both.
@@ -49,8 +50,8 @@ pub struct Args {
     /// the values).
     #[arg(long)]
     pub weights: Option<PathBuf>,
-    /// Timed repetitions per stage (the fastest is reported).
-    #[arg(long, default_value_t = 3)]
+    /// Timed repetitions per stage (the fastest is reported) [default: 3; 1 on a software adapter].
+    #[arg(long, default_value_t = DEFAULT_REPEAT, hide_default_value = true)]
     pub repeat: usize,
     /// Seed of the synthetic inputs.
     #[arg(long, default_value_t = 0)]
@@ -62,9 +63,15 @@ pub struct Args {
     /// figures then also give the fraction of that peak.
     #[arg(long)]
     pub peak_tflops: Option<f64>,
-    /// Points per scan of the synthetic pair registered end to end (per-pair bytes and times); 0 skips it.
-    #[arg(long, default_value_t = 20_000)]
+    /// Points per scan of the synthetic pair registered end to end (per-pair bytes and times); 0 skips it
+    /// [default: 20000; 2000 on a software adapter].
+    #[arg(long, default_value_t = DEFAULT_PAIR_POINTS, hide_default_value = true)]
     pub pair_points: usize,
+    /// On a software adapter (a CPU device such as llvmpipe/lavapipe), keep the hardware defaults: without it,
+    /// each size left at its default is cut (keypoints, points per patch, the end-to-end pair, the training
+    /// batch, the repetitions) so that the run takes seconds, not many minutes, and the cut is reported.
+    #[arg(long)]
+    pub full_sizes: bool,
     /// Time the pose-graph optimiser on this g2o file instead (reading, chordal start, Levenberg-Marquardt).
     #[arg(long, value_name = "FILE")]
     pub pose_graph: Option<PathBuf>,
@@ -124,8 +131,11 @@ pub struct Config {
     pub pair_points: usize,
     /// Patches of the `encode_backward ppf` stage: `min(keypoints, 128)`, a training batch's size.
     pub backward_patches: usize,
-    /// Pairs of the `train_step` batch: `clamp(keypoints / 2, 1, 32)` (32: the trainer's default batch).
+    /// Pairs of the `train_step` batch: `clamp(keypoints / 2, 1, 32)` (32: the trainer's default batch; 2 on a
+    /// software adapter at the default keypoints, unless `--full-sizes`).
     pub train_pairs: usize,
+    /// Whether the sizes left at their defaults were cut for a software adapter (`--full-sizes` keeps them).
+    pub sizes_cut: bool,
 }
 
 /// The CPU the reference ran on.
@@ -135,8 +145,8 @@ pub struct CpuInfo {
     pub threads: usize,
     /// The GEMM micro-kernel the CPU backend uses (`avx512`, `avx2`, `portable`).
     pub gemm_path: &'static str,
-    /// The encoders' arithmetic on the CPU (`bf16` where the CPU has AVX-512 BF16, else `f32`;
-    /// `DPR_GPU_CPU_PRECISION=f32` or `bf16` overrides it).
+    /// The arithmetic of the encoders and of the training stages on the CPU (`bf16` where the CPU has AVX-512
+    /// BF16, else `f32`; `DPR_GPU_CPU_PRECISION=f32` or `bf16` overrides it).
     pub precision: &'static str,
 }
 
@@ -492,6 +502,12 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
     if args.points == Some(0) {
         bail!("--points must be at least 1");
     }
+    let device = open_device((use_cpu, use_gpu))?;
+    let sizes = Sizes::for_device(args, &device);
+    if let Some(cut) = &sizes.cut {
+        eprintln!("{cut}");
+    }
+    let args = &sizes.args;
     let weights = bench_weights(args)?;
     let model = model_of(&weights, args)?;
     let (k, p) = (args.keypoints, model.config.points_per_patch);
@@ -504,7 +520,7 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
 
     let (precision, _) = Precision::from_env()?;
     let cpu = use_cpu.then(|| CpuBackend::with_precision(model.clone(), precision)).transpose()?;
-    let (gpu, info) = open_gpu(&model, (use_cpu, use_gpu), &note)?;
+    let (gpu, info) = open_gpu(&model, device, &note)?;
     let cpu_info = cpu.as_ref().map(|_| CpuInfo {
         threads: rayon::current_num_threads(),
         gemm_path: GemmPath::selected().name(),
@@ -520,12 +536,13 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
     let (ppf, pc) = (&inputs.ppf, &inputs.pc);
     let mut stages = measure_stages(args, &model, &inputs, cpu.as_ref(), gpu.as_ref())?;
     let backward_patches = k.min(BACKWARD_PATCHES);
-    stages.push(measure_encode_backward(args, &weights, &model, ppf, backward_patches, cpu.is_some(), gpu.as_ref())?);
-    let train_pairs = (k / 2).clamp(1, TRAIN_PAIRS);
+    let cpu_precision = cpu.is_some().then_some(precision);
+    stages.push(measure_encode_backward(args, &weights, &model, ppf, backward_patches, cpu_precision, gpu.as_ref())?);
+    let train_pairs = (k / 2).clamp(1, sizes.train_pairs);
     let batch = train_batch(args.seed, &model, [ppf, pc], k, train_pairs);
     // The weights as the model runs them (`--points` changes no tensor).
     let train_weights = Weights { config: model.config.clone(), ..weights.clone() };
-    stages.push(measure_train_step(args, &train_weights, &batch, cpu.is_some(), gpu.as_ref())?);
+    stages.push(measure_train_step(args, &train_weights, &batch, cpu_precision, gpu.as_ref())?);
     let (gemm, gemm_unavailable) =
         gemm_variants(args, gpu.as_ref().map(GpuBackend::gpu), use_cpu.then_some(precision), k * p)?;
     let pair = if args.pair_points == 0 {
@@ -549,6 +566,7 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
         pair_points: args.pair_points,
         backward_patches,
         train_pairs,
+        sizes_cut: sizes.cut.is_some(),
     };
     Ok(Report { schema: SCHEMA, config, cpu: cpu_info, gpu: info, stages, gemm, gemm_unavailable, pair })
 }
@@ -563,19 +581,86 @@ fn requested_backends(args: &Args) -> anyhow::Result<(bool, bool)> {
     })
 }
 
-/// The GPU backend when `(use_cpu, use_gpu)` asks for it (with both, its absence is a note, not an error), and
-/// what the report says about the device.
-fn open_gpu(
-    model: &Model,
-    (use_cpu, use_gpu): (bool, bool),
-    note: &dyn Fn(String),
-) -> anyhow::Result<(Option<GpuBackend>, GpuInfo)> {
-    let device = match (use_gpu, use_cpu) {
+/// The GPU device when `(use_cpu, use_gpu)` asks for it: with both, its absence is the reason it was not
+/// measured (the CPU side still runs), not an error.
+fn open_device((use_cpu, use_gpu): (bool, bool)) -> anyhow::Result<Result<Arc<Gpu>, String>> {
+    Ok(match (use_gpu, use_cpu) {
         (false, _) => Err("not requested (--backend cpu)".to_string()),
         (true, false) => Ok(Arc::new(Gpu::new().context("creating the GPU backend")?)),
         // The default (`both`): without an adapter, time what exists and say what was not measured.
         (true, true) => Gpu::new().map(Arc::new).map_err(|e| format!("no GPU adapter ({e}); CPU only")),
-    };
+    })
+}
+
+/// The hardware defaults of the sizes a software adapter cuts (`--full-sizes` keeps them).
+const DEFAULT_KEYPOINTS: usize = 1000;
+const DEFAULT_REPEAT: usize = 3;
+const DEFAULT_PAIR_POINTS: usize = 20_000;
+
+/// What a software adapter runs instead of each default (a minute or less on two CPU cores; the hardware
+/// defaults took over 7 minutes on llvmpipe even at 64 keypoints, most of it the training stages).
+const SOFTWARE_KEYPOINTS: usize = 16;
+const SOFTWARE_POINTS: usize = 32;
+const SOFTWARE_REPEAT: usize = 1;
+const SOFTWARE_PAIR_POINTS: usize = 2_000;
+const SOFTWARE_TRAIN_PAIRS: usize = 2;
+
+/// The sizes a run measures: the arguments, with the defaults cut on a software adapter.
+struct Sizes {
+    /// The arguments as measured.
+    args: Args,
+    /// Most pairs of the `train_step` batch.
+    train_pairs: usize,
+    /// What was cut and how to keep it, when anything was.
+    cut: Option<String>,
+}
+
+impl Sizes {
+    /// On a software adapter (device type CPU: llvmpipe, lavapipe, WARP) without `--full-sizes`, every size
+    /// left at its default is cut to its small value; elsewhere the arguments as given.
+    fn for_device(args: &Args, device: &Result<Arc<Gpu>, String>) -> Sizes {
+        let mut sized = Sizes { args: args.clone(), train_pairs: TRAIN_PAIRS, cut: None };
+        let software = device.as_ref().is_ok_and(|g| g.context.info.device_type == wgpu::DeviceType::Cpu);
+        if !software || args.full_sizes {
+            return sized;
+        }
+        let a = &mut sized.args;
+        let mut cuts = Vec::new();
+        if a.keypoints == DEFAULT_KEYPOINTS {
+            // The training batch follows the keypoints (half of them, at most 32 pairs) unless they are given.
+            cuts.push(format!("a training batch of {SOFTWARE_TRAIN_PAIRS} pairs"));
+            sized.train_pairs = SOFTWARE_TRAIN_PAIRS;
+        }
+        let mut cut = |name: &str, at_default: bool, small: usize, field: &mut usize| {
+            if at_default {
+                cuts.push(format!("{name} {small}"));
+                *field = small;
+            }
+        };
+        cut("--keypoints", a.keypoints == DEFAULT_KEYPOINTS, SOFTWARE_KEYPOINTS, &mut a.keypoints);
+        let mut points = a.points.unwrap_or(SOFTWARE_POINTS);
+        cut("--points", a.points.is_none(), SOFTWARE_POINTS, &mut points);
+        a.points = Some(points);
+        cut("--pair-points", a.pair_points == DEFAULT_PAIR_POINTS, SOFTWARE_PAIR_POINTS, &mut a.pair_points);
+        cut("--repeat", a.repeat == DEFAULT_REPEAT, SOFTWARE_REPEAT, &mut a.repeat);
+        if cuts.is_empty() {
+            return sized;
+        }
+        sized.cut = Some(format!(
+            "bench: a software adapter: the large sizes are skipped, cut to {} (the hardware defaults take many \
+             minutes here; --full-sizes keeps them)",
+            cuts.join(", ")
+        ));
+        sized
+    }
+}
+
+/// The GPU backend on `device` when there is one, and what the report says about the device.
+fn open_gpu(
+    model: &Model,
+    device: Result<Arc<Gpu>, String>,
+    note: &dyn Fn(String),
+) -> anyhow::Result<(Option<GpuBackend>, GpuInfo)> {
     let mut info = GpuInfo {
         available: false,
         adapter: None,
@@ -731,7 +816,8 @@ fn measure_stages(
 const BACKWARD_PATCHES: usize = 128;
 
 /// The training stage `encode_backward ppf`: PPF-FoldNet's encoder backward pass over `patches` of the
-/// synthetic patches, from a codeword gradient, on the CPU trainer (`train::backward::encode_backward`) and on
+/// synthetic patches, from a codeword gradient, on the CPU trainer (`train::backward::encode_backward`, at the
+/// CPU's precision `cpu` when it is timed) and on
 /// the device (`gpu::backward::record_encode_backward`, activations and weights uploaded before timing, so a
 /// call moves no bytes: gradients stay there). Flops: twice the forward's (weight and input gradients).
 fn measure_encode_backward(
@@ -740,7 +826,7 @@ fn measure_encode_backward(
     model: &Model,
     ppf: &[f32],
     patches: usize,
-    use_cpu: bool,
+    cpu: Option<Precision>,
     gpu: Option<&GpuBackend>,
 ) -> anyhow::Result<StageReport> {
     use crate::gpu::backward::{DeviceEncodeTapeBuffers, DeviceLayerBuffers, record_encode_backward};
@@ -754,10 +840,11 @@ fn measure_encode_backward(
     let layer_weights = LayerWeights::new(weights)?;
     let flops = Some(2.0 * encode_flops(model, patches, p));
     let mut row = StageReport { stage: "encode_backward ppf".into(), flops, cpu: None, gpu: None };
-    if use_cpu {
+    if let Some(precision) = cpu {
+        let cpu_weights = LayerWeights::with_precision(weights, precision)?;
         let m = measure(args.repeat, None, || -> anyhow::Result<()> {
             let mut grads = Gradients::zeros(&weights.config);
-            encode_backward(net, &layer_weights, 0, input, &tape, &d_codeword, &mut grads);
+            encode_backward(net, &cpu_weights, 0, input, &tape, &d_codeword, &mut grads);
             Ok(())
         })?;
         row.cpu = Some(cpu_timing(m, flops));
@@ -802,7 +889,8 @@ fn train_batch(seed: u64, model: &Model, [ppf, pc]: [&[f32]; 2], k: usize, pairs
 }
 
 /// The training stage `train_step`: one whole step (every loss term of the recipe, contrastive included; the
-/// gradient; AdamW) on `batch`, on the CPU trainer (`batch_objective` + `apply_gradients`) and on the device
+/// gradient; AdamW) on `batch`, on the CPU trainer (`batch_objective_at` the CPU's precision `cpu` +
+/// `apply_gradients`, as `dpr-gpu train` runs it) and on the device
 /// (`gpu::train::DeviceTrainer::step`, on an f32 GEMM: a device of its own where the backend's GEMM is not).
 /// Each repetition continues from the last one's weights. The device moves the batch's inputs and the loss
 /// heads' values and gradients per step.
@@ -810,19 +898,19 @@ fn measure_train_step(
     args: &Args,
     weights: &Weights,
     batch: &[PairSample],
-    use_cpu: bool,
+    cpu: Option<Precision>,
     gpu: Option<&GpuBackend>,
 ) -> anyhow::Result<StageReport> {
     use crate::train::trainer::{apply_gradients, tensor_order};
-    use crate::train::{Adam, AdamSettings, LossSettings, batch_objective};
+    use crate::train::{Adam, AdamSettings, LossSettings, batch_objective_at};
     let loss = LossSettings { contrast: true, ..LossSettings::default() };
     let sizes: Vec<usize> = tensor_order(&weights.config).iter().map(|t| t.1).collect();
     let adam = Adam::new(AdamSettings::default(), &sizes);
     let mut row = StageReport { stage: "train_step".into(), flops: None, cpu: None, gpu: None };
-    if use_cpu {
+    if let Some(precision) = cpu {
         let (mut w, mut a) = (weights.clone(), adam.clone());
         let m = measure(args.repeat, None, || -> anyhow::Result<()> {
-            let (_, grads) = batch_objective(&w, batch, &loss)?;
+            let (_, grads) = batch_objective_at(precision, &w, batch, &loss)?;
             apply_gradients(&mut w, &mut a, &grads)?;
             Ok(())
         })?;

@@ -1,6 +1,7 @@
 //! `dpr-gpu train`: trains PPF-FoldNet, PC-FoldNet and RelativeNet on registered fragment pairs, with a
 //! progress bar, a CSV loss log, periodic atomic checkpoints and exact resumption.
 
+use crate::cpu::gemm::Precision;
 use crate::model::config::{PoseFrame, RotationOutput};
 use crate::model::{ModelConfig, Weights};
 use crate::train::checkpoint::read_checkpoint;
@@ -161,6 +162,12 @@ pub struct Args {
     /// sampling, checkpoints and logs are the same; `--pose-trains-ppf` is CPU-only.
     #[arg(long, default_value = "cpu", value_parser = ["cpu", "gpu"])]
     pub backend: String,
+    /// Arithmetic of the CPU step's multiplies: f32, bf16 (bf16 products summed in f32 in the wide layers, on
+    /// AMX tiles where the CPU has them; weights and Adam stay f32; needs AVX-512 BF16) or auto (bf16 where the
+    /// CPU has it) [default: DPR_GPU_CPU_PRECISION, else auto; f32 with --backend gpu]. A resumed run keeps its
+    /// own.
+    #[arg(long, value_parser = ["f32", "bf16", "auto"])]
+    pub precision: Option<String>,
     /// Append per-step losses to this CSV file (the header is written only when the file is new or empty; a
     /// resumed run first drops the rows after the checkpoint's step, which will be redone).
     #[arg(long)]
@@ -191,9 +198,29 @@ fn model_config(args: &Args) -> anyhow::Result<ModelConfig> {
     Ok(config)
 }
 
+/// The CPU step's precision `--precision` asks for (without it: `DPR_GPU_CPU_PRECISION`, else auto; f32 on the
+/// device, whose trainer multiplies in f32).
+fn train_precision(args: &Args) -> anyhow::Result<Precision> {
+    let bf16 = Precision::Bf16.is_available();
+    Ok(match (args.precision.as_deref(), args.backend.as_str()) {
+        (Some("bf16"), "gpu") => bail!("--precision bf16 is for the CPU trainer; --backend gpu trains in f32"),
+        (_, "gpu") | (Some("f32"), _) => Precision::F32,
+        (Some("bf16"), _) if !bf16 => bail!("--precision bf16: this CPU has no AVX-512 BF16 (use f32 or auto)"),
+        (Some(_), _) => {
+            if bf16 {
+                Precision::Bf16
+            } else {
+                Precision::F32
+            }
+        }
+        (None, _) => Precision::from_env()?.0,
+    })
+}
+
 /// The settings of a fresh run.
-fn fresh_settings(args: &Args) -> TrainSettings {
+fn fresh_settings(args: &Args) -> anyhow::Result<TrainSettings> {
     let mut s = TrainSettings { data: args.data.clone(), ..TrainSettings::default() };
+    s.precision = train_precision(args)?;
     s.batch = args.batch.unwrap_or(s.batch);
     s.seed = args.seed.unwrap_or(s.seed);
     s.adam.lr = args.lr.unwrap_or(s.adam.lr);
@@ -220,7 +247,7 @@ fn fresh_settings(args: &Args) -> TrainSettings {
     s.sampling.occlusion_share = args.occlusion_share.unwrap_or(s.sampling.occlusion_share);
     s.sampling.occlusion_deg = args.occlusion_deg.unwrap_or(s.sampling.occlusion_deg);
     s.sampling.occlusion_ppf_only = args.occlusion_ppf_only;
-    s
+    Ok(s)
 }
 
 /// Parses `LO,HI` (degrees).
@@ -273,6 +300,7 @@ fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> an
     check("--occlusion-deg", args.occlusion_deg.is_some_and(|v| v != s.sampling.occlusion_deg));
     check("--occlusion-ppf-only", args.occlusion_ppf_only && !s.sampling.occlusion_ppf_only);
     check("--init", args.init.is_some());
+    check("--precision", args.precision.is_some() && train_precision(args).ok() != Some(s.precision));
     if clashes.is_empty() {
         Ok(())
     } else {
@@ -390,6 +418,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bail!("no fragment pair has corresponding patches (check the data, --voxel and --match-distance)");
     }
     eprintln!("{usable} pairs with corresponding patches; {} parameters", trainer.weights().parameter_count());
+    if device.is_none() {
+        eprintln!("CPU step multiplies in {} (--precision)", trainer.settings().precision.name());
+    }
     let recent = train_steps(&args, &mut trainer, device.as_mut(), (&ckpt, started))?;
     if let Some(d) = &device {
         d.sync(&mut trainer)?;
@@ -410,7 +441,7 @@ fn build_trainer(args: &Args) -> anyhow::Result<Trainer> {
         let pairs = discover_pairs(&settings.data)?;
         Trainer::from_checkpoint_parts(weights, settings, pairs, adam, meta.step)?
     } else {
-        let settings = fresh_settings(args);
+        let settings = fresh_settings(args)?;
         if args.init.is_some() && (args.config.is_some() || args.points.is_some() || args.grid.is_some()) {
             bail!("--init takes the model size from the weights file: drop --config, --points and --grid");
         }

@@ -325,9 +325,10 @@ pub fn dense_on(path: GemmPath, shape: &DenseShape, x: &[f32], w_t: &[f32], grou
     run_on(path, &op, out, out_dim, epi);
 }
 
-/// The arithmetic of the CPU dense layers at inference: f32 (bit-identical to the twin; training always uses
-/// it) or bf16 inputs with f32 sums ([`crate::cpu::gemm_bf16`]), for layers at least [`BF16_MIN_IN_DIM`] wide.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+/// The arithmetic of the CPU dense layers, at inference and in training: f32 (bit-identical to the twin) or
+/// bf16 inputs with f32 sums ([`crate::cpu::gemm_bf16`]), for layers at least [`BF16_MIN_IN_DIM`] wide.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Precision {
     /// f32 throughout: [`dense`].
     #[default]

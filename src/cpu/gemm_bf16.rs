@@ -1,7 +1,10 @@
-//! The reduced-precision CPU dense layer for inference: inputs and weights rounded to bfloat16 (round to
-//! nearest even), products summed in f32 by the AVX-512 BF16 dot-product instruction (`vdpbf16ps`, 32
-//! multiply-adds per instruction, twice the f32 rate). Only the encoders' wide layers use it, and only when
-//! asked for (`CpuPrecision::Bf16`, see `crate::backend::cpu`); training and every test oracle stay in f32.
+//! The reduced-precision CPU dense layer: inputs and weights rounded to bfloat16 (round to nearest even),
+//! products summed in f32 by the AVX-512 BF16 dot-product instruction (`vdpbf16ps`, 32 multiply-adds per
+//! instruction, twice the f32 rate). Only wide layers use it, and only when asked for ([`Precision::Bf16`]):
+//! the encoders at inference (see `crate::backend::cpu`), and the trainer's forward and backward multiplies
+//! ([`gemm_acc_packed`], `crate::cpu::dense_grad_bf16`) when it trains in bf16. Every test oracle stays in f32.
+//!
+//! [`Precision::Bf16`]: crate::cpu::gemm::Precision::Bf16
 //!
 //! [`dense_bf16_reference`] is its readable twin: the same bf16 rounding, then an f64 sum, so the SIMD result
 //! differs from it only by f32 summation error. [`bf16_dense_bound`] bounds the distance of either from the
@@ -9,6 +12,7 @@
 //! product at most) plus the f32 sum.
 
 use crate::cpu::dense::{DenseShape, gamma_f32};
+use crate::cpu::gemm_amx;
 
 /// Unit roundoff of bfloat16 under round to nearest: half its 2^-7 spacing (8 significant bits).
 pub const BF16_UNIT_ROUNDOFF: f64 = 1.0 / 256.0;
@@ -88,13 +92,158 @@ fn pack_pairs(row: &[f32], dst: &mut [u32]) {
 /// last pair padded with 0. Rows `2q..` of a packed weight are the packing of rows `2q..` of the weight, so
 /// one packing serves every even row offset (the slices of a concatenated input).
 pub fn pack_weight(w_t: &[f32], k: usize, n: usize) -> Vec<u32> {
+    pack_row_pairs(w_t, k, n, n)
+}
+
+/// Rows `0..k` of a `k x n` matrix stored with row stride `ld` (columns `0..n` of each) as bf16 pairs of
+/// consecutive rows: `k.div_ceil(2) x n` words, an odd k's last pair padded with 0. The B operand of
+/// [`gemm_acc_packed`]; [`pack_weight`] is the case `ld = n`.
+pub fn pack_row_pairs(x: &[f32], k: usize, n: usize, ld: usize) -> Vec<u32> {
     let kp = k.div_ceil(2);
-    let mut out = Vec::with_capacity(kp * n);
-    for p in 0..kp {
-        for j in 0..n {
-            let hi = if 2 * p + 1 < k { w_t[(2 * p + 1) * n + j] } else { 0.0 };
-            out.push(pair(w_t[2 * p * n + j], hi));
+    assert!(k == 0 || x.len() >= (k - 1) * ld + n, "pack_row_pairs: matrix too short");
+    let mut out = vec![0u32; kp * n];
+    let zeros = vec![0.0; n];
+    for (p, dst) in out.chunks_exact_mut(n.max(1)).enumerate().take(kp) {
+        let lo = &x[2 * p * ld..][..n];
+        let hi = if 2 * p + 1 < k { &x[(2 * p + 1) * ld..][..n] } else { &zeros[..] };
+        interleave_pairs(lo, hi, dst);
+    }
+    out
+}
+
+/// `dst[j] = (lo[j], hi[j])` as one bf16 pair each (`lo` in the low half), 16 words per instruction where
+/// the CPU has it (which flushes subnormal inputs to zero, as [`pack_pairs`]).
+fn interleave_pairs(lo: &[f32], hi: &[f32], dst: &mut [u32]) {
+    assert!(lo.len() >= dst.len() && hi.len() >= dst.len());
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: the CPU has AVX-512F and AVX-512 BF16 (checked first).
+    let done = if is_available() { unsafe { x86::interleave_pairs(lo, hi, dst) } } else { 0 };
+    #[cfg(not(target_arch = "x86_64"))]
+    let done = 0;
+    for (j, w) in dst.iter_mut().enumerate().skip(done) {
+        *w = pair(lo[j], hi[j]);
+    }
+}
+
+/// The columns of a `k x n` matrix stored with row stride `ld`, each as one row of bf16 pairs along k:
+/// `n x k.div_ceil(2)` words, an odd k padded with 0. The A operand of [`gemm_acc_packed`] for a transposed
+/// factor (`A = X^T`).
+pub fn pack_column_pairs(x: &[f32], k: usize, n: usize, ld: usize) -> Vec<u32> {
+    let kp = k.div_ceil(2);
+    let by_rows = pack_row_pairs(x, k, n, ld);
+    let mut out = vec![0u32; n * kp];
+    // Blocks of 16 x 16 words, so that both the reads and the writes stay within a few cache lines.
+    const BLOCK: usize = 16;
+    for p0 in (0..kp).step_by(BLOCK) {
+        for j0 in (0..n).step_by(BLOCK) {
+            for p in p0..(p0 + BLOCK).min(kp) {
+                for j in j0..(j0 + BLOCK).min(n) {
+                    out[j * kp + p] = by_rows[p * n + j];
+                }
+            }
         }
+    }
+    out
+}
+
+/// The rows of a `rows x k` matrix (row stride `k`) as bf16 pairs along k: `rows x k.div_ceil(2)` words, an
+/// odd k padded with 0. The A operand of [`gemm_acc_packed`].
+pub fn pack_rows_of(x: &[f32], rows: usize, k: usize) -> Vec<u32> {
+    assert!(x.len() >= rows * k, "pack_rows_of: matrix too short");
+    let mut out = Vec::new();
+    pack_rows(&[(x, k)], rows, &mut out);
+    out
+}
+
+/// Which unit multiplies the bf16 pairs. Both sum the products in f32, in different orders, so their results
+/// differ by f32 rounding only (each is within [`bf16_dense_bound`] of the f32 layer).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Bf16Unit {
+    /// The AVX-512 BF16 dot product (`vdpbf16ps`): what the encoders run at inference.
+    #[default]
+    Vector,
+    /// AMX tiles ([`crate::cpu::gemm_amx`]) where the CPU and OS have them, else the vector unit: what the
+    /// trainer runs.
+    Tiles,
+}
+
+impl Bf16Unit {
+    /// The unit that runs: [`Bf16Unit::Tiles`] falls back to [`Bf16Unit::Vector`] where AMX is not available.
+    pub fn effective(self) -> Bf16Unit {
+        if self == Bf16Unit::Tiles && gemm_amx::is_available() { Bf16Unit::Tiles } else { Bf16Unit::Vector }
+    }
+}
+
+/// `c[i * ldc + j] += sum_p A[i, p] B[p, j]` for `i < m`, `j < n`, with both factors rounded to bf16 and
+/// packed in pairs along p (`a`: `m x kp` words, [`pack_rows_of`] or [`pack_column_pairs`]; `b`: `kp x n`
+/// words, [`pack_row_pairs`]), the products summed in f32 on `unit` onto the old value of `c`. Within
+/// [`bf16_dense_bound`] (with `in_dim = 2 kp`) of the f32 product. Panics when the CPU lacks AVX-512 BF16
+/// ([`is_available`]) or a slice is too short.
+pub fn gemm_acc_packed(
+    unit: Bf16Unit,
+    (m, n, kp): (usize, usize, usize),
+    a: &[u32],
+    b: &[u32],
+    c: &mut [f32],
+    ldc: usize,
+) {
+    assert!(is_available(), "gemm_acc_packed: this CPU has no AVX-512 BF16");
+    if m == 0 || n == 0 {
+        return;
+    }
+    assert!(a.len() >= m * kp && b.len() >= kp * n && c.len() >= (m - 1) * ldc + n, "gemm_acc_packed: sizes");
+    if unit.effective() == Bf16Unit::Tiles {
+        gemm_acc_tiles_padded((m, n, kp), a, b, c, ldc);
+    } else {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let shape =
+                DenseShape { rows: m, in_dim: 2 * kp, out_dim: n, rows_per_group: 1, accumulate: true, relu: false };
+            // SAFETY: the CPU has AVX-512F and AVX-512 BF16 (asserted above); the operands have the packed sizes.
+            unsafe { x86::body(&shape, a, b, &[], c, ldc) }
+        }
+    }
+}
+
+/// [`gemm_acc_packed`] on the AMX tiles, any sizes: operands whose sizes are not whole tiles are copied
+/// zero-padded (the padding adds exact zeros), and so is `c`, whose block is copied back.
+fn gemm_acc_tiles_padded((m, n, kp): (usize, usize, usize), a: &[u32], b: &[u32], c: &mut [f32], ldc: usize) {
+    use gemm_amx::{BLOCK, K_WORDS, gemm_acc_tiles};
+    let (mp, np, kq) = (m.next_multiple_of(BLOCK), n.next_multiple_of(BLOCK), kp.next_multiple_of(K_WORDS));
+    let a_pad;
+    let a = if (mp, kq) == (m, kp) {
+        a
+    } else {
+        a_pad = padded(a, (m, kp, kp), (mp, kq));
+        &a_pad[..]
+    };
+    let b_pad;
+    let (b, ldb) = if (kq, np) == (kp, n) {
+        (b, n)
+    } else {
+        b_pad = padded(b, (kp, n, n), (kq, np));
+        (&b_pad[..], np)
+    };
+    if (mp, np) == (m, n) {
+        gemm_acc_tiles((m, n, kq), a, kq, b, ldb, c, ldc);
+        return;
+    }
+    let mut c_pad = padded(c, (m, n, ldc), (mp, np));
+    gemm_acc_tiles((mp, np, kq), a, kq, b, ldb, &mut c_pad, np);
+    for (dst, src) in c.chunks_mut(ldc).zip(c_pad.chunks_exact(np)).take(m) {
+        dst[..n].copy_from_slice(&src[..n]);
+    }
+}
+
+/// The `rows x cols` matrix `x` (row stride `ld`) in a zero `rows_to x cols_to` one (row stride `cols_to`).
+fn padded<T: Copy + Default>(
+    x: &[T],
+    (rows, cols, ld): (usize, usize, usize),
+    (rows_to, cols_to): (usize, usize),
+) -> Vec<T> {
+    let mut out = vec![T::default(); rows_to * cols_to];
+    for (r, dst) in out.chunks_exact_mut(cols_to).enumerate().take(rows) {
+        dst[..cols].copy_from_slice(&x[r * ld..][..cols]);
     }
     out
 }
@@ -121,8 +270,21 @@ pub fn dense_bf16(shape: &DenseShape, x: &[f32], w_t: &[f32], group_term: &[f32]
 
 /// [`dense_bf16`] with the weight already packed ([`pack_weight`]; `shape.in_dim.div_ceil(2) x out_dim` words
 /// or more) on the concatenation of `segments` (`rows x width` each; `shape.in_dim` is the sum of the widths,
-/// all even but the last), which is never built: one multiply over the whole width.
+/// all even but the last), which is never built: one multiply over the whole width, on the vector unit.
 pub fn dense_bf16_packed(
+    shape: &DenseShape,
+    segments: &[(&[f32], usize)],
+    w_packed: &[u32],
+    group_term: &[f32],
+    out: &mut [f32],
+) {
+    dense_bf16_packed_on(Bf16Unit::Vector, shape, segments, w_packed, group_term, out)
+}
+
+/// [`dense_bf16_packed`] on `unit`. On AMX tiles the output starts as the old output (when accumulating) plus
+/// the group term, the product is added, then ReLU: the same epilogue, in f32.
+pub fn dense_bf16_packed_on(
+    unit: Bf16Unit,
     shape: &DenseShape,
     segments: &[(&[f32], usize)],
     w_packed: &[u32],
@@ -141,21 +303,45 @@ pub fn dense_bf16_packed(
     }
     PACKED_ROWS.with_borrow_mut(|a| {
         pack_rows(segments, rows, a);
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: the CPU has AVX-512F and AVX-512 BF16 (asserted above); `a` and `w_packed` have the packed
-        // sizes.
-        unsafe {
-            x86::body(shape, a, w_packed, group_term, out)
+        if unit.effective() == Bf16Unit::Tiles {
+            dense_on_tiles(shape, a, w_packed, group_term, out);
+        } else {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: the CPU has AVX-512F and AVX-512 BF16 (asserted above); `a` and `w_packed` have the packed
+            // sizes.
+            unsafe {
+                x86::body(shape, a, w_packed, group_term, out, out_dim)
+            }
         }
     })
 }
 
-/// The tile's starting values: the old output when accumulating, plus the group term.
+/// The dense layer on the AMX tiles, from the packed rows `a` and weight `w_packed`: the output starts as the
+/// old output (when accumulating) plus the group term, the product is added, then ReLU.
+fn dense_on_tiles(shape: &DenseShape, a: &[u32], w_packed: &[u32], group_term: &[f32], out: &mut [f32]) {
+    let DenseShape { rows, in_dim, out_dim, rows_per_group, accumulate, relu } = *shape;
+    let out = &mut out[..rows * out_dim];
+    for (r, row) in out.chunks_exact_mut(out_dim).enumerate() {
+        if !accumulate {
+            row.fill(0.0);
+        }
+        if !group_term.is_empty() {
+            let g = &group_term[(r / rows_per_group.max(1)) * out_dim..][..out_dim];
+            row.iter_mut().zip(g).for_each(|(v, gv)| *v += gv);
+        }
+    }
+    gemm_acc_tiles_padded((rows, out_dim, in_dim.div_ceil(2)), a, w_packed, out, out_dim);
+    if relu {
+        out.iter_mut().for_each(|v| *v = v.max(0.0));
+    }
+}
+
+/// The tile's starting values: the old output (row stride `ldc`) when accumulating, plus the group term.
 #[cfg(target_arch = "x86_64")]
 fn start_tile(
     shape: &DenseShape,
     group_term: &[f32],
-    out: &[f32],
+    (out, ldc): (&[f32], usize),
     (r0, rn): (usize, usize),
     (c0, cn): (usize, usize),
 ) -> [[f32; NR]; MR] {
@@ -164,7 +350,7 @@ fn start_tile(
     for (i, acc_row) in acc.iter_mut().enumerate().take(rn) {
         let r = r0 + i;
         if shape.accumulate {
-            acc_row[..cn].copy_from_slice(&out[r * n + c0..][..cn]);
+            acc_row[..cn].copy_from_slice(&out[r * ldc + c0..][..cn]);
         }
         if !group_term.is_empty() {
             let g = &group_term[(r / shape.rows_per_group.max(1)) * n + c0..][..cn];
@@ -176,17 +362,17 @@ fn start_tile(
     acc
 }
 
-/// Writes the tile, with ReLU when the layer has it.
+/// Writes the tile (row stride `ldc`), with ReLU when the layer has it.
 #[cfg(target_arch = "x86_64")]
 fn store_tile(
     shape: &DenseShape,
     acc: &[[f32; NR]; MR],
-    out: &mut [f32],
+    (out, ldc): (&mut [f32], usize),
     (r0, rn): (usize, usize),
     (c0, cn): (usize, usize),
 ) {
     for (i, acc_row) in acc.iter().enumerate().take(rn) {
-        let dst = &mut out[(r0 + i) * shape.out_dim + c0..][..cn];
+        let dst = &mut out[(r0 + i) * ldc + c0..][..cn];
         for (d, &s) in dst.iter_mut().zip(&acc_row[..cn]) {
             *d = if shape.relu { s.max(0.0) } else { s };
         }
@@ -198,6 +384,24 @@ mod x86 {
     use super::{MR, NR, start_tile, store_tile};
     use crate::cpu::dense::DenseShape;
     use std::arch::x86_64::*;
+
+    /// Packs the leading multiple of 16 of `dst`: word j is the bf16 pair (`lo[j]`, `hi[j]`), `lo[j]` in the
+    /// low half; returns how many words it wrote.
+    #[target_feature(enable = "avx512f,avx512bf16")]
+    pub(super) fn interleave_pairs(lo: &[f32], hi: &[f32], dst: &mut [u32]) -> usize {
+        let full = dst.len().min(lo.len()).min(hi.len()) / 16 * 16;
+        for j in (0..full).step_by(16) {
+            // SAFETY: `lo`, `hi` and `dst` hold at least `full` values.
+            unsafe {
+                let a: __m256i = std::mem::transmute(_mm512_cvtneps_pbh(_mm512_loadu_ps(lo.as_ptr().add(j))));
+                let b: __m256i = std::mem::transmute(_mm512_cvtneps_pbh(_mm512_loadu_ps(hi.as_ptr().add(j))));
+                let high = _mm512_slli_epi32::<16>(_mm512_cvtepu16_epi32(b));
+                let words = _mm512_or_si512(_mm512_cvtepu16_epi32(a), high);
+                _mm512_storeu_si512(dst.as_mut_ptr().add(j).cast(), words);
+            }
+        }
+        full
+    }
 
     /// Packs the leading multiple of 32 of `row` into `dst` as bf16 pairs; returns how many values it packed.
     #[target_feature(enable = "avx512f,avx512bf16")]
@@ -217,10 +421,10 @@ mod x86 {
     }
 
     /// Column strips of `NR` outermost (the strip of packed weights stays in cache), row blocks of `MR`
-    /// inside. Full tiles start from and write to `out` in registers; partial tiles go through an array and
-    /// zero-padded copies of their operands.
+    /// inside. Full tiles start from and write to `out` (row stride `ldc`) in registers; partial tiles go
+    /// through an array and zero-padded copies of their operands.
     #[target_feature(enable = "avx512f,avx512bf16")]
-    pub(super) fn body(shape: &DenseShape, a: &[u32], b: &[u32], group_term: &[f32], out: &mut [f32]) {
+    pub(super) fn body(shape: &DenseShape, a: &[u32], b: &[u32], group_term: &[f32], out: &mut [f32], ldc: usize) {
         let (m, n, kp) = (shape.rows, shape.out_dim, shape.in_dim.div_ceil(2));
         let rpg = shape.rows_per_group.max(1);
         // Zero-padded copies for partial tiles, allocated only when a layer has one.
@@ -239,14 +443,14 @@ mod x86 {
             for r0 in (0..m).step_by(MR) {
                 let rn = MR.min(m - r0);
                 if rn == MR && cn == NR {
-                    // SAFETY: rows r0..r0 + MR of `a` (kp words each) and of `out` (n values, NR from c0),
+                    // SAFETY: rows r0..r0 + MR of `a` (kp words each) and of `out` (ldc apart, NR from c0),
                     // and the group rows of those rows, exist; `b_strip` holds kp rows of NR at b_stride.
                     unsafe {
                         let mut c = [[_mm512_setzero_ps(); 2]; MR];
                         for (i, ci) in c.iter_mut().enumerate() {
                             let r = r0 + i;
                             if shape.accumulate {
-                                let o = out.as_ptr().add(r * n + c0);
+                                let o = out.as_ptr().add(r * ldc + c0);
                                 *ci = [_mm512_loadu_ps(o), _mm512_loadu_ps(o.add(16))];
                             }
                             if !group_term.is_empty() {
@@ -258,7 +462,7 @@ mod x86 {
                         micro(kp, &a[r0 * kp..], b_strip, b_stride, &mut c);
                         let zero = _mm512_setzero_ps();
                         for (i, ci) in c.iter().enumerate() {
-                            let o = out.as_mut_ptr().add((r0 + i) * n + c0);
+                            let o = out.as_mut_ptr().add((r0 + i) * ldc + c0);
                             let (v0, v1) = if shape.relu {
                                 (_mm512_max_ps(ci[0], zero), _mm512_max_ps(ci[1], zero))
                             } else {
@@ -278,7 +482,7 @@ mod x86 {
                     a_pad[..rn * kp].copy_from_slice(&a[r0 * kp..][..rn * kp]);
                     &a_pad[..]
                 };
-                let acc = start_tile(shape, group_term, out, (r0, rn), (c0, cn));
+                let acc = start_tile(shape, group_term, (out, ldc), (r0, rn), (c0, cn));
                 // SAFETY: the tile array is plain memory of MR x NR values.
                 let mut c = unsafe {
                     let mut c = [[_mm512_setzero_ps(); 2]; MR];
@@ -297,7 +501,7 @@ mod x86 {
                         _mm512_storeu_ps(acc[i].as_mut_ptr().add(16), c[i][1]);
                     }
                 }
-                store_tile(shape, &acc, out, (r0, rn), (c0, cn));
+                store_tile(shape, &acc, (out, ldc), (r0, rn), (c0, cn));
             }
         }
     }
@@ -426,6 +630,10 @@ mod tests {
                 (v(rows * in_dim), v(in_dim * out_dim), v(rows.div_ceil(rpg) * out_dim), v(rows * out_dim));
             let mut got = init.clone();
             dense_bf16(&s, &x, &w, &g, &mut got);
+            // The AMX tiles (where the CPU has them) within f32 summation of the vector unit's layer.
+            let parts = [(&x[..], in_dim)];
+            let mut tiles = init.clone();
+            dense_bf16_packed_on(Bf16Unit::Tiles, &s, &parts, &pack_weight(&w, in_dim, out_dim), &g, &mut tiles);
             let mut twin = init.clone();
             dense_bf16_reference(&s, &x, &w, &g, &mut twin);
             let mut f32_layer = init.clone();
@@ -441,6 +649,8 @@ mod tests {
                     // Twin and SIMD differ by f32 summation only (same rounded factors; ReLU is 1-Lipschitz).
                     let sum_only = 2.0 * gamma_f32(in_dim + 2) * mag * 1.01 + 1e-30;
                     assert!(f64::from((got[i] - twin[i]).abs()) <= sum_only, "{s:?} at {i}: {} vs {}", got[i], twin[i]);
+                    let tiles_off = f64::from((tiles[i] - twin[i]).abs());
+                    assert!(tiles_off <= sum_only, "{s:?} at {i}: tiles {} vs {}", tiles[i], twin[i]);
                     let bound = bf16_dense_bound(in_dim, mag);
                     let d = f64::from((got[i] - f32_layer[i]).abs());
                     assert!(d <= bound, "{s:?} at {i}: {} vs f32 {} (bound {bound})", got[i], f32_layer[i]);

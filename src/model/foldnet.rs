@@ -7,7 +7,7 @@ use super::params::{Net, foldnet_layers};
 use super::weights::Weights;
 use crate::cpu::dense::DenseShape;
 use crate::cpu::gemm::{BF16_MIN_IN_DIM, Precision, dense};
-use crate::cpu::gemm_bf16::dense_bf16_packed;
+use crate::cpu::gemm_bf16::dense_bf16_packed_on;
 use crate::cpu::max_pool::max_pool;
 use crate::error::Result;
 use rayon::prelude::*;
@@ -111,7 +111,7 @@ fn dense_layer_into(
         let in_dim = parts.iter().map(|p| p.1).sum();
         let shape = DenseShape { rows, in_dim, out_dim: n, rows_per_group, accumulate: false, relu };
         let packed = &layer.packed_bf16()[segments[0].2 / 2 * n..];
-        dense_bf16_packed(&shape, &parts, packed, group_term, out);
+        dense_bf16_packed_on(layer.bf16_unit(), &shape, &parts, packed, group_term, out);
         return;
     }
     for (s, &(x, w, offset)) in segments.iter().enumerate() {
@@ -188,20 +188,22 @@ impl DecodeTape {
     }
 }
 
-/// One folding MLP: [codeword | x] through `layers`, ReLU on all but the last; every layer's output.
+/// One folding MLP at `precision`: [codeword | x] through `layers`, ReLU on all but the last; every layer's
+/// output.
 fn fold(
+    precision: Precision,
     layers: &[Linear],
-    codewords: &[f32],
-    cw: usize,
+    (codewords, cw): (&[f32], usize),
     x: (&[f32], usize),
     patches: usize,
     m: usize,
 ) -> Vec<Vec<f32>> {
     let rows = patches * m;
     let mut outs: Vec<Vec<f32>> = Vec::with_capacity(layers.len());
-    outs.push(apply_concat(&layers[0], (codewords, cw, 0), &[(x.0, x.1, cw)], rows, m, layers.len() > 1));
+    let relu0 = layers.len() > 1;
+    outs.push(apply_concat_at(precision, &layers[0], (codewords, cw, 0), &[(x.0, x.1, cw)], rows, m, relu0));
     for (i, layer) in layers.iter().enumerate().skip(1) {
-        let h = apply(layer, outs.last().expect("one fold output"), rows, i + 1 < layers.len());
+        let h = apply_at(precision, layer, outs.last().expect("one fold output"), rows, i + 1 < layers.len());
         outs.push(h);
     }
     outs
@@ -261,7 +263,7 @@ impl FoldNet {
         self.encode_tape_at(Precision::F32, input, patches, points)
     }
 
-    /// [`FoldNet::encode_tape`] with the wide layers at `precision` (training records f32).
+    /// [`FoldNet::encode_tape`] with the wide layers at `precision` (the trainer in f32 or bf16).
     pub fn encode_tape_at(&self, precision: Precision, input: &[f32], patches: usize, points: usize) -> EncodeTape {
         let mut tape = EncodeTape::default();
         self.encode_into(precision, input, patches, points, &mut tape);
@@ -307,12 +309,17 @@ impl FoldNet {
     /// The decoder, shared by inference and training: two folds, each `[codeword | x]` through its MLP (x the
     /// grid, then the first fold's output). Keeps every layer's output.
     pub fn decode_tape(&self, codewords: &[f32], patches: usize) -> DecodeTape {
-        let cw = self.codeword_len();
+        self.decode_tape_at(Precision::F32, codewords, patches)
+    }
+
+    /// [`FoldNet::decode_tape`] with the wide layers at `precision` (the trainer in bf16).
+    pub fn decode_tape_at(&self, precision: Precision, codewords: &[f32], patches: usize) -> DecodeTape {
+        let cw = (codewords, self.codeword_len());
         let m = self.grid.len() / 2;
         let d = self.net.io_width();
         let grid = self.tiled_grid(patches);
-        let fold1 = fold(&self.fold1, codewords, cw, (&grid, 2), patches, m);
-        let fold2 = fold(&self.fold2, codewords, cw, (fold1.last().expect("fold1 has layers"), d), patches, m);
+        let fold1 = fold(precision, &self.fold1, cw, (&grid, 2), patches, m);
+        let fold2 = fold(precision, &self.fold2, cw, (fold1.last().expect("fold1 has layers"), d), patches, m);
         DecodeTape { patches, fold1, fold2 }
     }
 

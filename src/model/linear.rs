@@ -2,7 +2,7 @@
 
 use super::params::LayerSpec;
 use super::weights::Weights;
-use crate::cpu::gemm_bf16::pack_weight;
+use crate::cpu::gemm_bf16::{Bf16Unit, pack_weight};
 use crate::error::Result;
 use std::sync::OnceLock;
 
@@ -20,6 +20,9 @@ pub struct Linear {
     /// `weight_t` packed for the bf16 layer, built on first use ([`Linear::packed_bf16`]). A `Linear` is not
     /// changed after it is built (training builds new ones from its parameters).
     packed_bf16: OnceLock<Vec<u32>>,
+    /// The unit its bf16 multiplies run on: the vector unit (inference), or AMX tiles where the CPU has them
+    /// (the trainer's models, [`crate::model::Model::with_bf16_unit`]).
+    bf16_unit: Bf16Unit,
 }
 
 impl Linear {
@@ -29,12 +32,23 @@ impl Linear {
         let b = weights.get(&format!("{}.bias", spec.name))?;
         let (i_n, o_n) = (spec.in_dim, spec.out_dim);
         let weight_t = crate::cpu::transpose::transpose(w, o_n, i_n);
-        Ok(Linear { in_dim: i_n, out_dim: o_n, weight_t, bias: b.to_vec(), packed_bf16: OnceLock::new() })
+        let packed_bf16 = OnceLock::new();
+        Ok(Linear { in_dim: i_n, out_dim: o_n, weight_t, bias: b.to_vec(), packed_bf16, bf16_unit: Bf16Unit::Vector })
     }
 
     /// The transposed weight as bf16 pairs of rows (`crate::cpu::gemm_bf16::pack_weight`), packed once.
     pub fn packed_bf16(&self) -> &[u32] {
         self.packed_bf16.get_or_init(|| pack_weight(&self.weight_t, self.in_dim, self.out_dim))
+    }
+
+    /// The unit its bf16 multiplies run on.
+    pub fn bf16_unit(&self) -> Bf16Unit {
+        self.bf16_unit
+    }
+
+    /// Runs its bf16 multiplies on `unit`.
+    pub fn set_bf16_unit(&mut self, unit: Bf16Unit) {
+        self.bf16_unit = unit;
     }
 
     /// Rows `from..from + count` of the transposed weight: the block that multiplies one slice of a

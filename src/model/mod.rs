@@ -43,4 +43,15 @@ impl Model {
             relative: RelativeNet::from_weights(weights)?,
         })
     }
+
+    /// The model with every layer's bf16 multiplies on `unit` (built on the vector unit; the trainer asks for
+    /// AMX tiles). Changes nothing in f32.
+    pub fn with_bf16_unit(mut self, unit: crate::cpu::gemm_bf16::Bf16Unit) -> Model {
+        let nets = [&mut self.ppf, &mut self.pc];
+        let fold_layers = nets.into_iter().flat_map(|f| [&mut f.encoder, &mut f.head, &mut f.fold1, &mut f.fold2]);
+        for layers in fold_layers.chain([&mut self.relative.layers]) {
+            layers.iter_mut().for_each(|l| l.set_bf16_unit(unit));
+        }
+        self
+    }
 }

@@ -2,7 +2,10 @@
 //! broadcast global feature, per-point MLP, max-pool), folding decoder (codeword broadcast to every grid point,
 //! two folds) and RelativeNet, built from the layer backward passes in [`super::grad`].
 
-use super::grad::{DenseGrads, DenseLayer, Segment, dense_backward, max_pool_backward, max_pool_backward_acc};
+use super::grad::{
+    DenseGrads, DenseLayer, LayerInputs, Segment, dense_backward_at, max_pool_backward, max_pool_backward_acc,
+};
+use crate::cpu::gemm::Precision;
 use crate::error::Result;
 use crate::model::foldnet::{DecodeTape, EncodeTape};
 use crate::model::params::{LayerSpec, all_layers};
@@ -62,20 +65,28 @@ impl Gradients {
 }
 
 /// The weights in `Weights` layout (`[out, in]`), per layer in `all_layers` order: what the backward passes
-/// multiply by.
+/// multiply by, and at which precision.
 pub struct LayerWeights<'a> {
     /// The layer specs.
     pub specs: Vec<LayerSpec>,
     /// Each layer's weight.
     pub weights: Vec<&'a [f32]>,
+    /// The arithmetic of the training multiplies: f32, or bf16 for the wide layers (`grad::bf16_backward`,
+    /// and the forward's `FoldNet::encode_tape_at`).
+    pub precision: Precision,
 }
 
 impl<'a> LayerWeights<'a> {
-    /// Borrows every weight tensor of `weights`.
+    /// Borrows every weight tensor of `weights`, for f32 training.
     pub fn new(weights: &'a Weights) -> Result<LayerWeights<'a>> {
+        LayerWeights::with_precision(weights, Precision::F32)
+    }
+
+    /// Borrows every weight tensor of `weights`, for training at `precision`.
+    pub fn with_precision(weights: &'a Weights, precision: Precision) -> Result<LayerWeights<'a>> {
         let specs = all_layers(&weights.config);
         let weights = specs.iter().map(|s| weights.get(&format!("{}.weight", s.name))).collect::<Result<_>>()?;
-        Ok(LayerWeights { specs, weights })
+        Ok(LayerWeights { specs, weights, precision })
     }
 
     /// The dense-layer view of layer `index`.
@@ -123,7 +134,8 @@ fn layer_backward(
         None => (None, None),
     };
     let mut dg = DenseGrads { weight: &mut g.weight, bias: &mut g.bias, group: d_group, segments: d_segments };
-    dense_backward(&layer, rows, rows_per_group, out, d_out, group_in, segments, &mut dg);
+    let inputs = LayerInputs { rows, rows_per_group, group: group_in, segments };
+    dense_backward_at(w.precision, &layer, &inputs, out, d_out, &mut dg);
 }
 
 /// A chain of plain layers `first..first + outs.len()` (outputs `outs`), ReLU

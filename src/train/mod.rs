@@ -3,6 +3,9 @@
 //!
 //! - the forward pass is the inference one (`FoldNet::encode_tape`/`decode_tape`, `RelativeNet::forward_tape`),
 //!   which keeps every layer's output;
+//! - the multiplies run in f32 (bit-identical on every CPU, what the gradient checks use) or, with
+//!   [`TrainSettings::precision`] bf16, in bf16 with f32 sums for the wide layers (AMX tiles where the CPU has
+//!   them, else AVX-512 BF16), weights and Adam staying f32;
 //! - [`grad`], [`backward`]: backward passes of every layer and of the whole networks;
 //! - [`loss`]: Chamfer distance, the pose losses (quaternion and 6-D) and the feature-consistency loss;
 //! - [`contrast`]: the optional batch contrastive loss on PPF codewords (in-batch hardest negatives);
@@ -42,5 +45,5 @@ pub use adam::{Adam, AdamSettings};
 pub use backward::Gradients;
 pub use checkpoint::{load_checkpoint, save_checkpoint};
 pub use data::{DataSettings, FragmentPair, Sampler};
-pub use objective::{LossSettings, Losses, PairSample, batch_loss, batch_objective};
+pub use objective::{LossSettings, Losses, PairSample, batch_loss, batch_objective, batch_objective_at};
 pub use trainer::{TrainSettings, Trainer};

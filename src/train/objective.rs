@@ -18,8 +18,11 @@
 use super::backward::{Gradients, LayerWeights, decode_backward, encode_backward, relative_backward};
 use super::contrast::hardest_negative_loss;
 use super::loss::{chamfer, feat_loss, rotation_loss};
+use crate::cpu::gemm::Precision;
+use crate::cpu::gemm_bf16::Bf16Unit;
 use crate::error::{Error, Result};
 use crate::model::config::RotationOutput;
+use crate::model::foldnet::EncodeTape;
 use crate::model::params::foldnet_layers;
 use crate::model::{Model, Net, Weights, pose_feature};
 use rayon::prelude::*;
@@ -140,25 +143,41 @@ pub(crate) fn check_sample(model: &Model, sample: &PairSample) -> Result<()> {
     Ok(())
 }
 
-/// Loss of one pair, and (when `grads` is given) `scale` times its gradient added into `grads`. `batch_ppf_cw`
-/// is the gradient of the batch terms w.r.t. this pair's two PPF codewords (source then target, already
-/// weighted), back-propagated with the pair's own terms.
+/// What the batch terms computed for one pair, shared with its own terms: its PPF-FoldNet forward (the pair's
+/// two patches) and the gradient of the batch terms w.r.t. its two PPF codewords (source then target, already
+/// weighted).
+pub struct BatchShare {
+    /// PPF-FoldNet's forward on the pair's two patches, as [`FoldNet::encode_tape_at`] records it.
+    ///
+    /// [`FoldNet::encode_tape_at`]: crate::model::FoldNet::encode_tape_at
+    pub ppf_tape: EncodeTape,
+    /// The batch terms' gradient w.r.t. the two PPF codewords.
+    pub d_ppf_codewords: Vec<f32>,
+}
+
+/// Loss of one pair, and (when `grads` is given) `scale` times its gradient added into `grads`, with the
+/// multiplies at `w.precision`. `share` is what the batch terms computed for this pair: its PPF forward is
+/// reused, and their codeword gradient back-propagated with the pair's own terms.
 pub fn sample_objective(
     model: &Model,
     w: &LayerWeights<'_>,
     sample: &PairSample,
     settings: &LossSettings,
     scale: f64,
-    batch_ppf_cw: Option<&[f32]>,
+    share: Option<BatchShare>,
     grads: Option<&mut Gradients>,
 ) -> Result<Losses> {
     let n = model.config.points_per_patch;
     check_sample(model, sample)?;
     let (pc_base, rel_base) = bases(model);
-    let ppf_e = model.ppf.encode_tape(&sample.ppf, 2, n);
-    let pc_e = model.pc.encode_tape(&sample.pc, 2, n);
-    let ppf_d = model.ppf.decode_tape(&ppf_e.codeword, 2);
-    let pc_d = model.pc.decode_tape(&pc_e.codeword, 2);
+    let precision = w.precision;
+    let (ppf_e, batch_ppf_cw) = match share {
+        Some(s) => (s.ppf_tape, Some(s.d_ppf_codewords)),
+        None => (model.ppf.encode_tape_at(precision, &sample.ppf, 2, n), None),
+    };
+    let pc_e = model.pc.encode_tape_at(precision, &sample.pc, 2, n);
+    let ppf_d = model.ppf.decode_tape_at(precision, &ppf_e.codeword, 2);
+    let pc_d = model.pc.decode_tape_at(precision, &pc_e.codeword, 2);
     let m = model.config.grid_points();
 
     // Reconstruction: both patches, both networks.
@@ -217,7 +236,7 @@ pub fn sample_objective(
     }
     heads.add_feat_gradient(&mut d_ppf_cw, settings, scale);
     if let Some(extra) = batch_ppf_cw {
-        d_ppf_cw.iter_mut().zip(extra).for_each(|(d, g)| *d += g);
+        d_ppf_cw.iter_mut().zip(&extra).for_each(|(d, g)| *d += g);
     }
     // An all-zero codeword gradient back-propagates to exactly zero: skip the work.
     if d_ppf_cw.iter().any(|&v| v != 0.0) {
@@ -234,11 +253,22 @@ pub fn sample_objective(
 /// the number of threads.
 pub const MAX_GROUPS: usize = 8;
 
-/// Mean loss over `samples` and its gradient. The batch is cut into at most [`MAX_GROUPS`] contiguous groups
-/// (a function of the batch size only); groups run in parallel (rayon), in waves of one group per thread,
-/// each accumulating its samples' gradients in sample order, and the group gradients are summed in group
-/// order. The result is therefore bit-identical whatever the number of threads.
+/// Mean loss over `samples` and its gradient, in f32: [`batch_objective_at`] with [`Precision::F32`].
 pub fn batch_objective(
+    weights: &Weights,
+    samples: &[PairSample],
+    settings: &LossSettings,
+) -> Result<(Losses, Gradients)> {
+    batch_objective_at(Precision::F32, weights, samples, settings)
+}
+
+/// Mean loss over `samples` and its gradient, the multiplies at `precision` (f32, or bf16 products with f32
+/// sums for the wide layers: `grad::bf16_backward`). The batch is cut into at most [`MAX_GROUPS`] contiguous
+/// groups (a function of the batch size only); groups run in parallel (rayon), in waves of one group per
+/// thread, each accumulating its samples' gradients in sample order, and the group gradients are summed in
+/// group order. The result is therefore bit-identical whatever the number of threads.
+pub fn batch_objective_at(
+    precision: Precision,
     weights: &Weights,
     samples: &[PairSample],
     settings: &LossSettings,
@@ -246,28 +276,33 @@ pub fn batch_objective(
     if samples.is_empty() {
         return Err(Error::invalid("empty training batch"));
     }
-    let model = Model::from_weights(weights)?;
-    let w = LayerWeights::new(weights)?;
-    let (contrast, batch_grads) = batch_terms(&model, samples, settings)?;
+    let model = Model::from_weights(weights)?.with_bf16_unit(Bf16Unit::Tiles);
+    let w = LayerWeights::with_precision(weights, precision)?;
+    let (contrast, shares) = batch_terms(&model, precision, samples, settings)?;
     let scale = 1.0 / samples.len() as f64;
     let per_group = samples.len().div_ceil(MAX_GROUPS);
-    let groups: Vec<(usize, &[PairSample])> =
-        samples.chunks(per_group).enumerate().map(|(k, g)| (k * per_group, g)).collect();
+    let mut shares = shares.into_iter();
+    let mut groups = samples
+        .chunks(per_group)
+        .map(|g| (g, (0..g.len()).map(|_| shares.next()).collect::<Vec<Option<BatchShare>>>()))
+        .collect::<Vec<_>>()
+        .into_iter();
     let mut total = Gradients::zeros(&weights.config);
     let mut losses = Losses::default();
-    let wave = rayon::current_num_threads().max(1);
-    for chunk in groups.chunks(wave) {
-        let results: Vec<Result<(Vec<Losses>, Gradients)>> = chunk
-            .par_iter()
-            .map(|&(first, group)| {
+    let wave_len = rayon::current_num_threads().max(1);
+    loop {
+        let wave: Vec<_> = groups.by_ref().take(wave_len).collect();
+        if wave.is_empty() {
+            break;
+        }
+        let results: Vec<Result<(Vec<Losses>, Gradients)>> = wave
+            .into_par_iter()
+            .map(|(group, group_shares)| {
                 let mut g = Gradients::zeros(&weights.config);
                 let l = group
                     .iter()
-                    .enumerate()
-                    .map(|(k, s)| {
-                        let extra = batch_grads.get(first + k).map(Vec::as_slice);
-                        sample_objective(&model, &w, s, settings, scale, extra, Some(&mut g))
-                    })
+                    .zip(group_shares)
+                    .map(|(s, share)| sample_objective(&model, &w, s, settings, scale, share, Some(&mut g)))
                     .collect::<Result<Vec<_>>>()?;
                 Ok((l, g))
             })
@@ -284,41 +319,55 @@ pub fn batch_objective(
     Ok((losses, total))
 }
 
-/// Mean loss over `samples` without gradients (parallel, deterministic).
+/// Mean loss over `samples` without gradients (f32; parallel, deterministic).
 pub fn batch_loss(weights: &Weights, samples: &[PairSample], settings: &LossSettings) -> Result<Losses> {
     let model = Model::from_weights(weights)?;
     let w = LayerWeights::new(weights)?;
     let scale = 1.0 / samples.len().max(1) as f64;
-    let all: Vec<Losses> = samples
-        .par_iter()
-        .map(|s| sample_objective(&model, &w, s, settings, scale, None, None))
+    let (contrast, shares) = batch_terms(&model, Precision::F32, samples, settings)?;
+    let mut shares = shares.into_iter();
+    let jobs: Vec<(&PairSample, Option<BatchShare>)> = samples.iter().map(|s| (s, shares.next())).collect();
+    let all: Vec<Losses> = jobs
+        .into_par_iter()
+        .map(|(s, share)| sample_objective(&model, &w, s, settings, scale, share, None))
         .collect::<Result<_>>()?;
     let mut losses = Losses::default();
     all.iter().for_each(|l| losses.add_scaled(l, scale));
-    let (contrast, _) = batch_terms(&model, samples, settings)?;
     add_contrast(&mut losses, contrast, settings);
     Ok(losses)
 }
 
-/// The batch terms (today the contrastive loss, evaluated only when enabled: it costs a PPF-FoldNet pass over
-/// the batch first): their value and, per sample, the weighted gradient w.r.t. its two PPF codewords (empty
-/// when disabled). The codewords come from the same forward as [`sample_objective`]'s, so the gradient is exact.
-fn batch_terms(model: &Model, samples: &[PairSample], settings: &LossSettings) -> Result<(f64, Vec<Vec<f32>>)> {
+/// The batch terms (today the contrastive loss, evaluated only when enabled: it needs a PPF-FoldNet pass over
+/// the batch first, at `precision`): their value and, per sample, what [`sample_objective`] reuses (the
+/// forward and the weighted gradient w.r.t. its two PPF codewords; empty when disabled). The codewords are
+/// those of the forward the sample's backward pass runs on, so the gradient is exact.
+fn batch_terms(
+    model: &Model,
+    precision: Precision,
+    samples: &[PairSample],
+    settings: &LossSettings,
+) -> Result<(f64, Vec<BatchShare>)> {
     if !settings.contrast || samples.len() < 2 {
         return Ok((0.0, Vec::new()));
     }
     let n = model.config.points_per_patch;
     let cw = model.config.codeword();
-    let codewords: Vec<Vec<f32>> = samples
+    let tapes: Vec<EncodeTape> = samples
         .par_iter()
         .map(|s| {
             check_sample(model, s)?;
-            Ok(model.ppf.encode_tape(&s.ppf, 2, n).codeword)
+            Ok(model.ppf.encode_tape_at(precision, &s.ppf, 2, n))
         })
         .collect::<Result<_>>()?;
-    let source: Vec<f32> = codewords.iter().flat_map(|c| c[..cw].iter().copied()).collect();
-    let target: Vec<f32> = codewords.iter().flat_map(|c| c[cw..].iter().copied()).collect();
-    Ok(contrast_terms(&source, &target, cw, settings))
+    let source: Vec<f32> = tapes.iter().flat_map(|t| t.codeword[..cw].iter().copied()).collect();
+    let target: Vec<f32> = tapes.iter().flat_map(|t| t.codeword[cw..].iter().copied()).collect();
+    let (value, grads) = contrast_terms(&source, &target, cw, settings);
+    let shares = tapes
+        .into_iter()
+        .zip(grads)
+        .map(|(ppf_tape, d_ppf_codewords)| BatchShare { ppf_tape, d_ppf_codewords })
+        .collect();
+    Ok((value, shares))
 }
 
 /// The contrastive batch term of both trainers from the pairs' PPF codewords (`source` and `target`, pair by

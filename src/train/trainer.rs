@@ -7,7 +7,8 @@
 use super::adam::{Adam, AdamSettings, Param};
 use super::backward::Gradients;
 use super::data::{DataSettings, FragmentPair, Sampler, discover_pairs};
-use super::objective::{LossSettings, Losses, PairSample, batch_objective};
+use super::objective::{LossSettings, Losses, PairSample, batch_objective_at};
+use crate::cpu::gemm::Precision;
 use crate::error::{Error, Result};
 use crate::model::params::tensor_specs;
 use crate::model::{ModelConfig, Weights};
@@ -30,6 +31,11 @@ pub struct TrainSettings {
     pub adam: AdamSettings,
     /// Pair sampling.
     pub sampling: DataSettings,
+    /// The arithmetic of the CPU step's multiplies: f32 (the default, and what runs saved before this setting
+    /// existed resume with), or bf16 products with f32 sums in the wide layers where the CPU has AVX-512 BF16
+    /// (`dpr-gpu train` picks it there); weights and optimiser state stay f32 either way.
+    #[serde(default)]
+    pub precision: Precision,
 }
 
 impl Default for TrainSettings {
@@ -41,6 +47,7 @@ impl Default for TrainSettings {
             loss: LossSettings::default(),
             adam: AdamSettings::default(),
             sampling: DataSettings::default(),
+            precision: Precision::F32,
         }
     }
 }
@@ -58,6 +65,12 @@ impl TrainSettings {
         }
         if !(l.rec || l.pose || l.feat || l.contrast) {
             return Err(Error::invalid("every loss term is disabled: nothing to train"));
+        }
+        if !self.precision.is_available() {
+            return Err(Error::invalid(format!(
+                "training precision {} needs AVX-512 BF16, which this CPU lacks (train in f32)",
+                self.precision.name()
+            )));
         }
         self.adam.validate()
     }
@@ -178,7 +191,7 @@ impl Trainer {
     /// One training step; returns the batch's losses (before the update).
     pub fn step(&mut self) -> Result<Losses> {
         let batch = self.next_batch()?;
-        let (losses, grads) = batch_objective(&self.weights, &batch, &self.settings.loss)?;
+        let (losses, grads) = batch_objective_at(self.settings.precision, &self.weights, &batch, &self.settings.loss)?;
         if !losses.total.is_finite() {
             return Err(Error::invalid(format!("the loss is not finite at step {} ({losses:?})", self.step)));
         }
