@@ -1,0 +1,63 @@
+//! Kernel parity cases: every registered WGSL kernel ([`crate::gpu::registry::KERNELS`]) run on a device against
+//! its CPU twin (`src/cpu/k.rs`) on seeded, adversarial inputs (sizes that miss the workgroup and tile sizes,
+//! dispatches past 65,535 workgroups in one dimension, degenerate geometry, heavy ties; outputs pre-filled with a
+//! NaN / 0xDEADBEEF sentinel so an element a kernel never writes fails), within named tolerances.
+//!
+//! The same cases run natively, in `tests/gpu_parity.rs` ([`crate::gpu::testing::run_tests`] runs each with
+//! [`crate::block_on`]), and in a browser on WebGPU (`web/parity.html`), where Chromium's compiler (Tint) and
+//! its WebGPU implementation run the kernels. A case is async because its readbacks are. A mismatch panics with
+//! the kernel, the seed (`DPR_SEED` overrides the defaults natively) and the first element off.
+
+pub mod inference;
+
+use super::Gpu;
+use std::future::Future;
+use std::pin::Pin;
+
+/// How a case ended (a mismatch panics instead).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Outcome {
+    /// Every comparison held.
+    Passed,
+    /// The device lacks what the case needs (a feature such as cooperative matrices): not run, with the reason.
+    Skipped(String),
+}
+
+/// A running case.
+pub type CaseFuture<'a> = Pin<Box<dyn Future<Output = Outcome> + 'a>>;
+
+/// One case: its name (`<kernel>_matches_cpu...`) and its body on a device.
+#[derive(Clone, Copy)]
+pub struct Case {
+    /// The case's name; it starts with the kernel's.
+    pub name: &'static str,
+    /// Runs the case on a device.
+    pub run: for<'a> fn(&'a Gpu) -> CaseFuture<'a>,
+}
+
+/// A [`Case`] per async case function, named after it.
+macro_rules! cases {
+    ($($module:ident :: $case:ident),* $(,)?) => {
+        &[$(Case { name: stringify!($case), run: |g| Box::pin($module::$case(g)) }),*]
+    };
+}
+
+/// Every case, in the order of [`crate::gpu::registry::KERNELS`].
+pub const CASES: &[Case] = cases![
+    inference::patch_features_matches_cpu_ragged,
+    inference::patch_features_matches_cpu_degenerate,
+    inference::dense_matches_cpu_ragged,
+    inference::dense_fast_matches_cpu_ragged,
+    inference::dense_coop_f16_matches_cpu_within_the_f16_bound,
+    inference::max_pool_matches_cpu_ragged,
+    inference::max_pool_matches_cpu_past_65535_workgroups,
+    inference::unit_rows_matches_cpu_ragged,
+    inference::codeword_distance_matches_cpu_ragged,
+    inference::mutual_knn_matches_cpu_random,
+    inference::mutual_knn_matches_cpu_with_ties,
+    inference::pose_feature_matches_cpu_scattered,
+    inference::rotation_head_matches_cpu,
+    inference::hypotheses_matches_cpu,
+    inference::score_hypotheses_matches_cpu,
+    inference::score_hypotheses_matches_cpu_past_65535_workgroups,
+];
