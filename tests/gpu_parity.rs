@@ -34,7 +34,6 @@ use dpr_gpu::gpu::parity::{self, inference::*};
 
 mod common;
 mod gpu_icp;
-mod gpu_preprocess;
 mod gpu_train;
 
 /// End to end (encode, decode, RelativeNet): several layers of the dense tolerance compound, and max-pool
@@ -688,7 +687,6 @@ fn every_registered_kernel_has_a_parity_test() {
         assert!(
             TESTS
                 .iter()
-                .chain(gpu_preprocess::TESTS)
                 .chain(gpu_icp::TESTS)
                 .chain(gpu_train::TESTS)
                 .map(|(name, _)| *name)
@@ -981,7 +979,7 @@ fn device_context_radii_match_cpu() {
 }
 
 fn main() -> std::process::ExitCode {
-    let tests = [TESTS, gpu_preprocess::TESTS, gpu_icp::TESTS, gpu_train::TESTS].concat();
+    let tests = [TESTS, gpu_icp::TESTS, gpu_train::TESTS].concat();
     dpr_gpu::gpu::testing::run_tests(&tests, parity::CASES)
 }
 

@@ -8,7 +8,10 @@
 //! its WebGPU implementation run the kernels. A case is async because its readbacks are. A mismatch panics with
 //! the kernel, the seed (`DPR_SEED` overrides the defaults natively) and the first element off.
 
+pub mod icp;
 pub mod inference;
+pub mod preprocess;
+pub mod training;
 
 use super::Gpu;
 use std::future::Future;
@@ -44,6 +47,21 @@ macro_rules! cases {
 
 /// Every case, in the order of [`crate::gpu::registry::KERNELS`].
 pub const CASES: &[Case] = cases![
+    preprocess::cell_bounds_matches_cpu,
+    preprocess::cell_keys_matches_cpu,
+    preprocess::bitonic_sort_matches_cpu,
+    preprocess::prefix_scan_matches_cpu,
+    preprocess::segments_matches_cpu,
+    preprocess::voxel_average_matches_cpu,
+    preprocess::voxel_downsample_matches_cpu,
+    preprocess::grid_knn_matches_cpu,
+    preprocess::pca_normals_matches_cpu,
+    preprocess::normals_and_downsampling_match_cpu,
+    preprocess::farthest_point_matches_cpu,
+    preprocess::patch_sample_matches_cpu,
+    preprocess::patch_gather_matches_cpu,
+    preprocess::sample_patches_matches_cpu_and_brute_force,
+    preprocess::device_cloud_normals_match_cpu,
     inference::patch_features_matches_cpu_ragged,
     inference::patch_features_matches_cpu_degenerate,
     inference::dense_matches_cpu_ragged,
@@ -60,4 +78,14 @@ pub const CASES: &[Case] = cases![
     inference::hypotheses_matches_cpu,
     inference::score_hypotheses_matches_cpu,
     inference::score_hypotheses_matches_cpu_past_65535_workgroups,
+    icp::icp_normal_equations_matches_cpu,
+    training::relu_backward_matches_cpu_at_zero_and_signed_zeros,
+    training::group_row_sums_matches_cpu_ragged,
+    training::max_pool_backward_matches_cpu_with_ties_and_accumulation,
+    training::dense_weight_grad_matches_cpu_ragged,
+    training::dense_input_grad_matches_cpu_ragged,
+    training::adam_step_matches_cpu_within_f32_rounding,
+    training::chamfer_nearest_matches_cpu_up_to_near_ties,
+    training::chamfer_grad_matches_cpu_on_both_branches,
+    training::transpose_matches_cpu_exactly,
 ];
