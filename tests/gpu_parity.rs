@@ -1,16 +1,16 @@
 //! Every WGSL kernel against its CPU twin, and the networks end to end (GPU backend vs CPU reference).
 //!
-//! Inputs are seeded (`DPR_SEED` overrides; the seed is in every failure message) and adversarial: sizes
-//! that miss the workgroup and tile sizes, dispatches past 65,535 workgroups in one dimension, degenerate
-//! geometry, heavy ties, and outputs pre-filled with a NaN / 0xDEADBEEF sentinel so an element a kernel
-//! never writes fails the comparison. This binary uses `dpr_gpu::gpu::testing::run_tests` as its harness
-//! (`harness = false`): without a Vulkan adapter every test is reported `SKIPPED` and counted as skipped, never
-//! as passed, unless `CI=true` or `DPR_GPU_REQUIRE_ADAPTER=1` (then each fails). Every test is listed in
+//! The per-kernel cases live in the library (`dpr_gpu::gpu::parity`, so that a browser runs the same cases on
+//! WebGPU: `web/parity.html`); this binary runs them (`parity::CASES`) beside its own tests of the backend, the
+//! steps and whole registrations. Inputs are seeded (`DPR_SEED` overrides; the seed is in every failure message)
+//! and adversarial: sizes that miss the workgroup and tile sizes, dispatches past 65,535 workgroups in one
+//! dimension, degenerate geometry, heavy ties, and outputs pre-filled with a NaN / 0xDEADBEEF sentinel so an
+//! element a kernel never writes fails the comparison. This binary uses `dpr_gpu::gpu::testing::run_tests` as its
+//! harness (`harness = false`): without a Vulkan adapter every test is reported `SKIPPED` and counted as skipped,
+//! never as passed, unless `CI=true` or `DPR_GPU_REQUIRE_ADAPTER=1` (then each fails). Every test is listed in
 //! `main` at the end of the file.
 //!
-//! Tolerances are named constants below, each with the reason it is not zero. Kernels whose result does not
-//! depend on float rounding (max_pool, mutual_knn on a given matrix, inlier counts away from the threshold)
-//! must match exactly.
+//! Tolerances are named constants (here and in `dpr_gpu::gpu::parity`), each with the reason it is not zero.
 
 use dpr_gpu::BackendKind;
 use dpr_gpu::backend::{Backend, CpuBackend};
