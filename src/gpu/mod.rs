@@ -20,6 +20,7 @@ pub mod device;
 pub mod icp;
 pub mod kernels;
 pub mod nets;
+pub mod parity;
 pub mod preprocess;
 pub mod rows;
 pub mod scan;

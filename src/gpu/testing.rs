@@ -92,11 +92,33 @@ pub fn skip_test(reason: impl Into<String>) {
     SKIP_REASON.with(|r| *r.borrow_mut() = Some(reason));
 }
 
-/// Runs `tests` as a `harness = false` test binary would: `cargo test --test NAME [FILTER] [--exact]
-/// [--list] [--ignored]` are understood. Without a usable adapter every selected test is reported as
-/// `SKIPPED` and counted (never as passed); when an adapter is required (`CI=true` or
-/// `DPR_GPU_REQUIRE_ADAPTER=1`) they fail instead. Returns the process exit code: failure when a test failed.
-pub fn run_tests(tests: &[GpuTest]) -> std::process::ExitCode {
+/// Runs `tests` and the kernel parity `cases` (each on the shared device, [`gpu_or_skip`], to completion with
+/// [`crate::block_on`]; a skipped case is reported as [`skip_test`] reports) as a `harness = false` test binary
+/// would: `cargo test --test NAME [FILTER] [--exact] [--list] [--ignored]` are understood. Without a usable
+/// adapter every selected test is reported as `SKIPPED` and counted (never as passed); when an adapter is required
+/// (`CI=true` or `DPR_GPU_REQUIRE_ADAPTER=1`) they fail instead. Returns the process exit code: failure when a test
+/// failed.
+pub fn run_tests(tests: &[GpuTest], cases: &[super::parity::Case]) -> std::process::ExitCode {
+    let run_case = |case: super::parity::Case| {
+        move || {
+            let gpu = gpu_or_skip().expect("the adapter was checked before the case ran");
+            if let super::parity::Outcome::Skipped(reason) = crate::block_on((case.run)(&gpu)) {
+                skip_test(reason);
+            }
+        }
+    };
+    let bodies: Vec<NamedBody> = tests
+        .iter()
+        .map(|&(name, body)| (name, Box::new(body) as Box<dyn Fn()>))
+        .chain(cases.iter().map(|&case| (case.name, Box::new(run_case(case)) as Box<dyn Fn()>)))
+        .collect();
+    run_bodies(&bodies)
+}
+
+/// A test's name and body, as [`run_bodies`] runs them.
+type NamedBody = (&'static str, Box<dyn Fn()>);
+
+fn run_bodies(tests: &[NamedBody]) -> std::process::ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let exact = args.iter().any(|a| a == "--exact");
     let flag_with_value = ["--test-threads", "--format", "--color", "--skip", "-Z"];
@@ -112,7 +134,7 @@ pub fn run_tests(tests: &[GpuTest]) -> std::process::ExitCode {
             filters.push(a.clone());
         }
     }
-    let selected: Vec<&GpuTest> = tests
+    let selected: Vec<&NamedBody> = tests
         .iter()
         .filter(|(name, _)| {
             filters.is_empty() || filters.iter().any(|f| if exact { name == f } else { name.contains(f.as_str()) })
@@ -141,7 +163,7 @@ pub fn run_tests(tests: &[GpuTest]) -> std::process::ExitCode {
             Err(reason) => Err(format!("no usable GPU adapter, and CI=true or {REQUIRE_ENV}=1 requires one: {reason}")),
             Ok(()) => {
                 SKIP_REASON.with(|r| r.borrow_mut().take());
-                std::panic::catch_unwind(body).map_err(|e| {
+                std::panic::catch_unwind(std::panic::AssertUnwindSafe(body)).map_err(|e| {
                     e.downcast_ref::<String>()
                         .cloned()
                         .or_else(|| e.downcast_ref::<&str>().map(|s| s.to_string()))

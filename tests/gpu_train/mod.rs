@@ -1,23 +1,15 @@
 //! The training kernels (the backward passes) against their CPU twins, which are what the CPU trainer runs.
 //! Part of the `gpu_parity` binary (its `main` runs [`TESTS`] too).
 
-use super::{EPS, SENTINEL, SUM_ERROR_FACTOR, assert_close, normals, seed};
-use dpr_gpu::cpu::adam_step::AdamStep as Step;
-use dpr_gpu::cpu::dense_weight_grad::SliceShape;
 use dpr_gpu::gpu;
-use dpr_gpu::gpu::adam_step::AdamStep;
 use dpr_gpu::gpu::backward::{
     DeviceDenseLayer, DeviceEncodeTapeBuffers, DeviceLayerBuffers, DeviceSlice, record_dense_backward,
     record_encode_backward, record_relative_backward,
 };
 use dpr_gpu::gpu::buffer::GpuBuffer;
-use dpr_gpu::gpu::dense_input_grad::DenseInputGrad;
-use dpr_gpu::gpu::dense_weight_grad::DenseWeightGrad;
-use dpr_gpu::gpu::group_row_sums::GroupRowSums;
-use dpr_gpu::gpu::kernel::GpuKernel;
-use dpr_gpu::gpu::max_pool_backward::MaxPoolBackward;
+use dpr_gpu::gpu::parity::inference::{assert_close, normals, seed};
+use dpr_gpu::gpu::parity::training::sum_tolerance;
 use dpr_gpu::gpu::recorder::Recorder;
-use dpr_gpu::gpu::relu_backward::ReluBackward;
 use dpr_gpu::gpu::testing::gpu_or_skip as gpu;
 use dpr_gpu::model::params::all_layers;
 use dpr_gpu::model::{Model, ModelConfig, Weights};
@@ -25,27 +17,17 @@ use dpr_gpu::rng::Rng;
 use dpr_gpu::train::backward::{Gradients, LayerWeights, encode_backward, relative_backward};
 use dpr_gpu::train::grad::{DenseGrads, DenseLayer, Segment, dense_backward};
 
-mod chamfer;
 mod tapes;
 mod trainer;
 
 /// The training kernels' parity tests, run by `gpu_parity`'s `main`.
 pub const TESTS: &[(&str, fn())] = &[
-    ("relu_backward_matches_cpu_at_zero_and_signed_zeros", relu_backward_matches_cpu_at_zero_and_signed_zeros),
-    ("group_row_sums_matches_cpu_ragged", group_row_sums_matches_cpu_ragged),
-    (
-        "max_pool_backward_matches_cpu_with_ties_and_accumulation",
-        max_pool_backward_matches_cpu_with_ties_and_accumulation,
-    ),
-    ("dense_weight_grad_matches_cpu_ragged", dense_weight_grad_matches_cpu_ragged),
-    ("dense_input_grad_matches_cpu_ragged", dense_input_grad_matches_cpu_ragged),
     ("dense_backward_on_the_device_matches_the_cpu_trainer", dense_backward_on_the_device_matches_the_cpu_trainer),
     ("encode_backward_on_the_device_matches_the_cpu_trainer", encode_backward_on_the_device_matches_the_cpu_trainer),
     (
         "relative_backward_on_the_device_matches_the_cpu_trainer",
         relative_backward_on_the_device_matches_the_cpu_trainer,
     ),
-    ("adam_step_matches_cpu_within_f32_rounding", adam_step_matches_cpu_within_f32_rounding),
     (
         "encode_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass",
         tapes::encode_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass,
@@ -58,9 +40,6 @@ pub const TESTS: &[(&str, fn())] = &[
         "relative_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass",
         tapes::relative_tape_on_the_device_matches_the_cpu_and_feeds_the_backward_pass,
     ),
-    ("chamfer_nearest_matches_cpu_up_to_near_ties", chamfer::chamfer_nearest_matches_cpu_up_to_near_ties),
-    ("chamfer_grad_matches_cpu_on_both_branches", chamfer::chamfer_grad_matches_cpu_on_both_branches),
-    ("transpose_matches_cpu_exactly", transpose_matches_cpu_exactly),
     ("device_objective_matches_the_cpu_trainer", trainer::device_objective_matches_the_cpu_trainer),
     (
         "device_step_applies_adamw_and_refreshes_the_forward_weights",
@@ -72,157 +51,6 @@ pub const TESTS: &[(&str, fn())] = &[
         trainer::train_cli_on_the_device_matches_the_cpu_and_resumes,
     ),
 ];
-
-/// The transpose (a refreshed forward weight) against its twin, bit for bit, over ragged shapes past a
-/// workgroup; every output element written (the sentinel never survives).
-fn transpose_matches_cpu_exactly() {
-    let Some(g) = gpu() else { return };
-    let s = seed(154);
-    let mut rng = Rng::new(s);
-    for (rows, cols) in [(1, 1), (1, 70), (37, 67), (130, 9), (256, 4)] {
-        let x = normals(&mut rng, rows * cols);
-        let want = dpr_gpu::cpu::transpose::transpose(&x, rows, cols);
-        let mut got = vec![SENTINEL; x.len()];
-        dpr_gpu::block_on(gpu::transpose::run(&g, &x, rows, cols, &mut got)).unwrap();
-        assert_close(&format!("transpose {rows} x {cols}"), s, &got, &want, |_| 0.0);
-    }
-}
-
-/// Slices of a layer: a full layer, the skip concatenation's second part, ragged sizes past a workgroup, one
-/// row (the group sums of a single patch's shared input).
-const SLICES: &[SliceShape] = &[
-    SliceShape { rows: 1, out_dim: 1, in_dim: 1, width: 1, offset: 0 },
-    SliceShape { rows: 37, out_dim: 67, in_dim: 5, width: 5, offset: 0 },
-    SliceShape { rows: 200, out_dim: 33, in_dim: 100, width: 36, offset: 64 },
-    SliceShape { rows: 1, out_dim: 20, in_dim: 70, width: 64, offset: 3 },
-    SliceShape { rows: 45, out_dim: 9, in_dim: 130, width: 129, offset: 1 },
-];
-
-/// Both sides add the same terms in the same order, but a GPU may contract products and sums into FMAs: allow
-/// the sequential-sum bound `n * eps * (|start| + sum |terms|)` for each side, `n` the terms plus 2.
-fn sum_tolerance(terms: usize, start: f32, abs_terms: f32) -> f32 {
-    SUM_ERROR_FACTOR * (terms + 2) as f32 * EPS * (start.abs() + abs_terms)
-}
-
-/// Positive, negative, zero and negative-zero outputs (only strictly positive ones pass the gradient), past
-/// one workgroup: one comparison and a select, so the same bits.
-fn relu_backward_matches_cpu_at_zero_and_signed_zeros() {
-    let Some(g) = gpu() else { return };
-    let s = seed(144);
-    let mut rng = Rng::new(s);
-    let mut out = normals(&mut rng, 1000);
-    out[..4].copy_from_slice(&[0.0, -0.0, f32::MIN_POSITIVE, -f32::MIN_POSITIVE]);
-    out.iter_mut().skip(4).step_by(7).for_each(|v| *v = 0.0);
-    let d_out = normals(&mut rng, out.len());
-    let want = ReluBackward::CPU_TWIN(&out, &d_out);
-    let mut got = vec![SENTINEL; out.len()];
-    dpr_gpu::block_on(gpu::relu_backward::run(&g, &out, &d_out, &mut got)).unwrap();
-    assert_close("relu_backward", s, &got, &want, |_| 0.0);
-}
-
-/// Groups of one row, of many rows, and wide rows past a workgroup. Each sum adds its rows in order from zero on
-/// both sides, with no products to contract: the same bits.
-fn group_row_sums_matches_cpu_ragged() {
-    let Some(g) = gpu() else { return };
-    let s = seed(145);
-    let mut rng = Rng::new(s);
-    for (groups, rows_per_group, width) in [(1, 1, 1), (3, 1, 70), (4, 45, 9), (2, 300, 130)] {
-        let x = normals(&mut rng, groups * rows_per_group * width);
-        let want = GroupRowSums::CPU_TWIN(&x, rows_per_group, width);
-        let mut got = vec![SENTINEL; groups * width];
-        dpr_gpu::block_on(gpu::group_row_sums::run(&g, &x, rows_per_group, width, &mut got)).unwrap();
-        assert_close(&format!("group_row_sums {groups}x{rows_per_group}x{width}"), s, &got, &want, |_| 0.0);
-    }
-}
-
-/// Ties (equal values in a channel, where the lowest row must win), a group of one row, negative inputs, and
-/// a gradient added to a nonzero `dx`.
-fn max_pool_backward_matches_cpu_with_ties_and_accumulation() {
-    let Some(g) = gpu() else { return };
-    let s = seed(141);
-    let mut rng = Rng::new(s);
-    for (groups, rows, channels) in [(1, 1, 1), (5, 37, 67), (3, 1, 130), (2, 300, 5)] {
-        let mut x = normals(&mut rng, groups * rows * channels);
-        x[..rows * channels].iter_mut().for_each(|v| *v = -v.abs() - 1.0);
-        // Round to quarters so channels hold many exact ties.
-        x.iter_mut().skip(rows * channels).step_by(2).for_each(|v| *v = (*v * 4.0).round() / 4.0);
-        let d_out = normals(&mut rng, groups * channels);
-        let start = normals(&mut rng, x.len());
-        let mut want = start.clone();
-        MaxPoolBackward::CPU_TWIN(&x, groups, rows, channels, &d_out, &mut want);
-        let mut got = start.clone();
-        dpr_gpu::block_on(gpu::max_pool_backward::run(&g, &x, groups, rows, channels, &d_out, &mut got)).unwrap();
-        // One addition per element at most, in the same order: the same bits.
-        assert_close(&format!("max_pool_backward {groups}x{rows}x{channels}"), s, &got, &want, |_| 0.0);
-    }
-}
-
-/// With and without the bias gradient, added to nonzero gradients; columns outside the slice stay as they were.
-fn dense_weight_grad_matches_cpu_ragged() {
-    let Some(g) = gpu() else { return };
-    let s = seed(142);
-    let mut rng = Rng::new(s);
-    for shape in SLICES {
-        let dz = normals(&mut rng, shape.rows * shape.out_dim);
-        let x = normals(&mut rng, shape.rows * shape.width);
-        let (w_start, b_start) = (normals(&mut rng, shape.out_dim * shape.in_dim), normals(&mut rng, shape.out_dim));
-        for bias in [true, false] {
-            let (mut want_w, mut want_b) = (w_start.clone(), b_start.clone());
-            DenseWeightGrad::CPU_TWIN(shape, &dz, &x, &mut want_w, bias.then_some(&mut want_b[..]));
-            let mut got_w = w_start.clone();
-            let mut got_b = if bias { b_start.clone() } else { vec![SENTINEL; shape.out_dim] };
-            dpr_gpu::block_on(gpu::dense_weight_grad::run(
-                &g,
-                shape,
-                &dz,
-                &x,
-                &mut got_w,
-                bias.then_some(&mut got_b[..]),
-            ))
-            .unwrap();
-            let tol_w = |i: usize| {
-                let (o, col) = (i / shape.in_dim, i % shape.in_dim);
-                let Some(c) = col.checked_sub(shape.offset).filter(|&c| c < shape.width) else { return 0.0 };
-                let terms: f32 =
-                    (0..shape.rows).map(|r| (dz[r * shape.out_dim + o] * x[r * shape.width + c]).abs()).sum();
-                sum_tolerance(shape.rows, w_start[i], terms)
-            };
-            // tol_w is 0 outside the slice: those columns must keep their starting bits.
-            assert_close(&format!("dense_weight_grad weights {shape:?}"), s, &got_w, &want_w, tol_w);
-            if bias {
-                let tol_b = |o: usize| {
-                    let terms: f32 = (0..shape.rows).map(|r| dz[r * shape.out_dim + o].abs()).sum();
-                    sum_tolerance(shape.rows, b_start[o], terms)
-                };
-                assert_close(&format!("dense_weight_grad bias {shape:?}"), s, &got_b, &want_b, tol_b);
-            }
-        }
-    }
-}
-
-/// Added to a nonzero `dx`.
-fn dense_input_grad_matches_cpu_ragged() {
-    let Some(g) = gpu() else { return };
-    let s = seed(143);
-    let mut rng = Rng::new(s);
-    for shape in SLICES {
-        let dz = normals(&mut rng, shape.rows * shape.out_dim);
-        let weight = normals(&mut rng, shape.out_dim * shape.in_dim);
-        let start = normals(&mut rng, shape.rows * shape.width);
-        let mut want = start.clone();
-        DenseInputGrad::CPU_TWIN(shape, &dz, &weight, &mut want);
-        let mut got = start.clone();
-        dpr_gpu::block_on(gpu::dense_input_grad::run(&g, shape, &dz, &weight, &mut got)).unwrap();
-        let tol = |i: usize| {
-            let (r, c) = (i / shape.width, i % shape.width);
-            let terms: f32 = (0..shape.out_dim)
-                .map(|o| (dz[r * shape.out_dim + o] * weight[o * shape.in_dim + shape.offset + c]).abs())
-                .sum();
-            sum_tolerance(shape.out_dim, start[i], terms)
-        };
-        assert_close(&format!("dense_input_grad {shape:?}"), s, &got, &want, tol);
-    }
-}
 
 /// An input slice, host side: `(x, width, offset, gradient start or None when not wanted)`.
 type Slice = (Vec<f32>, usize, usize, Option<Vec<f32>>);
@@ -537,51 +365,5 @@ fn relative_backward_on_the_device_matches_the_cpu_trainer() {
         let largest = expected.iter().fold(0.0f32, |m, v| m.max(v.abs()));
         assert!(largest > 0.0, "relative backward, {part}: a zero gradient tests nothing");
         assert_close(&format!("relative backward, {part} features"), s, &got, expected, |_| 1e-3 * largest);
-    }
-}
-
-/// AdamW on the device (f32) against its twin (f64 per element): at the first step (large bias corrections)
-/// and a late one, with and without weight decay, over gradients with zeros and tiny values. Each result within
-/// a few f32 roundings of its terms: 4 eps of the moments' terms, and of `x` plus 1e-5 of the step.
-fn adam_step_matches_cpu_within_f32_rounding() {
-    let Some(g) = gpu() else { return };
-    let s = seed(150);
-    let mut rng = Rng::new(s);
-    let n = 1000;
-    for (t, decay) in [(1, true), (1000, false), (37, true)] {
-        let (beta1, beta2): (f64, f64) = (0.9, 0.999);
-        let step = Step {
-            lr: 3e-4,
-            beta1,
-            beta2,
-            eps: 1e-8,
-            weight_decay: 1e-2,
-            c1: 1.0 - beta1.powi(t),
-            c2: 1.0 - beta2.powi(t),
-        };
-        let value = normals(&mut rng, n);
-        let mut grad = normals(&mut rng, n);
-        grad[..10].fill(0.0);
-        grad[10..20].iter_mut().for_each(|v| *v *= 1e-6);
-        let m: Vec<f32> = normals(&mut rng, n).iter().map(|v| v * 0.1).collect();
-        let v: Vec<f32> = normals(&mut rng, n).iter().map(|v| v.abs() * 0.01).collect();
-        let (mut want_x, mut want_m, mut want_v) = (value.clone(), m.clone(), v.clone());
-        AdamStep::CPU_TWIN(&step, decay, &mut want_x, &grad, &mut want_m, &mut want_v);
-        let (mut got_x, mut got_m, mut got_v) = (value.clone(), m.clone(), v.clone());
-        dpr_gpu::block_on(gpu::adam_step::run(&g, &step, decay, &mut got_x, &grad, &mut got_m, &mut got_v)).unwrap();
-        let what = |part: &str| format!("adam_step t={t} decay={decay}: {part}");
-        let b = |x: f64| x as f32;
-        let tol_m = |i: usize| 4.0 * EPS * (b(beta1) * m[i].abs() + b(1.0 - beta1) * grad[i].abs());
-        let tol_v = |i: usize| 4.0 * EPS * (b(beta2) * v[i] + b(1.0 - beta2) * grad[i] * grad[i]);
-        let wd = if decay { step.weight_decay } else { 0.0 };
-        let tol_x = |i: usize| {
-            let adam = (want_m[i] as f64 / step.c1) / ((want_v[i] as f64 / step.c2).sqrt() + step.eps);
-            let size = step.lr * (adam.abs() + (wd * value[i] as f64).abs());
-            4.0 * EPS * value[i].abs() + 1e-5 * size as f32
-        };
-        assert_close(&what("first moment"), s, &got_m, &want_m, tol_m);
-        assert_close(&what("second moment"), s, &got_v, &want_v, tol_v);
-        assert_close(&what("value"), s, &got_x, &want_x, tol_x);
-        assert!(got_x.iter().zip(&value).filter(|(a, b)| a != b).count() > n / 2, "{}", what("the step moved nothing"));
     }
 }

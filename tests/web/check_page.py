@@ -1,7 +1,8 @@
 """The registration page (web/index.html) in a real browser: headless Chromium driven through the DevTools
 protocol, the page served from 127.0.0.1 (a secure context, as WebGPU needs).
 
-Checks, for each backend asked for (`--backends`, default `cpu gpu`: the CPU path, then WebGPU on the browser's
+Checks: the kernel parity page (web/parity.html: every case of `dpr_gpu::gpu::parity`, the native parity tests'
+inputs, twins and tolerances, on the browser's WebGPU adapter) passes; and for each backend asked for (`--backends`, default `cpu gpu`: the CPU path, then WebGPU on the browser's
 adapter, SwiftShader in CI):
 - the example pair registers in the page with the verdict `success` and the pose of the native command line
   (`--native-pose`: the file `dpr-gpu register ... --out` wrote) within 0.1 degree and 1 mm;
@@ -277,12 +278,26 @@ def check_xyz_api(browser, base):
     return [], figures
 
 
+def check_parity(browser, base):
+    """The kernel parity page: every case of dpr_gpu::gpu::parity on the browser's WebGPU adapter."""
+    browser.call("Page.navigate", url=f"{base}/web/parity.html")
+    state = browser.wait_for("window.parity && ['passed', 'failed'].includes(window.parity.state) && "
+                             "window.parity.state", 3600, "the kernel parity page")
+    results = browser.eval("window.parity.results")
+    figures = {"cases": len(results), "skipped": [r["name"] for r in results if r["outcome"].startswith("skipped")],
+               "seconds": round(sum(r["ms"] for r in results) / 1000, 1)}
+    if state != "passed":
+        return [f"kernel parity page: {browser.eval('window.parity.failure')}"], figures
+    return [], figures
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--native-pose", required=True, help="target_from_source written by `register --out`")
     parser.add_argument("--backends", nargs="+", default=["cpu", "gpu"], choices=["cpu", "gpu", "auto"])
     parser.add_argument("--chromium", default=shutil.which("chromium-headless-shell") or "chromium-headless-shell")
     parser.add_argument("--adapter", default="swiftshader", help="--use-webgpu-adapter ('' for the default)")
+    parser.add_argument("--skip-parity", action="store_true", help="leave out the kernel parity page")
     parser.add_argument("--screenshot", help="write a screenshot of the page after the last registration here (PNG)")
     args = parser.parse_args()
     with open(args.native_pose) as f:
@@ -307,6 +322,9 @@ def main():
             if args.screenshot:
                 with open(args.screenshot, "wb") as f:
                     f.write(png)
+        if not args.skip_parity:
+            found, figures["kernel_parity"] = check_parity(browser, base)
+            failures += found
         found, figures["corrupt_file_message"] = check_corrupt_file(browser, base)
         failures += found
         found, figures["xyz_api_known_motion"] = check_xyz_api(browser, base)

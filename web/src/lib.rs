@@ -14,6 +14,9 @@
 //! - `await register(sourceXyz, targetXyz, options)`: both in one call, for packed x y z arrays.
 //! - `snapshot(source, target, targetFromSource, panelPx)`: the command line's snapshot (top, front and side
 //!   views before and after) as RGBA pixels for a canvas.
+//! - `parityCases()` and `await runParityCase(name)`: the kernel parity cases of `tests/gpu_parity.rs`
+//!   (`dpr_gpu::gpu::parity`) on the browser's WebGPU adapter, for `web/parity.html`; a mismatch panics, and
+//!   the panic's message is left in `globalThis.dprPanic`.
 //!
 //! Nothing leaves the page: files are read from the bytes the page hands over, the weights are built in.
 
@@ -243,6 +246,58 @@ pub fn snapshot(
     let options = SnapshotOptions { panel_px, ..SnapshotOptions::default() };
     let shot = render_snapshot(&source.cloud, &target.cloud, &t, &options).map_err(to_js)?;
     Ok(Picture { width: shot.width(), height: shot.height(), rgba: shot.rgba().to_vec() })
+}
+
+/// The names of the kernel parity cases, in order.
+#[wasm_bindgen(js_name = parityCases)]
+pub fn parity_cases() -> Vec<String> {
+    dpr_gpu::gpu::parity::CASES.iter().map(|c| c.name.to_string()).collect()
+}
+
+thread_local! {
+    /// The device the parity cases share (made on the first case).
+    static PARITY_GPU: std::cell::RefCell<Option<Rc<Gpu>>> = const { std::cell::RefCell::new(None) };
+}
+
+/// Runs the parity case `name` on the browser's WebGPU adapter: resolves to `"passed"` or `"skipped: reason"`;
+/// a mismatch panics (the module traps; the message is in `globalThis.dprPanic`).
+#[wasm_bindgen(js_name = runParityCase)]
+pub async fn run_parity_case(name: String) -> Result<String, JsError> {
+    record_panics();
+    let case = dpr_gpu::gpu::parity::CASES
+        .iter()
+        .find(|c| c.name == name)
+        .ok_or_else(|| JsError::new(&format!("no parity case named {name}")))?;
+    let gpu = match PARITY_GPU.with(|g| g.borrow().clone()) {
+        Some(gpu) => gpu,
+        None => {
+            let gpu = Rc::new(webgpu().await.map_err(to_js)?);
+            PARITY_GPU.with(|g| *g.borrow_mut() = Some(Rc::clone(&gpu)));
+            gpu
+        }
+    };
+    Ok(match (case.run)(&gpu).await {
+        dpr_gpu::gpu::parity::Outcome::Passed => "passed".into(),
+        dpr_gpu::gpu::parity::Outcome::Skipped(reason) => format!("skipped: {reason}"),
+    })
+}
+
+/// Leaves every panic's message in `globalThis.dprPanic` (and the console) before the module traps.
+fn record_panics() {
+    static HOOKED: std::sync::Once = std::sync::Once::new();
+    HOOKED.call_once(|| {
+        std::panic::set_hook(Box::new(|info| {
+            let message = info.to_string();
+            let _ = js_sys::Reflect::set(&js_sys::global(), &"dprPanic".into(), &message.clone().into());
+            web_sys_console_error(&message);
+        }))
+    });
+}
+
+#[wasm_bindgen]
+extern "C" {
+    #[wasm_bindgen(js_namespace = console, js_name = error)]
+    fn web_sys_console_error(message: &str);
 }
 
 /// A device on the browser's WebGPU adapter.

@@ -3,7 +3,8 @@
 //!
 //! Adding a kernel: `shaders/k.wgsl`, a unit type implementing [`GpuKernel`] in `gpu/kernels/k.rs` (source,
 //! bindings, workgroup size, params type, CPU twin), the twin in `cpu/k.rs`, and its `SPEC` here.
-//! `tests/shaders.rs` then validates it and `tests/gpu_parity.rs` insists on a parity test for it. Host code
+//! `tests/shaders.rs` then validates it and `tests/gpu_parity.rs` insists on a parity case for it
+//! (`gpu::parity`: run natively by that test and in a browser by `web/parity.html`). Host code
 //! dispatches through the type (`Recorder::dispatch::<K>`), which looks the compiled pipeline up by name.
 
 use super::adam_step::AdamStep;

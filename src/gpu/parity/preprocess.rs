@@ -1,16 +1,17 @@
-//! Parity tests of the preprocessing kernels (cell grid, sort, scan, runs, voxel averages) against their CPU
-//! twins, part of the `gpu_parity` binary (its `main` runs [`TESTS`] too). Integer kernels must match
-//! exactly; the tolerances of the float kernels are named constants with their derivation.
+//! Parity cases of the preprocessing kernels (cell grid, sort, scan, runs, voxel averages, kNN, normals, patch
+//! sampling and gathering, farthest points) and of the device paths built from them, against their CPU twins.
+//! Integer kernels must match exactly; the tolerances of the float kernels are named constants with their
+//! derivation.
 
-use super::{EPS, assert_close, seed};
-use dpr_gpu::PointCloud;
-use dpr_gpu::cpu::cell_bounds::cell_bounds;
-use dpr_gpu::cpu::cell_keys::{PAD_KEY, SortKey, cell_keys};
-use dpr_gpu::cpu::segments::segments;
-use dpr_gpu::cpu::{bitonic_sort, prefix_scan, voxel_average};
-use dpr_gpu::gpu;
-use dpr_gpu::gpu::testing::gpu_or_skip as gpu;
-use dpr_gpu::rng::Rng;
+use super::Outcome;
+use super::inference::{EPS, assert_close, seed, unit};
+use crate::PointCloud;
+use crate::cpu::cell_bounds::cell_bounds;
+use crate::cpu::cell_keys::{PAD_KEY, SortKey, cell_keys};
+use crate::cpu::segments::segments;
+use crate::cpu::{bitonic_sort, prefix_scan, voxel_average};
+use crate::gpu::{self, Gpu};
+use crate::rng::Rng;
 
 /// voxel_average points: twin and kernel run the same f32 operations in the same order; only the division
 /// `sum / count` may differ (Vulkan allows 2.5 ulp, and a compiler may rewrite it as a product with a
@@ -29,8 +30,8 @@ fn cloud(rng: &mut Rng, n: usize, extent: f64, offset: f64) -> Vec<[f32; 3]> {
     (0..n).map(|_| [0; 3].map(|_: i32| (offset + rng.uniform(-extent, extent)) as f32)).collect()
 }
 
-fn cell_bounds_matches_cpu() {
-    let Some(g) = gpu() else { return };
+/// `cell_bounds` against its CPU twin.
+pub async fn cell_bounds_matches_cpu(g: &Gpu) -> Outcome {
     let s = seed(101);
     let mut rng = Rng::new(s);
     for (n, extent, offset, inv_cell) in
@@ -38,27 +39,28 @@ fn cell_bounds_matches_cpu() {
     {
         let pts = cloud(&mut rng, n, extent, offset);
         let want = cell_bounds(&pts, inv_cell).unwrap();
-        assert_eq!(dpr_gpu::block_on(gpu::cell_bounds::run(&g, &pts, inv_cell)).unwrap(), want, "n {n} (seed {s})");
+        assert_eq!(gpu::cell_bounds::run(g, &pts, inv_cell).await.unwrap(), want, "n {n} (seed {s})");
     }
     // A point whose cell is out of range, and no points: errors on both sides.
     let mut pts = cloud(&mut rng, 300, 1.0, 0.0);
     pts[200] = [0.0, 3e9, 0.0];
     assert!(cell_bounds(&pts, 1.0).is_err());
-    let e = dpr_gpu::block_on(gpu::cell_bounds::run(&g, &pts, 1.0)).unwrap_err().to_string();
+    let e = gpu::cell_bounds::run(g, &pts, 1.0).await.unwrap_err().to_string();
     assert!(e.contains("2^30"), "{e}");
-    assert!(dpr_gpu::block_on(gpu::cell_bounds::run(&g, &[], 1.0)).is_err());
-    assert!(dpr_gpu::block_on(gpu::cell_bounds::run(&g, &pts[..1], 0.0)).is_err());
+    assert!(gpu::cell_bounds::run(g, &[], 1.0).await.is_err());
+    assert!(gpu::cell_bounds::run(g, &pts[..1], 0.0).await.is_err());
+    Outcome::Passed
 }
 
-fn cell_keys_matches_cpu() {
-    let Some(g) = gpu() else { return };
+/// `cell_keys` against its CPU twin.
+pub async fn cell_keys_matches_cpu(g: &Gpu) -> Outcome {
     let s = seed(102);
     let mut rng = Rng::new(s);
     for (n, extent, offset, inv_cell) in [(1, 1.0, 0.0, 10.0), (300, 2.0, -5.0, 7.0), (1025, 1.0, 3.0, 1000.0)] {
         let pts = cloud(&mut rng, n, extent, offset);
         let b = cell_bounds(&pts, inv_cell).unwrap();
         let want = cell_keys(&pts, inv_cell, &b).unwrap();
-        let got = dpr_gpu::block_on(gpu::cell_keys::run(&g, &pts, inv_cell, &b)).unwrap();
+        let got = gpu::cell_keys::run(g, &pts, inv_cell, &b).await.unwrap();
         assert_eq!(got.len(), n.next_power_of_two());
         assert_eq!(&got[..n], &want[..], "n {n} (seed {s})");
         assert!(got[n..].iter().all(|k| *k == PAD_KEY), "padding (seed {s})");
@@ -67,13 +69,14 @@ fn cell_keys_matches_cpu() {
     let pts = vec![[0.0, 0.0, 0.0], [0.5, 2.5e6, 0.25]];
     let b = cell_bounds(&pts, 1.0).unwrap();
     let want = cell_keys(&pts, 1.0, &b).unwrap_err().to_string();
-    let got = dpr_gpu::block_on(gpu::cell_keys::run(&g, &pts, 1.0, &b)).unwrap_err().to_string();
+    let got = gpu::cell_keys::run(g, &pts, 1.0, &b).await.unwrap_err().to_string();
     assert_eq!(got, want);
     assert!(got.contains("axis 1"), "{got}");
+    Outcome::Passed
 }
 
-fn bitonic_sort_matches_cpu() {
-    let Some(g) = gpu() else { return };
+/// `bitonic_sort` against its CPU twin.
+pub async fn bitonic_sort_matches_cpu(g: &Gpu) -> Outcome {
     let s = seed(103);
     let mut rng = Rng::new(s);
     for (n, levels) in [(1, 1), (2, 1), (3, 2), (100, 3), (1000, 50), (4097, 1 << 20)] {
@@ -87,63 +90,65 @@ fn bitonic_sort_matches_cpu() {
             .collect();
         let mut want = keys.clone();
         bitonic_sort::bitonic_sort(&mut want);
-        assert_eq!(dpr_gpu::block_on(gpu::bitonic_sort::run(&g, &keys)).unwrap(), want, "n {n} (seed {s})");
+        assert_eq!(gpu::bitonic_sort::run(g, &keys).await.unwrap(), want, "n {n} (seed {s})");
     }
+    Outcome::Passed
 }
 
-fn prefix_scan_matches_cpu() {
-    let Some(g) = gpu() else { return };
+/// `prefix_scan` against its CPU twin.
+pub async fn prefix_scan_matches_cpu(g: &Gpu) -> Outcome {
     let s = seed(104);
     let mut rng = Rng::new(s);
     for (n, max) in [(0, 1), (1, 5), (255, 2), (256, 2), (257, 1000), (70_001, 2), (1000, u32::MAX as usize)] {
         let values: Vec<u32> = (0..n).map(|_| rng.below(max) as u32).collect();
         assert_eq!(
-            dpr_gpu::block_on(gpu::prefix_scan::run(&g, &values)).unwrap(),
+            gpu::prefix_scan::run(g, &values).await.unwrap(),
             prefix_scan::prefix_scan(&values),
             "n {n} (seed {s})"
         );
     }
+    Outcome::Passed
 }
 
-fn segments_matches_cpu() {
-    let Some(g) = gpu() else { return };
+/// `segments` against its CPU twin.
+pub async fn segments_matches_cpu(g: &Gpu) -> Outcome {
     let s = seed(105);
     let mut rng = Rng::new(s);
     for (n, cells) in [(1, 1), (7, 1), (300, 20), (3000, 2500)] {
         let mut keys: Vec<SortKey> =
             (0..n).map(|i| [rng.below(cells) as u32, rng.below(2) as u32, i as u32, 0]).collect();
         bitonic_sort::bitonic_sort(&mut keys);
-        assert_eq!(dpr_gpu::block_on(gpu::segments::run(&g, &keys)).unwrap(), segments(&keys), "n {n} (seed {s})");
+        assert_eq!(gpu::segments::run(g, &keys).await.unwrap(), segments(&keys), "n {n} (seed {s})");
     }
+    Outcome::Passed
 }
 
-fn voxel_average_matches_cpu() {
-    let Some(g) = gpu() else { return };
+/// `voxel_average` against its CPU twin.
+pub async fn voxel_average_matches_cpu(g: &Gpu) -> Outcome {
     let s = seed(106);
     let mut rng = Rng::new(s);
     for (n, voxel, offset) in [(1, 0.1, 0.0), (500, 0.2, 0.0), (3000, 0.05, 250.0)] {
         let pts = cloud(&mut rng, n, 1.0, offset);
-        let normals: Vec<[f32; 3]> = (0..n).map(|_| super::unit(&mut rng)).collect();
+        let normals: Vec<[f32; 3]> = (0..n).map(|_| unit(&mut rng)).collect();
         let (_, sorted, seg) = voxel_average::sorted_cells(&pts, 1.0 / voxel).unwrap();
         let (want_p, want_n) = voxel_average::voxel_average(&pts, Some(&normals), &sorted, &seg);
-        let (got_p, got_n) =
-            dpr_gpu::block_on(gpu::voxel_average::run(&g, &pts, Some(&normals), &sorted, &seg)).unwrap();
+        let (got_p, got_n) = gpu::voxel_average::run(g, &pts, Some(&normals), &sorted, &seg).await.unwrap();
         let (wp, gp) = (want_p.concat(), got_p.concat());
         assert_close("voxel_average points", s, &gp, &wp, |i| voxel_point_tol(wp[i], voxel));
         assert_close("voxel_average normals", s, &got_n.unwrap().concat(), &want_n.unwrap().concat(), |_| {
             VOXEL_NORMAL_ATOL
         });
-        let (no_normals, none) = dpr_gpu::block_on(gpu::voxel_average::run(&g, &pts, None, &sorted, &seg)).unwrap();
+        let (no_normals, none) = gpu::voxel_average::run(g, &pts, None, &sorted, &seg).await.unwrap();
         assert!(none.is_none());
         assert_close("voxel_average points", s, &no_normals.concat(), &wp, |i| voxel_point_tol(wp[i], voxel));
     }
+    Outcome::Passed
 }
 
 /// The composed GPU downsampling against the CPU path's definition: the same voxels (count and order), averages
 /// within the voxel_average tolerance, on random clouds and on a lattice whose points sit exactly on voxel
 /// boundaries (membership decided by the f32 product both sides compute).
-fn voxel_downsample_matches_cpu() {
-    let Some(g) = gpu() else { return };
+pub async fn voxel_downsample_matches_cpu(g: &Gpu) -> Outcome {
     let s = seed(107);
     let mut rng = Rng::new(s);
     let lattice: Vec<[f32; 3]> = (0..1000)
@@ -154,7 +159,7 @@ fn voxel_downsample_matches_cpu() {
         (
             PointCloud {
                 points: cloud(&mut rng, 777, 0.5, 40.0),
-                normals: Some((0..777).map(|_| super::unit(&mut rng)).collect()),
+                normals: Some((0..777).map(|_| unit(&mut rng)).collect()),
             },
             0.07,
         ),
@@ -162,8 +167,8 @@ fn voxel_downsample_matches_cpu() {
         (PointCloud::from_points(cloud(&mut rng, 5, 1.0, 0.0)), 10.0),
     ];
     for (c, voxel) in &clouds {
-        let want = dpr_gpu::preprocess::voxel_downsample(c, *voxel).unwrap();
-        let got = dpr_gpu::block_on(gpu::preprocess::voxel_downsample(&g, c, *voxel)).unwrap();
+        let want = crate::preprocess::voxel_downsample(c, *voxel).unwrap();
+        let got = gpu::preprocess::voxel_downsample(g, c, *voxel).await.unwrap();
         assert_eq!(got.len(), want.len(), "voxels (seed {s})");
         let (wp, gp) = (want.points.concat(), got.points.concat());
         assert_close("voxel_downsample points", s, &gp, &wp, |i| voxel_point_tol(wp[i], *voxel));
@@ -174,10 +179,11 @@ fn voxel_downsample_matches_cpu() {
     }
     // Too wide for the keys: the CPU path's error, not a wrong answer; bad voxel sizes; an empty cloud.
     let wide = PointCloud::from_points(vec![[0.0; 3], [3e5, 0.0, 0.0]]);
-    let want = dpr_gpu::preprocess::voxel_downsample(&wide, 0.1).unwrap_err().to_string();
-    assert_eq!(dpr_gpu::block_on(gpu::preprocess::voxel_downsample(&g, &wide, 0.1)).unwrap_err().to_string(), want);
-    assert!(dpr_gpu::block_on(gpu::preprocess::voxel_downsample(&g, &wide, 0.0)).is_err());
-    assert!(dpr_gpu::block_on(gpu::preprocess::voxel_downsample(&g, &PointCloud::default(), 0.1)).unwrap().is_empty());
+    let want = crate::preprocess::voxel_downsample(&wide, 0.1).unwrap_err().to_string();
+    assert_eq!(gpu::preprocess::voxel_downsample(g, &wide, 0.1).await.unwrap_err().to_string(), want);
+    assert!(gpu::preprocess::voxel_downsample(g, &wide, 0.0).await.is_err());
+    assert!(gpu::preprocess::voxel_downsample(g, &PointCloud::default(), 0.1).await.unwrap().is_empty());
+    Outcome::Passed
 }
 
 /// grid_knn on random data: both sides compute `dx*dx + dy*dy + dz*dz`, but a GPU may contract it into FMAs,
@@ -201,7 +207,7 @@ fn brute_knn(points: &[[f32; 3]], q: usize, k: usize) -> Vec<(f32, u32)> {
     let mut all: Vec<(f32, u32)> = points
         .iter()
         .enumerate()
-        .map(|(i, p)| (dpr_gpu::cpu::grid_knn::distance_squared(p, &points[q]), i as u32))
+        .map(|(i, p)| (crate::cpu::grid_knn::distance_squared(p, &points[q]), i as u32))
         .collect();
     all.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     all.truncate(k);
@@ -251,9 +257,9 @@ fn knn_scene(rng: &mut Rng, n: usize, outlier: bool) -> Vec<[f32; 3]> {
     pts
 }
 
-fn grid_knn_matches_cpu() {
-    use dpr_gpu::cpu::grid_knn::{CellGrid, grid_knn};
-    let Some(g) = gpu() else { return };
+/// `grid_knn` against its CPU twin.
+pub async fn grid_knn_matches_cpu(g: &Gpu) -> Outcome {
+    use crate::cpu::grid_knn::{CellGrid, grid_knn};
     let s = seed(108);
     let mut rng = Rng::new(s);
     // A lattice: squared distances are exact (multiples of 1/16), so both sides agree bit for bit, ties included.
@@ -271,7 +277,7 @@ fn grid_knn_matches_cpu() {
             "grid_knn lattice",
             s,
             k,
-            &dpr_gpu::block_on(gpu::grid_knn::run(&g, &grid, &queries, k)).unwrap(),
+            &gpu::grid_knn::run(g, &grid, &queries, k).await.unwrap(),
             &want,
             true,
         );
@@ -285,10 +291,10 @@ fn grid_knn_matches_cpu() {
             let b: Vec<u32> = brute_knn(&pts, q, k).iter().map(|x| x.1).collect();
             assert_eq!(want.0[q * k..][..k], b[..], "twin vs brute force, query {q}");
         }
-        let got = dpr_gpu::block_on(gpu::grid_knn::run(&g, &grid, &queries, k)).unwrap();
+        let got = gpu::grid_knn::run(g, &grid, &queries, k).await.unwrap();
         check_knn_lists("grid_knn random", s, k, &got, &want, false);
         // The composed GPU path (cell table built on the GPU) gives the same lists.
-        let composed = dpr_gpu::block_on(gpu::preprocess::knn(&g, &pts, k, cell)).unwrap();
+        let composed = gpu::preprocess::knn(g, &pts, k, cell).await.unwrap();
         check_knn_lists("preprocess::knn", s, k, &composed, &want, false);
     }
     // Fewer points than k: unused slots.
@@ -298,12 +304,13 @@ fn grid_knn_matches_cpu() {
         "grid_knn small",
         s,
         6,
-        &dpr_gpu::block_on(gpu::grid_knn::run(&g, &grid, &[3, 0], 6)).unwrap(),
+        &gpu::grid_knn::run(g, &grid, &[3, 0], 6).await.unwrap(),
         &grid_knn(&grid, &[3, 0], 6).unwrap(),
         true,
     );
-    assert!(dpr_gpu::block_on(gpu::grid_knn::run(&g, &grid, &[0], 65)).is_err());
-    assert!(dpr_gpu::block_on(gpu::preprocess::knn(&g, &pts, 0, 0.1)).is_err());
+    assert!(gpu::grid_knn::run(g, &grid, &[0], 65).await.is_err());
+    assert!(gpu::preprocess::knn(g, &pts, 0, 0.1).await.is_err());
+    Outcome::Passed
 }
 
 /// `(second - smallest) / largest` eigenvalue of the neighbourhood `nbrs` (f64).
@@ -354,10 +361,10 @@ fn check_normals(
     compared
 }
 
-fn pca_normals_matches_cpu() {
-    use dpr_gpu::cpu::grid_knn::{CellGrid, grid_knn};
-    use dpr_gpu::cpu::pca_normals::pca_normals;
-    let Some(g) = gpu() else { return };
+/// `pca_normals` against its CPU twin.
+pub async fn pca_normals_matches_cpu(g: &Gpu) -> Outcome {
+    use crate::cpu::grid_knn::{CellGrid, grid_knn};
+    use crate::cpu::pca_normals::pca_normals;
     let s = seed(109);
     let mut rng = Rng::new(s);
     let pts = knn_scene(&mut rng, 800, true);
@@ -367,7 +374,7 @@ fn pca_normals_matches_cpu() {
         let queries: Vec<u32> = (0..pts.len() as u32).collect();
         let (lists, _) = grid_knn(&grid, &queries, k).unwrap();
         let want = pca_normals(&pts, &queries, &lists, k, view).unwrap();
-        let got = dpr_gpu::block_on(gpu::pca_normals::run(&g, &pts, &queries, &lists, k, view)).unwrap();
+        let got = gpu::pca_normals::run(g, &pts, &queries, &lists, k, view).await.unwrap();
         let compared = check_normals("pca_normals", s, &pts, &lists, k, view, (&got, &want));
         assert!(compared > pts.len() / 2, "only {compared} well-conditioned normals (seed {s})");
     }
@@ -379,20 +386,20 @@ fn pca_normals_matches_cpu() {
     let queries = [0, 1, 3, 4];
     for view in [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]] {
         let want = pca_normals(&pts, &queries, &lists, 3, view).unwrap();
-        let got = dpr_gpu::block_on(gpu::pca_normals::run(&g, &pts, &queries, &lists, 3, view)).unwrap();
+        let got = gpu::pca_normals::run(g, &pts, &queries, &lists, 3, view).await.unwrap();
         assert_close("pca_normals degenerate", s, &got.concat(), &want.concat(), |_| 16.0 * EPS);
         for n in &got {
             assert!(((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt() - 1.0).abs() <= 16.0 * EPS, "{n:?}");
         }
     }
-    assert!(dpr_gpu::block_on(gpu::pca_normals::run(&g, &pts, &[0], &[0, 9, 1], 3, [0.0; 3])).is_err());
+    assert!(gpu::pca_normals::run(g, &pts, &[0], &[0, 9, 1], 3, [0.0; 3]).await.is_err());
+    Outcome::Passed
 }
 
 /// The composed GPU normals (table, search and PCA on the GPU) and downsampling + normals against the twins.
-fn normals_and_downsampling_match_cpu() {
-    use dpr_gpu::cpu::grid_knn::{CellGrid, grid_knn};
-    use dpr_gpu::cpu::pca_normals::pca_normals;
-    let Some(g) = gpu() else { return };
+pub async fn normals_and_downsampling_match_cpu(g: &Gpu) -> Outcome {
+    use crate::cpu::grid_knn::{CellGrid, grid_knn};
+    use crate::cpu::pca_normals::pca_normals;
     let s = seed(110);
     let mut rng = Rng::new(s);
     let pts = knn_scene(&mut rng, 1500, false);
@@ -405,13 +412,13 @@ fn normals_and_downsampling_match_cpu() {
         (lists, normals)
     };
     let (lists, want) = twin(&pts, 0.1);
-    let got = dpr_gpu::block_on(gpu::preprocess::normals(&g, &pts, k, view, 0.1)).unwrap();
+    let got = gpu::preprocess::normals(g, &pts, k, view, 0.1).await.unwrap();
     assert!(check_normals("preprocess::normals", s, &pts, &lists, k, view, (&got, &want)) > pts.len() / 2);
 
     let voxel = 0.04;
     let cloud = PointCloud::from_points(pts);
-    let down = dpr_gpu::block_on(gpu::preprocess::downsample_and_normals(&g, &cloud, voxel, k, view)).unwrap();
-    let want_down = dpr_gpu::preprocess::voxel_downsample(&cloud, voxel).unwrap();
+    let down = gpu::preprocess::downsample_and_normals(g, &cloud, voxel, k, view).await.unwrap();
+    let want_down = crate::preprocess::voxel_downsample(&cloud, voxel).unwrap();
     assert_eq!(down.len(), want_down.len(), "voxels (seed {s})");
     let (wp, gp) = (want_down.points.concat(), down.points.concat());
     assert_close("downsample_and_normals points", s, &gp, &wp, |i| voxel_point_tol(wp[i], voxel));
@@ -419,6 +426,7 @@ fn normals_and_downsampling_match_cpu() {
     let (lists, want) = twin(&down.points, gpu::preprocess::knn_cell(voxel, k));
     let got = down.normals.clone().expect("estimated normals");
     assert!(check_normals("downsample_and_normals", s, &down.points, &lists, k, view, (&got, &want)) > down.len() / 2);
+    Outcome::Passed
 }
 
 /// A scene for patch sampling: a lattice (exact distances: many points exactly at the radius), a random
@@ -433,7 +441,7 @@ fn patch_scene(rng: &mut Rng) -> (Vec<[f32; 3]>, Vec<u32>, f32) {
     let shell_at = pts.len() as u32;
     pts.push(centre);
     for _ in 0..400 {
-        let u = super::unit(rng);
+        let u = unit(rng);
         let scale = 1.0 + (rng.uniform(-2.0, 2.0) as f32) * EPS;
         pts.push([0, 1, 2].map(|a| centre[a] + radius * scale * u[a]));
     }
@@ -447,17 +455,17 @@ fn patch_scene(rng: &mut Rng) -> (Vec<[f32; 3]>, Vec<u32>, f32) {
     (pts, keypoints, radius)
 }
 
-fn patch_sample_matches_cpu() {
-    use dpr_gpu::cpu::grid_knn::CellGrid;
-    use dpr_gpu::cpu::patch_sample::patch_sample;
-    let Some(g) = gpu() else { return };
+/// `patch_sample` against its CPU twin.
+pub async fn patch_sample_matches_cpu(g: &Gpu) -> Outcome {
+    use crate::cpu::grid_knn::CellGrid;
+    use crate::cpu::patch_sample::patch_sample;
     let s = seed(111);
     let mut rng = Rng::new(s);
     let (pts, keypoints, radius) = patch_scene(&mut rng);
     for cell in [radius, 1.7 * radius] {
         let grid = CellGrid::new(&pts, 1.0 / cell).unwrap();
         let want = patch_sample(&grid, &keypoints, radius, s).unwrap();
-        let got = dpr_gpu::block_on(gpu::patch_sample::run(&g, &grid, &keypoints, radius, s)).unwrap();
+        let got = gpu::patch_sample::run(g, &grid, &keypoints, radius, s).await.unwrap();
         assert_eq!(got.counts, want.counts, "counts, cell {cell} (seed {s})");
         assert_eq!(got.sorted, want.sorted, "ranked candidates, cell {cell} (seed {s})");
         // The cases the scene is built for are there.
@@ -470,23 +478,21 @@ fn patch_sample_matches_cpu() {
     // Cells narrower than the radius, a keypoint that is not a point: the twin's errors.
     let grid = CellGrid::new(&pts, 1.0 / (radius / 3.0)).unwrap();
     let want = patch_sample(&grid, &keypoints[..3], radius, s).unwrap_err().to_string();
-    assert_eq!(
-        dpr_gpu::block_on(gpu::patch_sample::run(&g, &grid, &keypoints[..3], radius, s)).unwrap_err().to_string(),
-        want
-    );
+    assert_eq!(gpu::patch_sample::run(g, &grid, &keypoints[..3], radius, s).await.unwrap_err().to_string(), want);
     let grid = CellGrid::new(&pts, 1.0 / radius).unwrap();
-    assert!(dpr_gpu::block_on(gpu::patch_sample::run(&g, &grid, &[pts.len() as u32], radius, s)).is_err());
+    assert!(gpu::patch_sample::run(g, &grid, &[pts.len() as u32], radius, s).await.is_err());
+    Outcome::Passed
 }
 
-fn patch_gather_matches_cpu() {
-    use dpr_gpu::cpu::grid_knn::CellGrid;
-    use dpr_gpu::cpu::patch_gather::patch_gather;
-    use dpr_gpu::cpu::patch_sample::patch_sample;
-    let Some(g) = gpu() else { return };
+/// `patch_gather` against its CPU twin.
+pub async fn patch_gather_matches_cpu(g: &Gpu) -> Outcome {
+    use crate::cpu::grid_knn::CellGrid;
+    use crate::cpu::patch_gather::patch_gather;
+    use crate::cpu::patch_sample::patch_sample;
     let s = seed(112);
     let mut rng = Rng::new(s);
     let (pts, keypoints, radius) = patch_scene(&mut rng);
-    let normals: Vec<[f32; 3]> = (0..pts.len()).map(|_| super::unit(&mut rng)).collect();
+    let normals: Vec<[f32; 3]> = (0..pts.len()).map(|_| unit(&mut rng)).collect();
     let c = patch_sample(&CellGrid::new(&pts, 1.0 / radius).unwrap(), &keypoints, radius, s).unwrap();
     let (mut table, mut start) = (Vec::new(), 0);
     for (slot, &count) in c.counts.iter().enumerate() {
@@ -497,29 +503,27 @@ fn patch_gather_matches_cpu() {
     }
     for (n, centers) in [(16, false), (1, false), (40, false), (16, true)] {
         let want = patch_gather(&pts, &normals, &c.sorted, &table, n, centers).unwrap();
-        let got = dpr_gpu::block_on(gpu::patch_gather::run(&g, &pts, &normals, &c.sorted, &table, n, centers)).unwrap();
+        let got = gpu::patch_gather::run(g, &pts, &normals, &c.sorted, &table, n, centers).await.unwrap();
         assert_eq!(got, want, "n {n}, centers {centers} (seed {s})");
     }
-    assert!(
-        dpr_gpu::block_on(gpu::patch_gather::run(&g, &pts, &normals, &c.sorted, &[[0, 0, 0, 0]], 4, false)).is_err()
-    );
+    assert!(gpu::patch_gather::run(g, &pts, &normals, &c.sorted, &[[0, 0, 0, 0]], 4, false).await.is_err());
+    Outcome::Passed
 }
 
 /// The composed GPU sampling (cell table, search, sort, gather on the device) against the CPU path's
 /// `extract_patches` and brute force: the same patches, every sampled point within the radius and not the
 /// keypoint, distinct when there are at least N candidates, all candidates taken when fewer, empty patches
 /// reported.
-fn sample_patches_matches_cpu_and_brute_force() {
-    use dpr_gpu::cpu::patch_sample::{in_patch, radius_squared};
-    let Some(g) = gpu() else { return };
+pub async fn sample_patches_matches_cpu_and_brute_force(g: &Gpu) -> Outcome {
+    use crate::cpu::patch_sample::{in_patch, radius_squared};
     let s = seed(113);
     let mut rng = Rng::new(s);
     let (pts, keypoints, radius) = patch_scene(&mut rng);
     let n = 24;
     let ks: Vec<usize> = keypoints.iter().map(|&k| k as usize).collect();
-    let index = dpr_gpu::spatial::PointIndex::new(&pts).unwrap();
-    let want = dpr_gpu::preprocess::extract_patches(&pts, &index, &ks, radius, n, s);
-    let got = dpr_gpu::block_on(gpu::preprocess::sample_patches(&g, &pts, &keypoints, radius, n, s)).unwrap();
+    let index = crate::spatial::PointIndex::new(&pts).unwrap();
+    let want = crate::preprocess::extract_patches(&pts, &index, &ks, radius, n, s);
+    let got = gpu::preprocess::sample_patches(g, &pts, &keypoints, radius, n, s).await.unwrap();
     assert_eq!(got, want, "seed {s}");
     let r2 = radius_squared(radius);
     for (p, &k) in got.keypoints.iter().enumerate() {
@@ -537,45 +541,41 @@ fn sample_patches_matches_cpu_and_brute_force() {
     assert!(!got.empty.is_empty() && got.keypoints.len() > 100);
     // Candidates that do not fit one buffer (64 KiB: the cell table fits, the ~60,000 candidates do not): the
     // keypoints are split, with the same result.
-    let Some(small) = dpr_gpu::gpu::testing::new_gpu_or_skip() else { return };
-    small.context.set_max_buffer_bytes(64 * 1024);
-    let grid = dpr_gpu::cpu::grid_knn::CellGrid::new(&pts, 1.0 / radius).unwrap();
-    let total: u32 =
-        dpr_gpu::cpu::patch_sample::patch_sample(&grid, &keypoints, radius, s).unwrap().counts.iter().sum();
+    let cap = g.context.max_buffer_bytes();
+    g.context.set_max_buffer_bytes(64 * 1024);
+    let grid = crate::cpu::grid_knn::CellGrid::new(&pts, 1.0 / radius).unwrap();
+    let total: u32 = crate::cpu::patch_sample::patch_sample(&grid, &keypoints, radius, s).unwrap().counts.iter().sum();
     assert!(u64::from(total) * 16 > 64 * 1024, "{total} candidates fit one buffer: nothing is split");
-    assert_eq!(
-        dpr_gpu::block_on(gpu::preprocess::sample_patches(&small, &pts, &keypoints, radius, n, s)).unwrap(),
-        want,
-        "split"
-    );
+    assert_eq!(gpu::preprocess::sample_patches(g, &pts, &keypoints, radius, n, s).await.unwrap(), want, "split");
+    g.context.set_max_buffer_bytes(cap);
+    Outcome::Passed
 }
 
 /// A device cloud's estimated normals (its own kNN grid, cells sized from the point density) against the twins
 /// (grid_knn + pca_normals): the definition of the GPU path's normals.
-fn device_cloud_normals_match_cpu() {
-    use dpr_gpu::cpu::grid_knn::{CellGrid, grid_knn};
-    use dpr_gpu::cpu::pca_normals::pca_normals;
-    let Some(g) = gpu() else { return };
+pub async fn device_cloud_normals_match_cpu(g: &Gpu) -> Outcome {
+    use crate::cpu::grid_knn::{CellGrid, grid_knn};
+    use crate::cpu::pca_normals::pca_normals;
     let s = seed(114);
     let mut rng = Rng::new(s);
     let pts = knn_scene(&mut rng, 1500, false);
     let (k, view) = (12, [20.0, 0.0, 3.0]);
     let source = gpu::preprocess::NormalSource::Estimate { k, viewpoint: view };
-    let cloud = dpr_gpu::block_on(gpu::preprocess::DeviceCloud::new(&g, &pts, source, 0.3)).unwrap();
-    let got = dpr_gpu::block_on(cloud.read_normals(&g)).unwrap();
+    let cloud = gpu::preprocess::DeviceCloud::new(g, &pts, source, 0.3).await.unwrap();
+    let got = cloud.read_normals(g).await.unwrap();
     let grid = CellGrid::new(&pts, 1.0 / 0.1).unwrap();
     let queries: Vec<u32> = (0..pts.len() as u32).collect();
     let (lists, _) = grid_knn(&grid, &queries, k).unwrap();
     let want = pca_normals(&pts, &queries, &lists, k, view).unwrap();
     assert!(check_normals("device cloud normals", s, &pts, &lists, k, view, (&got, &want)) > pts.len() / 2);
+    Outcome::Passed
 }
 
 /// farthest_point: the same indices as the twin (the CPU path's definition), on random points, on a lattice
 /// (many exactly tied distances: ties go to the lower index), with duplicates, past one workgroup of partials,
 /// and drawing every point.
-fn farthest_point_matches_cpu() {
-    use dpr_gpu::cpu::farthest_point::farthest_point;
-    let Some(g) = gpu() else { return };
+pub async fn farthest_point_matches_cpu(g: &Gpu) -> Outcome {
+    use crate::cpu::farthest_point::farthest_point;
     let s = seed(115);
     let mut rng = Rng::new(s);
     let lattice: Vec<[f32; 3]> =
@@ -587,31 +587,8 @@ fn farthest_point_matches_cpu() {
     for (pts, count) in &cases {
         let start = rng.below(pts.len());
         let want = farthest_point(pts, *count, start);
-        assert_eq!(
-            dpr_gpu::block_on(gpu::farthest_point::run(&g, pts, *count, start)).unwrap(),
-            want,
-            "n {} (seed {s})",
-            pts.len()
-        );
+        assert_eq!(gpu::farthest_point::run(g, pts, *count, start).await.unwrap(), want, "n {} (seed {s})", pts.len());
     }
-    assert!(dpr_gpu::block_on(gpu::farthest_point::run(&g, &cases[0].0[..3], 4, 0)).is_err());
+    assert!(gpu::farthest_point::run(g, &cases[0].0[..3], 4, 0).await.is_err());
+    Outcome::Passed
 }
-
-/// Every test of this module.
-pub const TESTS: &[dpr_gpu::gpu::testing::GpuTest] = &[
-    ("cell_bounds_matches_cpu", cell_bounds_matches_cpu),
-    ("cell_keys_matches_cpu", cell_keys_matches_cpu),
-    ("bitonic_sort_matches_cpu", bitonic_sort_matches_cpu),
-    ("prefix_scan_matches_cpu", prefix_scan_matches_cpu),
-    ("segments_matches_cpu", segments_matches_cpu),
-    ("voxel_average_matches_cpu", voxel_average_matches_cpu),
-    ("voxel_downsample_matches_cpu", voxel_downsample_matches_cpu),
-    ("grid_knn_matches_cpu", grid_knn_matches_cpu),
-    ("pca_normals_matches_cpu", pca_normals_matches_cpu),
-    ("normals_and_downsampling_match_cpu", normals_and_downsampling_match_cpu),
-    ("patch_sample_matches_cpu", patch_sample_matches_cpu),
-    ("patch_gather_matches_cpu", patch_gather_matches_cpu),
-    ("sample_patches_matches_cpu_and_brute_force", sample_patches_matches_cpu_and_brute_force),
-    ("device_cloud_normals_match_cpu", device_cloud_normals_match_cpu),
-    ("farthest_point_matches_cpu", farthest_point_matches_cpu),
-];
