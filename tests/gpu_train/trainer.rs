@@ -180,7 +180,8 @@ pub fn train_cli_on_the_device_matches_the_cpu_and_resumes() {
         dpr(what, &[&["train", "--data", &data][..], &small, &weights, extra].concat());
     };
     let (cpu_out, cpu_log) = (path("cpu.safetensors"), path("cpu.csv"));
-    train("cpu run", &["--out", &cpu_out, "--log", &cpu_log, "--steps", "4"]);
+    // f32 on the CPU too: the device's GEMM here is f32 (`auto` would take bf16 on a CPU that has it).
+    train("cpu run", &["--precision", "f32", "--out", &cpu_out, "--log", &cpu_log, "--steps", "4"]);
     let (gpu_out, gpu_log) = (path("gpu.safetensors"), path("gpu.csv"));
     train("gpu run", &["--backend", "gpu", "--out", &gpu_out, "--log", &gpu_log, "--steps", "4"]);
     let rows = |f: &str| -> Vec<Vec<f64>> {
