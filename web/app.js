@@ -5,6 +5,7 @@ import init, { readCloud, Session, snapshot } from "./pkg/dpr_gpu_web.js";
 
 const $ = (id) => document.getElementById(id);
 const scans = { source: null, target: null };
+const sessions = {};
 window.dpr = { state: "loading", result: null, error: null, backend: null, seconds: null };
 
 function status(text, kind = "") {
@@ -107,7 +108,10 @@ async function registerPair() {
   window.dpr.error = null;
   try {
     status("Preparing the backend...");
-    const session = await Session.create({ backend: $("backend").value });
+    // One session per backend choice: a WebGPU session compiles every kernel once, not on each registration.
+    const choice = $("backend").value;
+    sessions[choice] ??= await Session.create({ backend: choice });
+    const session = sessions[choice];
     window.dpr.backend = session.backend;
     window.dpr.adapter = await adapterName();
     const started = performance.now();
