@@ -14,10 +14,11 @@
 use crate::backend::{Backend, CpuBackend, RotationInputs};
 use crate::cpu::dense::{DenseShape, dense as dense_twin};
 use crate::cpu::gemm::{GemmPath, Precision, dense_on};
+use crate::cpu::gemm_bf16::Bf16Unit;
 use crate::cpu::hypotheses::Hypothesis;
 use crate::gpu::context::Transfers;
 use crate::gpu::{Gpu, GpuBackend, buffer::GpuBuffer, dense as gpu_dense, gemm::GemmVariant, recorder::Recorder};
-use crate::model::{Model, ModelConfig, Net, Weights};
+use crate::model::{FoldNet, Model, ModelConfig, Net, Weights};
 use crate::preprocess::GatheredPatches;
 use crate::rng::Rng;
 use crate::settings::MatchMode;
@@ -136,6 +137,10 @@ pub struct Config {
     pub train_pairs: usize,
     /// Whether the sizes left at their defaults were cut for a software adapter (`--full-sizes` keeps them).
     pub sizes_cut: bool,
+    /// Dense FLOPs of one PPF-FoldNet patch at `points_per_patch` points (what `encode ppf` divides).
+    pub ppf_flops_per_patch: f64,
+    /// Dense FLOPs of one PC-FoldNet patch.
+    pub pc_flops_per_patch: f64,
 }
 
 /// The CPU the reference ran on.
@@ -148,6 +153,8 @@ pub struct CpuInfo {
     /// The arithmetic of the encoders and of the training stages on the CPU (`bf16` where the CPU has AVX-512
     /// BF16, else `f32`; `DPR_GPU_CPU_PRECISION=f32` or `bf16` overrides it).
     pub precision: &'static str,
+    /// Where the bf16 multiplies run (`amx` tiles or the `vector` unit); `None` in f32.
+    pub bf16_unit: Option<&'static str>,
 }
 
 /// The GPU the kernels ran on, or why none did.
@@ -338,8 +345,7 @@ fn gpu_timing(m: Measured, flops: Option<f64>, peak_tflops: Option<f64>) -> GpuT
 
 /// Dense FLOPs of one encoder pass over `patches` patches of `points` points (the per-patch global slice of
 /// the first head layer counted per patch, as computed).
-fn encode_flops(model: &Model, patches: usize, points: usize) -> f64 {
-    let f = &model.ppf;
+fn encode_flops(f: &FoldNet, patches: usize, points: usize) -> f64 {
     let per_point: usize = f.encoder.iter().chain(&f.head[1..]).map(|l| l.in_dim * l.out_dim).sum::<usize>()
         + f.head.first().map_or(0, |h| (h.in_dim - f.encoder.last().map_or(0, |l| l.out_dim)) * h.out_dim);
     let per_patch = f.head.first().map_or(0, |h| f.encoder.last().map_or(0, |l| l.out_dim) * h.out_dim);
@@ -525,6 +531,10 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
         threads: rayon::current_num_threads(),
         gemm_path: GemmPath::selected().name(),
         precision: precision.name(),
+        bf16_unit: (precision == Precision::Bf16).then(|| match Bf16Unit::default().effective() {
+            Bf16Unit::Tiles => "amx",
+            Bf16Unit::Vector => "vector",
+        }),
     });
 
     let reference: &dyn Backend = match (&gpu, &cpu) {
@@ -567,6 +577,8 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
         backward_patches,
         train_pairs,
         sizes_cut: sizes.cut.is_some(),
+        ppf_flops_per_patch: encode_flops(&model.ppf, 1, p),
+        pc_flops_per_patch: encode_flops(&model.pc, 1, p),
     };
     Ok(Report { schema: SCHEMA, config, cpu: cpu_info, gpu: info, stages, gemm, gemm_unavailable, pair })
 }
@@ -772,8 +784,8 @@ fn measure_stages(
         RotationInputs { source: pose, target: pose, source_normals: normals, target_normals: normals, rows: k };
     let stage_list: Vec<(&str, Option<f64>)> = vec![
         ("patch_features", None),
-        ("encode ppf", Some(encode_flops(model, k, p))),
-        ("encode pc", Some(encode_flops(model, k, p))),
+        ("encode ppf", Some(encode_flops(&model.ppf, k, p))),
+        ("encode pc", Some(encode_flops(&model.pc, k, p))),
         ("match_codewords", Some(3.0 * (k * k * cw) as f64)),
         ("predict_rotations", None),
         ("hypotheses", None),
@@ -838,7 +850,7 @@ fn measure_encode_backward(
     let mut rng = Rng::new(args.seed ^ 0x6261_636b);
     let d_codeword: Vec<f32> = (0..patches * net.codeword_len()).map(|_| rng.normal() as f32).collect();
     let layer_weights = LayerWeights::new(weights)?;
-    let flops = Some(2.0 * encode_flops(model, patches, p));
+    let flops = Some(2.0 * encode_flops(&model.ppf, patches, p));
     let mut row = StageReport { stage: "encode_backward ppf".into(), flops, cpu: None, gpu: None };
     if let Some(precision) = cpu {
         let cpu_weights = LayerWeights::with_precision(weights, precision)?;
@@ -983,7 +995,7 @@ fn gemm_variants(
         GemmReport {
             precision: match variant.as_str() {
                 "gpu_dense_coop_f16" => "f16",
-                "cpu_gemm_bf16" => "bf16",
+                "cpu_gemm_bf16" | "cpu_gemm_bf16_amx" => "bf16",
                 _ => "f32",
             },
             variant,
@@ -1020,8 +1032,17 @@ fn gemm_variants(
             out.push(report(format!("cpu_gemm_{}", path.name()), "cpu", used, ms(m.wall), Clock::HostWall));
         }
         if Precision::Bf16.is_available() {
-            let m = time_cpu(&|s, xc, o| crate::cpu::gemm_bf16::dense_bf16(s, xc, &w, &b, o))?;
-            out.push(report("cpu_gemm_bf16".into(), "cpu", !f32_used, ms(m.wall), Clock::HostWall));
+            use crate::cpu::gemm_bf16::{dense_bf16_packed_on, pack_weight};
+            let packed = pack_weight(&w, in_dim, out_dim);
+            let amx = Bf16Unit::Tiles.effective() == Bf16Unit::Tiles;
+            for (name, unit) in [("cpu_gemm_bf16", Bf16Unit::Vector), ("cpu_gemm_bf16_amx", Bf16Unit::Tiles)] {
+                if unit == Bf16Unit::Tiles && !amx {
+                    continue;
+                }
+                let m = time_cpu(&|s, xc, o| dense_bf16_packed_on(unit, s, &[(xc, in_dim)], &packed, &b, o))?;
+                let used = !f32_used && (unit == Bf16Unit::Tiles) == amx;
+                out.push(report(name.into(), "cpu", used, ms(m.wall), Clock::HostWall));
+            }
         }
         let m = time_cpu(&|s, xc, o| dense_twin(s, xc, &w, &b, o))?;
         out.push(report("cpu_twin".into(), "cpu", false, ms(m.wall), Clock::HostWall));
@@ -1073,8 +1094,14 @@ fn print_report(r: &Report) {
         (None, Some(note)) => println!("gpu: not measured: {note}"),
         (None, None) => {}
     }
+    println!(
+        "model: {:.1} MFLOP per patch (PPF-FoldNet), {:.1} (PC-FoldNet)",
+        c.ppf_flops_per_patch / 1e6,
+        c.pc_flops_per_patch / 1e6
+    );
     if let Some(cpu) = &r.cpu {
-        println!("cpu: {} threads, GEMM micro-kernel {}, {} encoders", cpu.threads, cpu.gemm_path, cpu.precision);
+        let unit = cpu.bf16_unit.map_or(String::new(), |u| format!(" on {u}"));
+        println!("cpu: {} threads, GEMM micro-kernel {}, {} encoders{unit}", cpu.threads, cpu.gemm_path, cpu.precision);
     }
     println!();
     println!(

@@ -355,7 +355,12 @@ impl Precision {
 
     /// The precision [`CPU_PRECISION_ENV`] asks for, and why: see [`Precision::choose`].
     pub fn from_env() -> crate::error::Result<(Precision, String)> {
-        Precision::choose(std::env::var(CPU_PRECISION_ENV).ok().as_deref(), Precision::Bf16.is_available())
+        let (precision, why) =
+            Precision::choose(std::env::var(CPU_PRECISION_ENV).ok().as_deref(), Precision::Bf16.is_available())?;
+        Ok(match precision {
+            Precision::Bf16 => (precision, format!("{why}; {}", crate::cpu::gemm_bf16::Bf16Unit::Tiles.describe())),
+            Precision::F32 => (precision, why),
+        })
     }
 
     /// The precision a value of [`CPU_PRECISION_ENV`] asks for on a CPU with or without AVX-512 BF16, and why.

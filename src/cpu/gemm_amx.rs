@@ -129,8 +129,9 @@ mod x86 {
         // matrices.
         unsafe {
             asm!("ldtilecfg [{}]", in(reg) &config, options(nostack));
-            for j0 in (0..n).step_by(BLOCK) {
-                for i0 in (0..m).step_by(BLOCK) {
+            // Row strip by row strip: a strip of A stays in L1 while B streams from L2.
+            for i0 in (0..m).step_by(BLOCK) {
+                for j0 in (0..n).step_by(BLOCK) {
                     let c0 = c.add(i0 * ldc + j0);
                     let (c1, c2) = (c0.add(16), c0.add(16 * ldc));
                     let c3 = c2.add(16);

@@ -159,11 +159,11 @@ pub fn pack_rows_of(x: &[f32], rows: usize, k: usize) -> Vec<u32> {
 /// differ by f32 rounding only (each is within [`bf16_dense_bound`] of the f32 layer).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Bf16Unit {
-    /// The AVX-512 BF16 dot product (`vdpbf16ps`): what the encoders run at inference.
-    #[default]
+    /// The AVX-512 BF16 dot product (`vdpbf16ps`) on every CPU with AVX-512 BF16.
     Vector,
     /// AMX tiles ([`crate::cpu::gemm_amx`]) where the CPU and OS have them, else the vector unit: what the
-    /// trainer runs.
+    /// encoders and the trainer run.
+    #[default]
     Tiles,
 }
 
@@ -171,6 +171,17 @@ impl Bf16Unit {
     /// The unit that runs: [`Bf16Unit::Tiles`] falls back to [`Bf16Unit::Vector`] where AMX is not available.
     pub fn effective(self) -> Bf16Unit {
         if self == Bf16Unit::Tiles && gemm_amx::is_available() { Bf16Unit::Tiles } else { Bf16Unit::Vector }
+    }
+
+    /// Which unit runs, in words: "on AMX tiles" or "on the vector unit (no AMX)".
+    pub fn describe(self) -> &'static str {
+        match (self, self.effective()) {
+            (_, Bf16Unit::Tiles) => "multiplies on AMX tiles",
+            (Bf16Unit::Tiles, Bf16Unit::Vector) => {
+                "multiplies on the AVX-512 BF16 vector unit (this CPU or OS has no AMX)"
+            }
+            (Bf16Unit::Vector, Bf16Unit::Vector) => "multiplies on the AVX-512 BF16 vector unit",
+        }
     }
 }
 
@@ -322,12 +333,17 @@ fn dense_on_tiles(shape: &DenseShape, a: &[u32], w_packed: &[u32], group_term: &
     let DenseShape { rows, in_dim, out_dim, rows_per_group, accumulate, relu } = *shape;
     let out = &mut out[..rows * out_dim];
     for (r, row) in out.chunks_exact_mut(out_dim).enumerate() {
-        if !accumulate {
-            row.fill(0.0);
-        }
-        if !group_term.is_empty() {
-            let g = &group_term[(r / rows_per_group.max(1)) * out_dim..][..out_dim];
-            row.iter_mut().zip(g).for_each(|(v, gv)| *v += gv);
+        match (accumulate, group_term.is_empty()) {
+            (true, true) => {}
+            (false, true) => row.fill(0.0),
+            (acc, false) => {
+                let g = &group_term[(r / rows_per_group.max(1)) * out_dim..][..out_dim];
+                if acc {
+                    row.iter_mut().zip(g).for_each(|(v, gv)| *v += gv);
+                } else {
+                    row.copy_from_slice(g);
+                }
+            }
         }
     }
     gemm_acc_tiles_padded((rows, out_dim, in_dim.div_ceil(2)), a, w_packed, out, out_dim);
@@ -623,6 +639,9 @@ mod tests {
             (257, 64, 512, 256, false, true),
             (33, 511, 40, 11, true, true),
             (1, 1, 1, 1, true, true),
+            // Whole AMX blocks, with and without the old output.
+            (256, 64, 512, 256, false, true),
+            (64, 96, 64, 16, true, true),
         ] {
             let s = DenseShape { rows, in_dim, out_dim, rows_per_group: rpg, accumulate, relu };
             let mut v = |n: usize| (0..n).map(|_| rng.normal() as f32).collect::<Vec<f32>>();

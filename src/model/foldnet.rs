@@ -30,7 +30,7 @@ pub struct FoldNet {
 }
 
 /// Rows processed per parallel task: enough to amortise, few enough to balance across cores.
-const ROWS_PER_TASK: usize = 2048;
+const ROWS_PER_TASK: usize = 512;
 
 /// `layer(x)` over `rows` rows with only the bias as group term.
 pub(crate) fn apply(layer: &Linear, x: &[f32], rows: usize, relu: bool) -> Vec<f32> {
@@ -104,8 +104,12 @@ fn dense_layer_into(
     out: &mut Vec<f32>,
 ) {
     let n = layer.out_dim;
-    out.clear();
-    out.resize(rows * n, 0.0);
+    // Every path below overwrites the whole output (the first multiply does not accumulate), so a buffer kept
+    // from the previous chunk at the same size is not cleared first.
+    if out.len() != rows * n {
+        out.clear();
+        out.resize(rows * n, 0.0);
+    }
     if bf16_segments(precision, segments) {
         let parts: Vec<(&[f32], usize)> = segments.iter().map(|&(x, w, _)| (x, w)).collect();
         let in_dim = parts.iter().map(|p| p.1).sum();

@@ -20,8 +20,9 @@ pub struct Linear {
     /// `weight_t` packed for the bf16 layer, built on first use ([`Linear::packed_bf16`]). A `Linear` is not
     /// changed after it is built (training builds new ones from its parameters).
     packed_bf16: OnceLock<Vec<u32>>,
-    /// The unit its bf16 multiplies run on: the vector unit (inference), or AMX tiles where the CPU has them
-    /// (the trainer's models, [`crate::model::Model::with_bf16_unit`]).
+    /// The unit its bf16 multiplies run on: AMX tiles where the CPU has them (inference and training; 2.5-3x
+    /// the encoders' speed on the vector unit, docs/speed.md), else the vector unit
+    /// ([`crate::model::Model::with_bf16_unit`] picks one).
     bf16_unit: Bf16Unit,
 }
 
@@ -33,7 +34,7 @@ impl Linear {
         let (i_n, o_n) = (spec.in_dim, spec.out_dim);
         let weight_t = crate::cpu::transpose::transpose(w, o_n, i_n);
         let packed_bf16 = OnceLock::new();
-        Ok(Linear { in_dim: i_n, out_dim: o_n, weight_t, bias: b.to_vec(), packed_bf16, bf16_unit: Bf16Unit::Vector })
+        Ok(Linear { in_dim: i_n, out_dim: o_n, weight_t, bias: b.to_vec(), packed_bf16, bf16_unit: Bf16Unit::Tiles })
     }
 
     /// The transposed weight as bf16 pairs of rows (`crate::cpu::gemm_bf16::pack_weight`), packed once.

@@ -44,8 +44,8 @@ impl Model {
         })
     }
 
-    /// The model with every layer's bf16 multiplies on `unit` (built on the vector unit; the trainer asks for
-    /// AMX tiles). Changes nothing in f32.
+    /// The model with every layer's bf16 multiplies on `unit` (built on AMX tiles, which fall back to the vector
+    /// unit where the CPU has none). Changes nothing in f32.
     pub fn with_bf16_unit(mut self, unit: crate::cpu::gemm_bf16::Bf16Unit) -> Model {
         let nets = [&mut self.ppf, &mut self.pc];
         let fold_layers = nets.into_iter().flat_map(|f| [&mut f.encoder, &mut f.head, &mut f.fold1, &mut f.fold2]);
