@@ -12,20 +12,21 @@ trusts.
         [--keypoints 250,500,1000,2500,5000] [--keypoint-cloud 100000] [--extra-args "--backend cpu"] \
         [--markdown] [--workdir DIR]
 
-Needs numpy. Prints one JSON line per run (and a Markdown table with --markdown).
+Needs numpy. Prints one JSON line per run (and a Markdown table with --markdown). The clouds are made by a
+child Python process, so the launcher stays small: Linux counts the launcher's resident set into a spawned
+child's high-water mark, so the peak memory reported includes at most the launcher's ~10 MiB.
 """
 import argparse
 import json
 import math
 import os
 import subprocess
+import sys
 import tempfile
 import time
 
-import numpy as np
 
-
-def scene(rng: np.random.Generator, n: int) -> np.ndarray:
+def scene(rng, n: int):
     """n points on a 6 x 5 x 3 m room's floor and two walls, with 8 boxes and 5 balls, uniform by area."""
     boxes = [(rng.uniform([0.3, 0.3, 0.0], [5.0, 4.0, 0.0]), rng.uniform([0.3, 0.3, 0.3], [1.2, 1.0, 1.5])) for _ in range(8)]
     balls = [(rng.uniform([0.5, 0.5, 0.2], [5.5, 4.5, 1.5]), rng.uniform(0.15, 0.4)) for _ in range(5)]
@@ -60,7 +61,7 @@ def scene(rng: np.random.Generator, n: int) -> np.ndarray:
     return np.concatenate([s[1](k) for s, k in zip(surfaces, counts) if k > 0])
 
 
-def rotation(rng: np.random.Generator) -> np.ndarray:
+def rotation(rng):
     q = rng.normal(size=4)
     w, x, y, z = q / np.linalg.norm(q)
     return np.array([
@@ -70,7 +71,7 @@ def rotation(rng: np.random.Generator) -> np.ndarray:
     ])
 
 
-def write_ply(path: str, points: np.ndarray) -> None:
+def write_ply(path: str, points) -> None:
     with open(path, "wb") as f:
         f.write(b"ply\nformat binary_little_endian 1.0\nelement vertex %d\n" % len(points))
         f.write(b"property float x\nproperty float y\nproperty float z\nend_header\n")
@@ -78,16 +79,21 @@ def write_ply(path: str, points: np.ndarray) -> None:
 
 
 def make_pair(folder: str, n: int, seed: int):
-    """source.ply / target.ply of about n points each, the target moved by a known pose; returns the paths."""
+    """source_n.ply / target_n.ply of about n points each, the target moved by a known pose, written by a child
+    process; returns the paths."""
+    subprocess.run([sys.executable, os.path.abspath(__file__), "--generate", str(n), str(seed), folder], check=True)
+    return os.path.join(folder, f"source_{n}.ply"), os.path.join(folder, f"target_{n}.ply")
+
+
+def generate(n: int, seed: int, folder: str) -> None:
+    """The child's work: the pair of `make_pair`."""
     rng = np.random.default_rng(seed)
     room = scene(rng, int(n / 0.7))
     source = room[room[:, 0] < 6 * 0.7][:n]
     target = room[room[:, 0] > 6 * 0.3][:n]
     moved = target @ rotation(rng).T + rng.uniform(-1, 1, 3)
-    paths = os.path.join(folder, f"source_{n}.ply"), os.path.join(folder, f"target_{n}.ply")
-    write_ply(paths[0], source)
-    write_ply(paths[1], moved)
-    return paths
+    write_ply(os.path.join(folder, f"source_{n}.ply"), source)
+    write_ply(os.path.join(folder, f"target_{n}.ply"), moved)
 
 
 def run_measured(binary: str, paths, keypoints: int, extra: str):
@@ -121,6 +127,12 @@ def run_measured(binary: str, paths, keypoints: int, extra: str):
 
 
 def main() -> None:
+    if len(sys.argv) == 5 and sys.argv[1] == "--generate":
+        global np
+        import numpy as np
+
+        generate(int(sys.argv[2]), int(sys.argv[3]), sys.argv[4])
+        return
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--binary", default="target/release/dpr-gpu")
     parser.add_argument("--points", default="10000,100000,1000000,5000000")
@@ -150,7 +162,7 @@ def main() -> None:
             rows.append(("keypoints", row))
             print(json.dumps({"sweep": "keypoints", **row}), flush=True)
     if args.markdown:
-        keys = ["load", "downsample", "normals", "patches", "ppf_encoder", "pc_encoder", "estimation", "icp", "verdict"]
+        keys = ["load", "downsample", "normals", "patches", "ppf_encoder", "matching", "pc_encoder", "estimation"]
         seen = [k for k in keys if any(k in r["stages"] for _, r in rows)]
         print("\n| sweep | points per scan | keypoints | wall s | peak MiB | " + " | ".join(seen) + " |")
         print("|---" * (5 + len(seen)) + "|")
