@@ -476,10 +476,31 @@ fn bench_json_on_the_test_adapter_is_consistent() {
     let cpu_precision = r["cpu"]["precision"].as_str().expect("cpu.precision");
     let want_precision = dpr_gpu::cpu::gemm::Precision::from_env().unwrap().0.name();
     assert_eq!(cpu_precision, want_precision, "the bench times the precision the CPU backend picks");
+    // bf16 runs on AMX tiles where the CPU has them (the bench says which unit in `cpu.bf16_unit`).
+    let amx = dpr_gpu::cpu::gemm_amx::is_available();
     let selected = match cpu_precision {
+        "bf16" if amx => "cpu_gemm_bf16_amx".to_string(),
         "bf16" => "cpu_gemm_bf16".to_string(),
         _ => format!("cpu_gemm_{}", r["cpu"]["gemm_path"].as_str().unwrap()),
     };
+    let want_unit = (cpu_precision == "bf16").then_some(if amx { "amx" } else { "vector" });
+    assert_eq!(r["cpu"]["bf16_unit"].as_str(), want_unit);
+    // The FLOPs of one patch, from the default model's widths (the bench's random weights have its config):
+    // per point every encoder layer and the head's per-point part, per patch the global slice of head 0.
+    let c = dpr_gpu::model::ModelConfig::default();
+    let p = uint(&r["config"]["points_per_patch"], "points") as usize;
+    let widths = |first: usize, w: &[usize]| -> usize {
+        let mut dims = vec![first];
+        dims.extend_from_slice(w);
+        dims.windows(2).map(|d| d[0] * d[1]).sum()
+    };
+    let last = *c.encoder_widths.last().unwrap();
+    let head_in = c.concat_width() - last;
+    let per_point = |io: usize| widths(io, &c.encoder_widths) + widths(head_in, &c.head_widths);
+    for (key, io) in [("ppf_flops_per_patch", 4), ("pc_flops_per_patch", 3)] {
+        let want = 2 * (per_point(io) * p + last * c.head_widths[0]);
+        assert_eq!(num(&r["config"][key], key), want as f64, "{key}");
+    }
     // The GPU GEMM the backend runs is the device's (the same selection in this process and the bench's).
     assert_eq!(g["gemm_variant"], gpu.gemm_variant().name());
     let gpu_selected = format!("gpu_dense_{}", gpu.gemm_variant());
@@ -521,7 +542,7 @@ fn bench_json_on_the_test_adapter_is_consistent() {
         assert_eq!(v["used_by_backend"], name == selected || name == gpu_selected, "{name}");
         let precision = match name {
             "gpu_dense_coop_f16" => "f16",
-            "cpu_gemm_bf16" => "bf16",
+            "cpu_gemm_bf16" | "cpu_gemm_bf16_amx" => "bf16",
             _ => "f32",
         };
         assert_eq!(v["precision"], precision, "{name}");

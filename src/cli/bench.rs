@@ -1035,10 +1035,8 @@ fn gemm_variants(
             use crate::cpu::gemm_bf16::{dense_bf16_packed_on, pack_weight};
             let packed = pack_weight(&w, in_dim, out_dim);
             let amx = Bf16Unit::Tiles.effective() == Bf16Unit::Tiles;
-            for (name, unit) in [("cpu_gemm_bf16", Bf16Unit::Vector), ("cpu_gemm_bf16_amx", Bf16Unit::Tiles)] {
-                if unit == Bf16Unit::Tiles && !amx {
-                    continue;
-                }
+            let units = [("cpu_gemm_bf16", Bf16Unit::Vector), ("cpu_gemm_bf16_amx", Bf16Unit::Tiles)];
+            for (name, unit) in units.into_iter().filter(|u| u.1 == Bf16Unit::Vector || amx) {
                 let m = time_cpu(&|s, xc, o| dense_bf16_packed_on(unit, s, &[(xc, in_dim)], &packed, &b, o))?;
                 let used = !f32_used && (unit == Bf16Unit::Tiles) == amx;
                 out.push(report(name.into(), "cpu", used, ms(m.wall), Clock::HostWall));

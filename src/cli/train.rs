@@ -143,6 +143,17 @@ pub struct Args {
     /// Start from these weights instead of a random initialisation (their config is used).
     #[arg(long)]
     pub init: Option<PathBuf>,
+    /// Distil this trained model (its weights file) into a cheaper student: each step trains only the student's
+    /// encoders to reproduce the teacher's PPF and PC codewords (mean squared difference); RelativeNet and the
+    /// decoders are the teacher's, copied. The student's config is the teacher's with `--head-widths`. The loss
+    /// flags do not apply; the log's `total` is the distillation loss. CPU only.
+    #[arg(long, conflicts_with = "init")]
+    pub distill_from: Option<PathBuf>,
+    /// Widths of the per-point layers after the skip concatenation (the last is the codeword length, which a
+    /// student keeps): e.g. 256,512 for a student about half the teacher's 512,512 cost [default: the teacher's
+    /// or the preset's].
+    #[arg(long, value_delimiter = ',')]
+    pub head_widths: Option<Vec<usize>>,
     /// Save a checkpoint every K steps (0: only at the end).
     #[arg(long, default_value_t = 100)]
     pub checkpoint_every: u64,
@@ -190,6 +201,9 @@ fn model_config(args: &Args) -> anyhow::Result<ModelConfig> {
     }
     if let Some(g) = args.grid {
         config.grid = [g, g];
+    }
+    if let Some(widths) = &args.head_widths {
+        config.head_widths.clone_from(widths);
     }
     config.radius = args.radius.unwrap_or(config.radius);
     config.pose_frame = args.pose_frame.unwrap_or(config.pose_frame);
@@ -247,6 +261,7 @@ fn fresh_settings(args: &Args) -> anyhow::Result<TrainSettings> {
     s.sampling.occlusion_share = args.occlusion_share.unwrap_or(s.sampling.occlusion_share);
     s.sampling.occlusion_deg = args.occlusion_deg.unwrap_or(s.sampling.occlusion_deg);
     s.sampling.occlusion_ppf_only = args.occlusion_ppf_only;
+    s.distill_from = args.distill_from.clone();
     Ok(s)
 }
 
@@ -288,6 +303,8 @@ fn check_resume_args(args: &Args, s: &TrainSettings, config: &ModelConfig) -> an
     check("--lambda-contrast", args.lambda_contrast.is_some_and(contrast_differs));
     check("--contrast-margin", args.contrast_margin.is_some_and(|v| v != s.loss.contrast_margin));
     check("--pose-trains-ppf", args.pose_trains_ppf && !s.loss.pose_trains_ppf);
+    check("--distill-from", args.distill_from.is_some() && args.distill_from != s.distill_from);
+    check("--head-widths", args.head_widths.as_ref().is_some_and(|w| *w != config.head_widths));
     check("--voxel", args.voxel.is_some_and(|v| v != s.sampling.voxel));
     check("--match-distance", args.match_distance.is_some_and(|v| v != s.sampling.match_distance));
     check("--rotate-target", args.rotate_target && !s.sampling.rotate_target);
@@ -445,6 +462,16 @@ fn build_trainer(args: &Args) -> anyhow::Result<Trainer> {
         if args.init.is_some() && (args.config.is_some() || args.points.is_some() || args.grid.is_some()) {
             bail!("--init takes the model size from the weights file: drop --config, --points and --grid");
         }
+        let sized = args.config.is_some() || args.points.is_some() || args.grid.is_some() || args.radius.is_some();
+        if args.distill_from.is_some() && (sized || args.pose_frame.is_some() || args.rotation_output.is_some()) {
+            bail!(
+                "--distill-from takes the model from the teacher (with --head-widths): drop --config, --points, \
+                 --grid, --radius, --pose-frame and --rotation-output"
+            );
+        }
+        if args.distill_from.is_some() && args.backend != "cpu" {
+            bail!("--distill-from runs on the CPU: drop --backend {}", args.backend);
+        }
         let weights = initial_weights(args, &settings)?;
         let pairs = discover_pairs(&settings.data)?;
         Trainer::with_pairs(weights, settings, pairs)?
@@ -453,6 +480,15 @@ fn build_trainer(args: &Args) -> anyhow::Result<Trainer> {
 
 /// The weights a fresh run starts from: `--init` (with `--radius` and a new pose head applied) or new ones.
 fn initial_weights(args: &Args, settings: &TrainSettings) -> anyhow::Result<Weights> {
+    if let Some(teacher) = &args.distill_from {
+        let teacher = Weights::load(teacher)?;
+        let mut config = teacher.config.clone();
+        if let Some(widths) = &args.head_widths {
+            config.head_widths.clone_from(widths);
+        }
+        config.validate().context("--head-widths")?;
+        return Ok(crate::train::distill::student_weights(&teacher, &config, settings.seed)?);
+    }
     Ok(match &args.init {
         Some(p) => {
             let mut w = Weights::load(p)?;
@@ -629,6 +665,39 @@ mod tests {
         crate::io::write_ply(&dir.join("b.ply"), &source.transformed(&t)).unwrap();
         let flat: Vec<String> = (0..16).map(|k| format!("{:.12}", t[(k / 4, k % 4)])).collect();
         std::fs::write(dir.join("pairs.txt"), format!("a.ply b.ply {}\n", flat.join(" "))).unwrap();
+    }
+
+    #[test]
+    fn distillation_trains_a_narrower_student_that_keeps_the_teachers_pose_head() {
+        let scratch = tempfile::tempdir().unwrap();
+        let dir = scratch.path();
+        write_data(dir);
+        let d = dir.display();
+        let common = format!("--data {d}/pairs.txt --batch 2 --voxel 0.03 --checkpoint-every 0");
+        run(parse(&format!("{common} --points 8 --grid 3 --out {d}/t.safetensors --steps 2"))).unwrap();
+        let teacher = Weights::load(&dir.join("t.safetensors")).unwrap();
+        let student_run = format!("{common} --distill-from {d}/t.safetensors --head-widths 64,512 --lr 0.003");
+        run(parse(&format!("{student_run} --out {d}/s.safetensors --steps 12 --log {d}/s.csv"))).unwrap();
+        let student = Weights::load(&dir.join("s.safetensors")).unwrap();
+        assert_eq!(student.config, ModelConfig { head_widths: vec![64, 512], ..teacher.config.clone() });
+        for (name, t) in &student.tensors {
+            let same = teacher.tensors.get(name) == Some(t);
+            // RelativeNet and the decoders stay the teacher's; every head layer is new and trained.
+            if name.starts_with("relative.") || name.contains(".fold") {
+                assert!(same, "{name} changed");
+            } else if name.contains(".head.") {
+                assert!(!same, "{name} is the teacher's");
+            }
+        }
+        let log = std::fs::read_to_string(dir.join("s.csv")).unwrap();
+        let losses: Vec<f64> = log.lines().skip(1).map(|l| l.split(',').nth(1).unwrap().parse().unwrap()).collect();
+        assert_eq!(losses.len(), 12);
+        assert!(losses[11] < losses[0], "distillation loss did not fall: {losses:?}");
+        // The model comes from the teacher: size flags and the GPU trainer are refused.
+        let e = run(parse(&format!("{student_run} --out {d}/x.safetensors --steps 1 --points 16"))).unwrap_err();
+        assert!(e.to_string().contains("--distill-from"), "{e}");
+        let e = run(parse(&format!("{student_run} --out {d}/x.safetensors --steps 1 --backend gpu"))).unwrap_err();
+        assert!(e.to_string().contains("CPU"), "{e}");
     }
 
     #[test]

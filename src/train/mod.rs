@@ -35,6 +35,7 @@ pub mod backward;
 pub mod checkpoint;
 pub mod contrast;
 pub mod data;
+pub mod distill;
 pub mod grad;
 pub mod loss;
 pub mod objective;

@@ -11,7 +11,7 @@ use super::objective::{LossSettings, Losses, PairSample, batch_objective_at};
 use crate::cpu::gemm::Precision;
 use crate::error::{Error, Result};
 use crate::model::params::tensor_specs;
-use crate::model::{ModelConfig, Weights};
+use crate::model::{Model, ModelConfig, Weights};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -36,6 +36,10 @@ pub struct TrainSettings {
     /// (`dpr-gpu train` picks it there); weights and optimiser state stay f32 either way.
     #[serde(default)]
     pub precision: Precision,
+    /// Distillation: the teacher's weights file. When set, each step trains only the encoders to reproduce the
+    /// teacher's codewords ([`super::distill`]) and the loss terms above are not used.
+    #[serde(default)]
+    pub distill_from: Option<PathBuf>,
 }
 
 impl Default for TrainSettings {
@@ -48,6 +52,7 @@ impl Default for TrainSettings {
             adam: AdamSettings::default(),
             sampling: DataSettings::default(),
             precision: Precision::F32,
+            distill_from: None,
         }
     }
 }
@@ -63,7 +68,7 @@ impl TrainSettings {
         if ![l.lambda_pose, l.lambda_feat, l.lambda_contrast, l.contrast_margin].into_iter().all(usable) {
             return Err(Error::invalid(format!("loss weights must be finite and non-negative: {l:?}")));
         }
-        if !(l.rec || l.pose || l.feat || l.contrast) {
+        if !(l.rec || l.pose || l.feat || l.contrast || self.distill_from.is_some()) {
             return Err(Error::invalid("every loss term is disabled: nothing to train"));
         }
         if !self.precision.is_available() {
@@ -76,6 +81,9 @@ impl TrainSettings {
     }
 }
 
+/// Named tensors a distillation student keeps as the teacher's.
+type KeptTensors = Vec<(String, Vec<f32>)>;
+
 /// A training run in progress.
 pub struct Trainer {
     settings: TrainSettings,
@@ -83,6 +91,9 @@ pub struct Trainer {
     adam: Adam,
     step: u64,
     sampler: Sampler,
+    /// The teacher of a distillation run (`settings.distill_from`), loaded once, and its tensors the student
+    /// keeps as they are (RelativeNet, the decoders).
+    teacher: Option<(Model, KeptTensors)>,
 }
 
 /// Parameter tensor names in `tensor_specs` order, with whether weight decay applies (weights, not biases).
@@ -131,7 +142,16 @@ impl Trainer {
         let sizes: Vec<usize> = tensor_order(&weights.config).iter().map(|t| t.1).collect();
         let adam = Adam::new(settings.adam, &sizes);
         let sampler = Sampler::new(pairs, settings.sampling.clone(), &weights.config)?;
-        Ok(Trainer { settings, weights, adam, step: 0, sampler })
+        let teacher = match &settings.distill_from {
+            Some(path) => {
+                let teacher = Weights::load(path)?;
+                super::distill::check_teacher(&teacher.config, &weights.config)?;
+                let kept = super::distill::kept_tensors(&teacher);
+                Some((Model::from_weights(&teacher)?, kept))
+            }
+            None => None,
+        };
+        Ok(Trainer { settings, weights, adam, step: 0, sampler, teacher })
     }
 
     /// Rebuilds a run from its saved state (see `checkpoint::read_checkpoint`): weights, settings, the fragment
@@ -191,11 +211,23 @@ impl Trainer {
     /// One training step; returns the batch's losses (before the update).
     pub fn step(&mut self) -> Result<Losses> {
         let batch = self.next_batch()?;
-        let (losses, grads) = batch_objective_at(self.settings.precision, &self.weights, &batch, &self.settings.loss)?;
+        let precision = self.settings.precision;
+        let (losses, grads) = match &self.teacher {
+            Some((teacher, _)) => super::distill::batch_distill_at(precision, &self.weights, teacher, &batch)?,
+            None => batch_objective_at(precision, &self.weights, &batch, &self.settings.loss)?,
+        };
         if !losses.total.is_finite() {
             return Err(Error::invalid(format!("the loss is not finite at step {} ({losses:?})", self.step)));
         }
         apply_gradients(&mut self.weights, &mut self.adam, &grads)?;
+        if let Some((_, kept)) = &self.teacher {
+            // Weight decay would move them a little; a student keeps the teacher's exactly.
+            for (name, value) in kept {
+                if let Some(t) = self.weights.tensors.get_mut(name) {
+                    t.clone_from(value);
+                }
+            }
+        }
         self.step += 1;
         Ok(losses)
     }
