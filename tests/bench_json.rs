@@ -42,6 +42,8 @@ fn small_args() -> Args {
         pair_points: 3000,
         pose_graph: None,
         full_sizes: false,
+        gemm_sweep: false,
+        gemm_rows: None,
     }
 }
 
@@ -627,4 +629,111 @@ fn bench_rejects_a_bad_peak() {
         assert!(stderr.contains("--peak-tflops must be a positive number"), "{bad}: {stderr}");
         assert!(out.stdout.is_empty(), "{bad}: no report on stdout");
     }
+}
+
+/// `dpr-gpu bench --gemm-sweep --json --gemm-rows 64` with `cache` as the cache directory, plus `env`.
+fn run_sweep(cache: &std::path::Path, env: &[(&str, &str)]) -> (bool, String, String) {
+    let backend_env = std::env::var("WGPU_BACKEND").unwrap_or_else(|_| "vulkan".into());
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_dpr-gpu"));
+    cmd.args(["bench", "--gemm-sweep", "--json", "--gemm-rows", "64", "--peak-tflops", "2.5"]);
+    cmd.env("WGPU_BACKEND", backend_env).env("DPR_GPU_CACHE_DIR", cache).env_remove("DPR_GPU_GEMM");
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let out = cmd.output().expect("runs dpr-gpu");
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+/// The sweep times every variant the adapter runs (every tile of `fast`) on both encoder shapes with consistent
+/// figures, records the fastest for the adapter, and a new device then runs the recorded choice unless
+/// `DPR_GPU_GEMM` says otherwise; a corrupt choice file is ignored with a warning and replaced.
+#[test]
+fn gemm_sweep_times_every_variant_and_tile_and_auto_takes_the_recorded_choice() {
+    use dpr_gpu::gpu::dense_fast::FastTile;
+    use dpr_gpu::gpu::gemm::gemm_choice;
+    let Some(gpu) = gpu_or_skip() else { return };
+    let cache = std::env::temp_dir().join(format!("dpr-gpu-sweep-test-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&cache);
+    let (ok, stdout, stderr) = run_sweep(&cache, &[]);
+    assert!(ok, "sweep failed:\n{stderr}");
+    let r = parse(&stdout, &stderr);
+    assert_eq!(r["schema"], "dpr-gpu-gemm-sweep/1");
+    assert_eq!(uint(&r["rows"], "rows"), 64);
+    let entries = r["gemm_sweep"].as_array().expect("gemm_sweep");
+    let mut want = Vec::new();
+    for v in GemmVariant::ALL {
+        if v.unavailable_reason(&gpu.context).is_some() {
+            assert!(r["unavailable"].as_array().unwrap().iter().any(|u| u["variant"] == v.name()), "{v}");
+            continue;
+        }
+        let tiles: Vec<String> = if v == GemmVariant::Fast {
+            FastTile::ALL.iter().map(|t| t.name()).collect()
+        } else {
+            let (m, n) = v.tile();
+            vec![format!("{m}x{n}")]
+        };
+        for tile in tiles {
+            for (i, o) in [(704, 512), (512, 512)] {
+                want.push((v.name().to_string(), tile.clone(), i as u64, o as u64));
+            }
+        }
+    }
+    let got: Vec<(String, String, u64, u64)> = entries
+        .iter()
+        .map(|e| {
+            let s = |k: &str| e[k].as_str().unwrap().to_string();
+            (s("variant"), s("tile"), uint(&e["in_dim"], "in"), uint(&e["out_dim"], "out"))
+        })
+        .collect();
+    assert_eq!(got, want);
+    // Per candidate: consistent figures; the best is the smallest total over the shapes.
+    let mut totals: Vec<(String, String, f64)> = Vec::new();
+    for e in entries {
+        let flops = num(&e["flops"], "flops");
+        assert_eq!(flops, 2.0 * 64.0 * num(&e["in_dim"], "in") * num(&e["out_dim"], "out"));
+        let t = time_ms(&e["time_ms"], "time");
+        assert_rel(num(&e["gflops"], "gflops"), flops / (t * 1e-3).max(1e-9) / 1e9, "gflops");
+        assert_rel(num(&e["peak_fraction"], "peak"), num(&e["gflops"], "gflops") / 2500.0, "peak fraction");
+        let (v, tile) = (e["variant"].as_str().unwrap().to_string(), e["tile"].as_str().unwrap().to_string());
+        match totals.iter_mut().find(|(a, b, _)| *a == v && *b == tile) {
+            Some(x) => x.2 += t,
+            None => totals.push((v, tile, t)),
+        }
+    }
+    let min = totals.iter().map(|x| x.2).fold(f64::INFINITY, f64::min);
+    let best = &r["best"];
+    let best_total = totals.iter().find(|x| x.0 == best["variant"] && x.1 == best["tile"]).expect("best is swept").2;
+    assert_eq!(best_total, min, "the best is the fastest in all");
+    // Recorded for this adapter.
+    let file = cache.join(gemm_choice::FILE_NAME);
+    assert_eq!(r["choice_file"].as_str(), Some(file.to_str().unwrap()));
+    assert_eq!(r["recorded"], true);
+    let key = r["adapter_key"].as_str().unwrap().to_string();
+    assert_eq!(key, gemm_choice::adapter_key(&gpu.context.info));
+    let recorded = gemm_choice::read(&file).unwrap().unwrap();
+    assert_eq!(recorded.adapters[&key].variant, best["variant"].as_str().unwrap());
+    assert_eq!(recorded.adapters[&key].tile, best["tile"].as_str().unwrap());
+
+    // A new device takes the recorded choice: record one the fixed order never picks.
+    let small = gemm_choice::GemmChoice { variant: GemmVariant::Fast, tile: FastTile { bm: 1, bn: 1 } };
+    gemm_choice::record(&file, &key, small, 1.0).unwrap();
+    let (ok, stdout, stderr) = run_sweep(&cache, &[]);
+    assert!(ok, "{stderr}");
+    assert_eq!(parse(&stdout, &stderr)["selected_before"], "fast 64x64");
+    // The environment wins over the record.
+    gemm_choice::record(&file, &key, small, 1.0).unwrap();
+    let (ok, stdout, stderr) = run_sweep(&cache, &[("DPR_GPU_GEMM", "portable")]);
+    assert!(ok, "{stderr}");
+    assert_eq!(parse(&stdout, &stderr)["selected_before"], "portable");
+    // A corrupt file: a warning naming it, the fixed order, and the file replaced by the new record.
+    std::fs::write(&file, b"{ not json").unwrap();
+    let (ok, stdout, stderr) = run_sweep(&cache, &[]);
+    assert!(ok, "{stderr}");
+    assert!(stderr.contains("warning") && stderr.contains(gemm_choice::FILE_NAME), "{stderr}");
+    let r = parse(&stdout, &stderr);
+    let fixed =
+        if GemmVariant::CoopF16.unavailable_reason(&gpu.context).is_none() { "coop_f16" } else { "fast 128x128" };
+    assert_eq!(r["selected_before"], fixed);
+    assert!(gemm_choice::read(&file).unwrap().unwrap().adapters.contains_key(&key));
+    let _ = std::fs::remove_dir_all(&cache);
 }

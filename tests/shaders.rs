@@ -420,3 +420,34 @@ fn every_kernel_is_declared_in_its_host_module_with_its_twin_in_cpu_named_after_
         );
     }
 }
+
+/// Every tile shape of the fast GEMM that `bench --gemm-sweep` compiles (generated from `shaders/dense_fast.wgsl`)
+/// parses, validates with no capability, fits the default tile's workgroup memory, and translates to SPIR-V.
+#[test]
+fn every_generated_fast_gemm_tile_validates_and_translates() {
+    use dpr_gpu::gpu::dense_fast::{FastTile, WORKGROUP_STORAGE_BYTES};
+    for tile in FastTile::ALL {
+        let source = tile.source().unwrap();
+        let module = naga::front::wgsl::parse_str(&source)
+            .unwrap_or_else(|e| panic!("dense_fast {tile} does not parse:\n{}", e.emit_to_string(&source)));
+        let info = Validator::new(ValidationFlags::all(), Capabilities::empty())
+            .validate(&module)
+            .unwrap_or_else(|e| panic!("dense_fast {tile} does not validate:\n{}", e.emit_to_string(&source)));
+        let mut layouter = naga::proc::Layouter::default();
+        layouter.update(module.to_ctx()).unwrap();
+        let workgroup_bytes: u32 = module
+            .global_variables
+            .iter()
+            .filter(|(_, g)| g.space == naga::AddressSpace::WorkGroup)
+            .map(|(_, g)| layouter[g.ty].size)
+            .sum();
+        let (m, n) = tile.tile();
+        assert_eq!(workgroup_bytes, 2 * 8 * 4 * (m + n) as u32, "dense_fast {tile}: double-buffered 8-deep k-tiles");
+        assert!(workgroup_bytes <= WORKGROUP_STORAGE_BYTES, "dense_fast {tile}");
+        let options = spv::Options { fake_missing_bindings: true, ..spv::Options::default() };
+        let pipeline =
+            spv::PipelineOptions { shader_stage: naga::ShaderStage::Compute, entry_point: "main".to_string() };
+        spv::write_vec(&module, &info, &options, Some(&pipeline))
+            .unwrap_or_else(|e| panic!("dense_fast {tile}: naga's SPIR-V backend fails: {e}"));
+    }
+}

@@ -73,6 +73,14 @@ pub struct Args {
     /// batch, the repetitions) so that the run takes seconds, not many minutes, and the cut is reported.
     #[arg(long)]
     pub full_sizes: bool,
+    /// Time only the GEMM kernels: every variant the adapter runs and every tile shape of `fast`, on the
+    /// encoders' 704 -> 512 and 512 -> 512 layers, and record the fastest for this adapter in the GEMM choice
+    /// file, which GEMM auto then takes (docs/gpu.md, "Choosing the GEMM").
+    #[arg(long)]
+    pub gemm_sweep: bool,
+    /// Rows of each `--gemm-sweep` layer [default: 32768; 512 on a software adapter].
+    #[arg(long, value_name = "N")]
+    pub gemm_rows: Option<usize>,
     /// Time the pose-graph optimiser on this g2o file instead (reading, chordal start, Levenberg-Marquardt).
     #[arg(long, value_name = "FILE")]
     pub pose_graph: Option<PathBuf>,
@@ -282,7 +290,7 @@ pub struct PairReport {
 
 /// The best times of one measured call, and the traffic of one call.
 #[derive(Clone, Copy, Debug)]
-struct Measured {
+pub(super) struct Measured {
     wall: Duration,
     device: Option<Duration>,
     transfers: Option<Transfers>,
@@ -290,7 +298,11 @@ struct Measured {
 
 /// Runs `f` once untimed (warm-up; its GPU traffic is recorded), then `repeat` times: the fastest wall and
 /// device times.
-fn measure<T>(repeat: usize, gpu: Option<&Gpu>, mut f: impl FnMut() -> anyhow::Result<T>) -> anyhow::Result<Measured> {
+pub(super) fn measure<T>(
+    repeat: usize,
+    gpu: Option<&Gpu>,
+    mut f: impl FnMut() -> anyhow::Result<T>,
+) -> anyhow::Result<Measured> {
     let before = gpu.map(|g| g.context.transfers());
     f()?;
     let transfers = gpu.zip(before).map(|(g, b)| g.context.transfers().since(b));
@@ -314,11 +326,11 @@ fn ms(d: Duration) -> f64 {
 }
 
 /// `flops / ms` in GFLOP/s (a zero time counts as 1 ns).
-fn gflops(flops: f64, ms: f64) -> f64 {
+pub(super) fn gflops(flops: f64, ms: f64) -> f64 {
     flops / (ms * 1e-3).max(1e-9) / 1e9
 }
 
-fn peak_fraction(gflops: Option<f64>, peak_tflops: Option<f64>) -> Option<f64> {
+pub(super) fn peak_fraction(gflops: Option<f64>, peak_tflops: Option<f64>) -> Option<f64> {
     Some(gflops? / (peak_tflops? * 1e3))
 }
 
@@ -327,7 +339,7 @@ fn cpu_timing(m: Measured, flops: Option<f64>) -> CpuTiming {
     CpuTiming { wall_ms, gflops: flops.map(|f| gflops(f, wall_ms)) }
 }
 
-fn gpu_timing(m: Measured, flops: Option<f64>, peak_tflops: Option<f64>) -> GpuTiming {
+pub(super) fn gpu_timing(m: Measured, flops: Option<f64>, peak_tflops: Option<f64>) -> GpuTiming {
     let (device_ms, clock) = match m.device {
         Some(d) => (ms(d), Clock::GpuTimestamps),
         None => (ms(m.wall), Clock::HostWall),
@@ -486,6 +498,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(path) = &args.pose_graph {
         return super::bench_pose_graph::run(path, args.repeat, args.json);
     }
+    if args.gemm_sweep {
+        return super::bench_gemm_sweep::run(&args);
+    }
     let report = measure_all(&args)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -606,7 +621,7 @@ fn open_device((use_cpu, use_gpu): (bool, bool)) -> anyhow::Result<Result<Arc<Gp
 
 /// The hardware defaults of the sizes a software adapter cuts (`--full-sizes` keeps them).
 const DEFAULT_KEYPOINTS: usize = 1000;
-const DEFAULT_REPEAT: usize = 3;
+pub(super) const DEFAULT_REPEAT: usize = 3;
 const DEFAULT_PAIR_POINTS: usize = 20_000;
 
 /// What a software adapter runs instead of each default (a minute or less on two CPU cores; the hardware

@@ -3,6 +3,7 @@
 use clap::{Parser, Subcommand};
 
 pub mod bench;
+pub mod bench_gemm_sweep;
 pub mod bench_pose_graph;
 pub mod eval;
 pub mod eval_trajectory;

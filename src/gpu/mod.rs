@@ -31,10 +31,10 @@ pub mod train;
 pub use device::{buffer, context, features, kernel, recorder};
 pub use kernels::{
     adam_step, bitonic_sort, cell_bounds, cell_keys, chamfer_grad, chamfer_nearest, codeword_distance, dense,
-    dense_coop_f16, dense_fast, dense_input_grad, dense_params, dense_weight_grad, farthest_point, gemm, grid_knn,
-    group_row_sums, hypotheses, icp_normal_equations, max_pool, max_pool_backward, mutual_knn, patch_features,
-    patch_gather, patch_sample, pca_normals, pose_feature, prefix_scan, registry, relu_backward, rotation_head,
-    score_hypotheses, segments, transpose, unit_rows, voxel_average,
+    dense_coop_f16, dense_fast, dense_input_grad, dense_params, dense_weight_grad, farthest_point, gemm, gemm_choice,
+    grid_knn, group_row_sums, hypotheses, icp_normal_equations, max_pool, max_pool_backward, mutual_knn,
+    patch_features, patch_gather, patch_sample, pca_normals, pose_feature, prefix_scan, registry, relu_backward,
+    rotation_head, score_hypotheses, segments, transpose, unit_rows, voxel_average,
 };
 pub use train::backward;
 
@@ -77,7 +77,7 @@ pub struct Gpu {
     pub(crate) dummy_rw: wgpu::Buffer,
     profiling: AtomicBool,
     gpu_time_ns: AtomicU64,
-    gemm: gemm::GemmVariant,
+    gemm: gemm::GemmChoice,
 }
 
 impl std::fmt::Debug for Gpu {
@@ -116,6 +116,17 @@ impl Gpu {
 
     /// The GEMM kernel the dense layers run on ([`gemm::select`] at creation).
     pub fn gemm_variant(&self) -> gemm::GemmVariant {
+        self.gemm.variant
+    }
+
+    /// The fast GEMM's tile shape ([`gemm::select`] at creation: the recorded sweep's choice, else the default);
+    /// it applies whenever the dense layers run [`gemm::GemmVariant::Fast`].
+    pub fn gemm_tile(&self) -> dense_fast::FastTile {
+        self.gemm.tile
+    }
+
+    /// The variant and tile shape the dense layers run on ([`gemm::select`] at creation).
+    pub fn gemm_choice(&self) -> gemm::GemmChoice {
         self.gemm
     }
 
@@ -124,7 +135,7 @@ impl Gpu {
     pub fn set_gemm_variant(&mut self, variant: gemm::GemmVariant) -> Result<()> {
         match variant.unavailable_reason(&self.context) {
             None => {
-                self.gemm = variant;
+                self.gemm.variant = variant;
                 Ok(())
             }
             Some(why) => Err(Error::Gpu(format!("GEMM variant {variant} cannot run on this device: {why}"))),
@@ -361,7 +372,7 @@ impl GpuBackend {
 
 impl Backend for GpuBackend {
     fn name(&self) -> String {
-        format!("gpu ({}; gemm {})", self.adapter_info(), self.gpu.gemm_variant())
+        format!("gpu ({}; gemm {})", self.adapter_info(), self.gpu.gemm_choice().name())
     }
 
     fn model(&self) -> &Model {

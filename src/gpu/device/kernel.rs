@@ -141,6 +141,12 @@ pub struct Kernel {
 impl Kernel {
     /// Compiles `spec` on the context's device; shader or layout errors become [`Error::Gpu`] naming the kernel.
     pub fn new(ctx: &GpuContext, spec: &'static KernelSpec) -> Result<Kernel> {
+        Kernel::with_source(ctx, spec, &spec.composed_source()?, spec.name)
+    }
+
+    /// [`Kernel::new`] from a variant of `spec`'s source (`source`, composed here; the same bindings and
+    /// parameters), labelled `label` (a generated tile shape: see [`crate::gpu::kernels::dense_fast::FastTile`]).
+    pub fn with_source(ctx: &GpuContext, spec: &'static KernelSpec, source: &str, label: &str) -> Result<Kernel> {
         let device = &ctx.device;
         let entries: Vec<wgpu::BindGroupLayoutEntry> = spec
             .binds
@@ -161,23 +167,21 @@ impl Kernel {
                 count: None,
             })
             .collect();
-        let source = spec.composed_source()?;
-        ctx.scoped(&format!("compiling kernel '{}'", spec.name), || {
-            let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some(spec.name),
-                entries: &entries,
-            });
+        let source = super::wgsl::compose(source)?;
+        ctx.scoped(&format!("compiling kernel '{label}'"), || {
+            let layout = device
+                .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some(label), entries: &entries });
             let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some(spec.name),
+                label: Some(label),
                 bind_group_layouts: &[Some(&layout)],
                 immediate_size: 0,
             });
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(spec.name),
-                source: wgpu::ShaderSource::Wgsl(source),
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(source.into_owned().into()),
             });
             let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(spec.name),
+                label: Some(label),
                 layout: Some(&pipeline_layout),
                 module: &module,
                 entry_point: Some("main"),

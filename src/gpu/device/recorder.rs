@@ -60,6 +60,21 @@ impl<'a> Recorder<'a> {
         workgroups: u64,
     ) -> Result<()> {
         let kernel: &'a Kernel = self.gpu.kernels.get::<K>()?;
+        self.dispatch_on::<K>(kernel, params, buffers, workgroups)
+    }
+
+    /// [`Recorder::dispatch`] on a given pipeline of `K` (one of its generated variants, such as a tile shape
+    /// of the fast GEMM); an error when `kernel` is not one of `K`'s.
+    pub fn dispatch_on<K: GpuKernel>(
+        &mut self,
+        kernel: &'a Kernel,
+        params: &K::Params,
+        buffers: &[&wgpu::Buffer],
+        workgroups: u64,
+    ) -> Result<()> {
+        if kernel.spec.name != K::NAME {
+            return Err(Error::Gpu(format!("a pipeline of '{}' dispatched as '{}'", kernel.spec.name, K::NAME)));
+        }
         if buffers.len() + 1 != kernel.spec.binds.len() {
             return Err(Error::Gpu(format!(
                 "kernel '{}' takes {} buffers, got {}",

@@ -12,6 +12,7 @@ use crate::gpu::Gpu;
 use crate::gpu::device::features::GemmVariant;
 use crate::gpu::device::kernel::{BindKind, GpuKernel};
 use crate::gpu::device::recorder::Recorder;
+use crate::gpu::kernels::gemm_choice::GemmChoice;
 
 /// Invocations per workgroup (`WG_SIZE` in the shader).
 pub const WG_SIZE: u32 = 256;
@@ -45,7 +46,8 @@ pub fn record<'a>(
     record_with(rec, gpu, gpu.gemm_variant(), params, [x, w_t], group, out)
 }
 
-/// [`record`] with an explicit variant (an error when the device cannot run it).
+/// [`record`] with an explicit variant (an error when the device cannot run it); `fast` runs the device's tile
+/// shape ([`Gpu::gemm_tile`]).
 pub fn record_with<'a>(
     rec: &mut Recorder<'a>,
     gpu: &'a Gpu,
@@ -55,13 +57,32 @@ pub fn record_with<'a>(
     group: Option<&wgpu::Buffer>,
     out: &wgpu::Buffer,
 ) -> Result<()> {
+    let choice = GemmChoice { variant, tile: gpu.gemm_tile() };
+    record_choice(rec, gpu, choice, params, [x, w_t], group, out)
+}
+
+/// [`record_with`] with an explicit tile shape for `fast` too (`dpr-gpu bench --gemm-sweep`, parity tests).
+pub fn record_choice<'a>(
+    rec: &mut Recorder<'a>,
+    gpu: &'a Gpu,
+    choice: GemmChoice,
+    params: &DenseParams,
+    [x, w_t]: [&wgpu::Buffer; 2],
+    group: Option<&wgpu::Buffer>,
+    out: &wgpu::Buffer,
+) -> Result<()> {
     let group = group.unwrap_or(&gpu.dummy);
-    let params = params.tiled(variant.tile())?;
+    let variant = choice.variant;
+    let tile = if variant == GemmVariant::Fast { choice.tile.tile() } else { variant.tile() };
+    let params = params.tiled(tile)?;
     let buffers = [x, w_t, group, out];
     let workgroups = u64::from(params.tiles);
     match variant {
         GemmVariant::Portable => rec.dispatch::<Dense>(&params, &buffers, workgroups),
-        GemmVariant::Fast => rec.dispatch::<DenseFast>(&params, &buffers, workgroups),
+        GemmVariant::Fast => {
+            let kernel = gpu.kernels.fast_tile(&gpu.context, choice.tile)?;
+            rec.dispatch_on::<DenseFast>(kernel, &params, &buffers, workgroups)
+        }
         GemmVariant::CoopF16 => rec.dispatch::<DenseCoopF16>(&params, &buffers, workgroups),
     }
 }

@@ -11,12 +11,14 @@
 //!   the adapter reports that configuration ([`coop_f16_support`]); its precision has its own twin
 //!   ([`crate::cpu::dense_coop_f16`]).
 //!
-//! Automatic choice: `coop_f16` where supported, else `fast`, else `portable`. The portable kernel stays the
+//! Automatic choice: the choice `dpr-gpu bench --gemm-sweep` recorded for the adapter ([`gemm_choice`]) when the
+//! device can run it, else `coop_f16` where supported, else `fast`, else `portable`. The portable kernel stays the
 //! reference every other variant is tested against, and the fallback.
 
 use super::dense::Dense;
 use super::dense_coop_f16::{self, DenseCoopF16};
 use super::dense_fast::{self, DenseFast};
+pub use super::gemm_choice::{self, GemmChoice};
 use crate::error::{Error, Result};
 use crate::gpu::device::context::GpuContext;
 pub use crate::gpu::device::features::{GEMM_ENV, GemmVariant, coop_f16_support, requested};
@@ -74,16 +76,36 @@ impl GemmVariant {
 }
 
 /// The variant a new device runs: [`GEMM_ENV`]'s when set (an error naming the reason when the device cannot
-/// run it), else the first of `coop_f16`, `fast`, `portable` the device can run.
-pub fn select(ctx: &GpuContext) -> Result<GemmVariant> {
-    if let Some(v) = requested()? {
-        return match v.unavailable_reason(ctx) {
-            None => Ok(v),
+/// run it), else the choice `dpr-gpu bench --gemm-sweep` recorded for this adapter ([`gemm_choice`]) when the
+/// device can run it, else the first of `coop_f16`, `fast`, `portable` the device can run.
+pub fn select(ctx: &GpuContext) -> Result<GemmChoice> {
+    let requested = requested()?;
+    let recorded = match (requested, gemm_choice::choice_file()) {
+        (None, Some(path)) => gemm_choice::lookup(&path, &gemm_choice::adapter_key(&ctx.info)),
+        _ => None,
+    };
+    resolve(requested, recorded, |v| v.unavailable_reason(ctx))
+}
+
+/// [`select`]'s rule on `requested` ([`GEMM_ENV`]) and `recorded` (the sweep's choice for the adapter), with
+/// `unavailable` saying why the device cannot run a variant.
+pub fn resolve(
+    requested: Option<GemmVariant>,
+    recorded: Option<GemmChoice>,
+    unavailable: impl Fn(GemmVariant) -> Option<String>,
+) -> Result<GemmChoice> {
+    if let Some(v) = requested {
+        return match unavailable(v) {
+            None => Ok(GemmChoice::of(v)),
             Some(why) => Err(Error::Gpu(format!("{GEMM_ENV}={v}: this adapter cannot run it: {why}"))),
         };
     }
+    if let Some(choice) = recorded.filter(|c| unavailable(c.variant).is_none()) {
+        return Ok(choice);
+    }
     let order = [GemmVariant::CoopF16, GemmVariant::Fast, GemmVariant::Portable];
-    Ok(order.into_iter().find(|v| v.unavailable_reason(ctx).is_none()).unwrap_or(GemmVariant::Portable))
+    let variant = order.into_iter().find(|&v| unavailable(v).is_none()).unwrap_or(GemmVariant::Portable);
+    Ok(GemmChoice::of(variant))
 }
 
 #[cfg(test)]
@@ -100,5 +122,28 @@ mod tests {
         }
         assert!(GemmVariant::Portable.kernel().features.is_empty(), "the reference needs no feature");
         assert!(GemmVariant::Fast.kernel().features.is_empty(), "the fast kernel needs no feature");
+    }
+
+    #[test]
+    fn the_environment_wins_then_a_runnable_recorded_choice_then_the_fixed_order() {
+        use super::super::dense_fast::FastTile;
+        let all = |_: GemmVariant| None;
+        let no_coop = |v: GemmVariant| (v == GemmVariant::CoopF16).then(|| "no coop".to_string());
+        let small = GemmChoice { variant: GemmVariant::Fast, tile: FastTile { bm: 1, bn: 1 } };
+        // No record: today's rule.
+        assert_eq!(resolve(None, None, all).unwrap(), GemmChoice::of(GemmVariant::CoopF16));
+        assert_eq!(resolve(None, None, no_coop).unwrap(), GemmChoice::of(GemmVariant::Fast));
+        // A record the device can run is taken, tile and all.
+        assert_eq!(resolve(None, Some(small), all).unwrap(), small);
+        let portable = GemmChoice::of(GemmVariant::Portable);
+        assert_eq!(resolve(None, Some(portable), all).unwrap(), portable);
+        // One it cannot run is not.
+        let coop = GemmChoice::of(GemmVariant::CoopF16);
+        assert_eq!(resolve(None, Some(coop), no_coop).unwrap(), GemmChoice::of(GemmVariant::Fast));
+        // The environment wins over the record, with the default tile.
+        assert_eq!(resolve(Some(GemmVariant::Portable), Some(small), all).unwrap(), portable);
+        assert_eq!(resolve(Some(GemmVariant::Fast), Some(small), all).unwrap(), GemmChoice::of(GemmVariant::Fast));
+        let err = resolve(Some(GemmVariant::CoopF16), Some(small), no_coop).unwrap_err().to_string();
+        assert!(err.contains(GEMM_ENV) && err.contains("no coop"), "{err}");
     }
 }

@@ -18,6 +18,7 @@ pub mod dense_params;
 pub mod dense_weight_grad;
 pub mod farthest_point;
 pub mod gemm;
+pub mod gemm_choice;
 pub mod grid_knn;
 pub mod group_row_sums;
 pub mod hypotheses;

@@ -16,7 +16,7 @@ use super::chamfer_nearest::ChamferNearest;
 use super::codeword_distance::CodewordDistance;
 use super::dense::Dense;
 use super::dense_coop_f16::DenseCoopF16;
-use super::dense_fast::DenseFast;
+use super::dense_fast::{DenseFast, FastTile};
 use super::dense_input_grad::DenseInputGrad;
 use super::dense_weight_grad::DenseWeightGrad;
 use super::farthest_point::FarthestPoint;
@@ -86,6 +86,8 @@ pub const KERNELS: &[KernelSpec] = &[
 #[derive(Debug)]
 pub struct Kernels {
     compiled: Vec<Kernel>,
+    /// The fast GEMM's other tile shapes ([`FastTile::ALL`] after the default), compiled on first use.
+    fast_tiles: [std::sync::OnceLock<Kernel>; FastTile::ALL.len()],
     /// Kernels not compiled because the device lacks features they need, with those features.
     skipped: Vec<(&'static str, wgpu::Features)>,
 }
@@ -98,6 +100,7 @@ impl Kernels {
             KERNELS.iter().partition(|spec| ctx.features.contains(spec.features));
         Ok(Kernels {
             compiled: usable.into_iter().map(|spec| Kernel::new(ctx, spec)).collect::<Result<_>>()?,
+            fast_tiles: Default::default(),
             skipped: skipped.into_iter().map(|spec| (spec.name, spec.features - ctx.features)).collect(),
         })
     }
@@ -116,6 +119,25 @@ impl Kernels {
             Some((_, missing)) => format!("kernel '{name}' needs device features this device lacks: {missing}"),
             None => format!("kernel '{name}' is not registered in gpu::registry::KERNELS"),
         }))
+    }
+
+    /// The fast GEMM's pipeline for `tile`: the registry's for [`FastTile::DEFAULT`], else the shape's
+    /// generated source ([`FastTile::source`]), compiled on `ctx` the first time it is asked for.
+    pub fn fast_tile(&self, ctx: &GpuContext, tile: FastTile) -> Result<&Kernel> {
+        if tile == FastTile::DEFAULT {
+            return self.get::<DenseFast>();
+        }
+        let slot = tile
+            .index()
+            .and_then(|i| self.fast_tiles.get(i))
+            .ok_or_else(|| Error::Gpu(format!("dense_fast: {tile} is not one of the swept tile shapes")))?;
+        if slot.get().is_none() {
+            let label = format!("dense_fast {tile}");
+            let kernel = Kernel::with_source(ctx, &DenseFast::SPEC, &tile.source()?, &label)?;
+            // Another thread may have compiled it meanwhile: either pipeline is the same.
+            let _ = slot.set(kernel);
+        }
+        slot.get().ok_or_else(|| Error::Gpu(format!("dense_fast {tile}: the pipeline was not kept")))
     }
 
     /// The compiled kernels, in [`KERNELS`] order.

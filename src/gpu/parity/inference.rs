@@ -11,8 +11,9 @@ use crate::cpu::score_hypotheses::{HypothesisScore, squared_residual};
 use crate::gpu::codeword_distance::CodewordDistance;
 use crate::gpu::dense::Dense;
 use crate::gpu::dense_coop_f16::DenseCoopF16;
-use crate::gpu::dense_fast::DenseFast;
+use crate::gpu::dense_fast::{DenseFast, FastTile};
 use crate::gpu::gemm::GemmVariant;
+use crate::gpu::gemm_choice::GemmChoice;
 use crate::gpu::hypotheses::Hypotheses;
 use crate::gpu::kernel::GpuKernel;
 use crate::gpu::max_pool::MaxPool;
@@ -301,6 +302,18 @@ pub(crate) async fn check_dense_variant(
     twin: <Dense as GpuKernel>::CpuTwin,
     tol: impl Fn(&DenseShape, &[f32], &[f32], &[f32], &[f32]) -> Vec<f32>,
 ) {
+    check_dense_choice(g, GemmChoice { variant, tile: g.gemm_tile() }, seed, cases, twin, tol).await;
+}
+
+/// [`check_dense_variant`] on an explicit tile shape of the fast kernel too.
+pub(crate) async fn check_dense_choice(
+    g: &Gpu,
+    choice: GemmChoice,
+    seed: u64,
+    cases: &[DenseCase],
+    twin: <Dense as GpuKernel>::CpuTwin,
+    tol: impl Fn(&DenseShape, &[f32], &[f32], &[f32], &[f32]) -> Vec<f32>,
+) {
     use crate::gpu::{buffer::GpuBuffer, recorder::Recorder};
     let mut rng = Rng::new(seed);
     for &(rows, in_dim, out_dim, rpg, accumulate, relu, group, offset) in cases {
@@ -321,14 +334,13 @@ pub(crate) async fn check_dense_variant(
         let params = gpu::dense::DenseParams::new(&shape, offset, group).unwrap();
         let mut rec = Recorder::new(g, "dense parity");
         let group_buf = group.then_some(gb.raw());
-        gpu::dense::record_with(&mut rec, g, variant, &params, [xb.raw(), wb.raw()], group_buf, ob.raw()).unwrap();
+        gpu::dense::record_choice(&mut rec, g, choice, &params, [xb.raw(), wb.raw()], group_buf, ob.raw()).unwrap();
         rec.read(ob.raw(), 0, (init.len() * 4) as u64);
         let got: Vec<f32> = bytemuck::pod_collect_to_vec(&rec.finish().await.unwrap()[0]);
         let init_for_tol = if accumulate { init.clone() } else { vec![0.0; init.len()] };
         let tol = tol(&shape, &x, w, &gt, &init_for_tol);
-        assert_close(&format!("{} {shape:?} w_row_offset {offset}", variant.kernel().name), seed, &got, &want, |i| {
-            tol[i]
-        });
+        let what = format!("{} {shape:?} w_row_offset {offset}", choice.name());
+        assert_close(&what, seed, &got, &want, |i| tol[i]);
     }
 }
 
@@ -356,6 +368,22 @@ pub async fn dense_fast_matches_cpu_ragged(g: &Gpu) -> Outcome {
     let s = seed(22);
     check_dense_variant(g, GemmVariant::Fast, s, DENSE_FAST_CASES, DenseFast::CPU_TWIN, f32_gemm_tolerance).await;
     check_dense_variant(g, GemmVariant::Fast, s + 1, DENSE_CASES, DenseFast::CPU_TWIN, f32_gemm_tolerance).await;
+    Outcome::Passed
+}
+
+/// Every tile shape of the fast GEMM that `dpr-gpu bench --gemm-sweep` times ([`FastTile::ALL`], each a
+/// generated variant of `shaders/dense_fast.wgsl`) against the twin, on the fast kernel's edge cases (ragged
+/// around 64 and 128) and the reference's.
+pub async fn dense_fast_tiles_match_cpu_ragged(g: &Gpu) -> Outcome {
+    if let Some(why) = GemmVariant::Fast.unavailable_reason(&g.context) {
+        return Outcome::Skipped(format!("dense_fast cannot run on this adapter: {why}"));
+    }
+    let s = seed(24);
+    for tile in FastTile::ALL {
+        let choice = GemmChoice { variant: GemmVariant::Fast, tile };
+        check_dense_choice(g, choice, s, DENSE_FAST_CASES, DenseFast::CPU_TWIN, f32_gemm_tolerance).await;
+        check_dense_choice(g, choice, s + 1, DENSE_CASES, DenseFast::CPU_TWIN, f32_gemm_tolerance).await;
+    }
     Outcome::Passed
 }
 
