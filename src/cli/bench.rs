@@ -493,13 +493,11 @@ fn check_bounds(args: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Runs `dpr-gpu bench`: the table, or with `--json` the [`Report`] on stdout.
+/// Runs `dpr-gpu bench`: the table, or with `--json` the [`Report`] on stdout (`--gemm-sweep` runs
+/// [`super::bench_gemm_sweep::run`] instead; the command dispatch picks it, so this module need not import it).
 pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(path) = &args.pose_graph {
         return super::bench_pose_graph::run(path, args.repeat, args.json);
-    }
-    if args.gemm_sweep {
-        return super::bench_gemm_sweep::run(&args);
     }
     let report = measure_all(&args)?;
     if args.json {

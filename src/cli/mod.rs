@@ -58,6 +58,7 @@ pub fn main() -> std::process::ExitCode {
     let mut untrusted = false;
     let outcome = match cli.command {
         Command::Register(args) => register::run(args).map(|trusted| untrusted = !trusted),
+        Command::Bench(args) if args.gemm_sweep => bench_gemm_sweep::run(&args),
         Command::Bench(args) => bench::run(args),
         Command::InitWeights(args) => weights::run_init(args),
         Command::Info(args) => weights::run_info(args),
