@@ -121,8 +121,9 @@ def test_same_inputs_and_seed_give_the_same_result_and_seeds_matter(room_pair):
 
 def test_the_gil_is_released_while_registering(room_pair):
     source, target, _ = room_pair
-    # Long enough to tell (about 1 s with bf16 encoders, 2 s with f32, on 2 cores).
-    registrar = dpr_gpu.Registrar(**{**QUICK, "keypoints": 400})
+    # Long enough to tell: every keypoint described at once (about 1 s with bf16 encoders on AMX tiles, several
+    # seconds with f32, on 2 cores).
+    registrar = dpr_gpu.Registrar(**{**QUICK, "keypoints": 1500, "first_keypoints": None})
     worker = threading.Thread(target=registrar.register, args=(source, target))
     started = time.perf_counter()
     worker.start()
