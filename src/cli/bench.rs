@@ -236,6 +236,14 @@ pub struct GemmReport {
     pub device: &'static str,
     /// Whether this is the variant the backend runs.
     pub used_by_backend: bool,
+    /// The layer and its time.
+    #[serde(flatten)]
+    pub timing: GemmTiming,
+}
+
+/// One dense layer's shape and fastest time: the fields every GEMM row shares (`bench` and `--gemm-sweep`).
+#[derive(Clone, Debug, Serialize)]
+pub struct GemmTiming {
     /// Rows of the layer.
     pub rows: usize,
     /// Input width.
@@ -250,8 +258,32 @@ pub struct GemmReport {
     pub clock: Clock,
     /// `flops / time`, GFLOP/s.
     pub gflops: f64,
-    /// `gflops / (peak_tflops * 1000)` for GPU variants with `--peak-tflops`.
+    /// `gflops / (peak_tflops * 1000)` with `--peak-tflops` (GPU rows only).
     pub peak_fraction: Option<f64>,
+}
+
+impl GemmTiming {
+    /// A `rows x in_dim -> out_dim` layer timed at `time_ms` on `clock`; the peak fraction where `peak_tflops`
+    /// is given.
+    pub fn new(
+        (rows, in_dim, out_dim): (usize, usize, usize),
+        time_ms: f64,
+        clock: Clock,
+        peak_tflops: Option<f64>,
+    ) -> GemmTiming {
+        let flops = 2.0 * (rows * in_dim * out_dim) as f64;
+        let g = gflops(flops, time_ms);
+        GemmTiming {
+            rows,
+            in_dim,
+            out_dim,
+            flops,
+            time_ms,
+            clock,
+            gflops: g,
+            peak_fraction: peak_fraction(Some(g), peak_tflops),
+        }
+    }
 }
 
 /// A GPU GEMM variant that was not measured.
@@ -1004,7 +1036,7 @@ fn gemm_variants(
     let shape = DenseShape { rows, in_dim, out_dim, rows_per_group: rows, accumulate: false, relu: true };
     let flops = 2.0 * (rows * in_dim * out_dim) as f64;
     let report = |variant: String, device: &'static str, used: bool, time_ms: f64, clock: Clock| {
-        let g = gflops(flops, time_ms);
+        let peak = if device == "gpu" { args.peak_tflops } else { None };
         GemmReport {
             precision: match variant.as_str() {
                 "gpu_dense_coop_f16" => "f16",
@@ -1014,14 +1046,7 @@ fn gemm_variants(
             variant,
             device,
             used_by_backend: used,
-            rows,
-            in_dim,
-            out_dim,
-            flops,
-            time_ms,
-            clock,
-            gflops: g,
-            peak_fraction: if device == "gpu" { peak_fraction(Some(g), args.peak_tflops) } else { None },
+            timing: GemmTiming::new((rows, in_dim, out_dim), time_ms, clock, peak),
         }
     };
     let (mut out, mut unavailable) = (Vec::new(), Vec::new());
@@ -1138,11 +1163,11 @@ fn print_report(r: &Report) {
     }
     println!();
     for g in &r.gemm {
-        let peak = g.peak_fraction.map_or(String::new(), |f| format!(" ({:.1}% of peak)", 100.0 * f));
+        let peak = g.timing.peak_fraction.map_or(String::new(), |f| format!(" ({:.1}% of peak)", 100.0 * f));
         let used = if g.used_by_backend { " [backend]" } else { "" };
         println!(
             "gemm {:<20} {}x{}x{}: {:10.3} ms {:9.2} GFLOP/s{peak}{used}",
-            g.variant, g.rows, g.in_dim, g.out_dim, g.time_ms, g.gflops
+            g.variant, g.timing.rows, g.timing.in_dim, g.timing.out_dim, g.timing.time_ms, g.timing.gflops
         );
     }
     for u in &r.gemm_unavailable {

@@ -6,7 +6,7 @@
 //! `DPR_GPU_GEMM` is not set. Times are the fastest of `--repeat` runs after a warm-up, on GPU timestamps where
 //! the adapter has them; the choice is the smallest total time over the shapes.
 
-use super::bench::{Args, Clock, gflops, gpu_timing, measure, peak_fraction};
+use super::bench::{Args, GemmTiming, gflops, gpu_timing, measure};
 use crate::cpu::dense::DenseShape;
 use crate::gpu::dense_fast::FastTile;
 use crate::gpu::gemm::{GemmChoice, GemmVariant, gemm_choice};
@@ -36,22 +36,9 @@ pub struct SweepEntry {
     /// Outputs one invocation computes, `ROWSxCOLS` (`null` for the cooperative-matrix kernel, whose
     /// subgroups share their tiles).
     pub per_invocation: Option<String>,
-    /// Rows of the layer.
-    pub rows: usize,
-    /// Input width.
-    pub in_dim: usize,
-    /// Output width.
-    pub out_dim: usize,
-    /// `2 rows in_dim out_dim`.
-    pub flops: f64,
-    /// Fastest device time (ms).
-    pub time_ms: f64,
-    /// Where `time_ms` comes from.
-    pub clock: Clock,
-    /// `flops / time_ms`.
-    pub gflops: f64,
-    /// `gflops / (peak_tflops * 1000)` with `--peak-tflops`.
-    pub peak_fraction: Option<f64>,
+    /// The layer and its time (the fields of a `bench` GEMM row).
+    #[serde(flatten)]
+    pub timing: GemmTiming,
 }
 
 /// A variant the adapter cannot run.
@@ -167,14 +154,7 @@ fn time_layer(
         variant: choice.variant.name(),
         tile,
         per_invocation,
-        rows,
-        in_dim,
-        out_dim,
-        flops,
-        time_ms: t.device_ms,
-        clock: t.clock,
-        gflops: gflops(flops, t.device_ms),
-        peak_fraction: peak_fraction(Some(gflops(flops, t.device_ms)), args.peak_tflops),
+        timing: GemmTiming::new((rows, in_dim, out_dim), t.device_ms, t.clock, args.peak_tflops),
     })
 }
 
@@ -214,8 +194,8 @@ pub fn measure_sweep(args: &Args) -> anyhow::Result<SweepReport> {
     for &choice in &run {
         let layers: Vec<SweepEntry> =
             SHAPES.iter().map(|&s| time_layer(&g, &timed, choice, rows, s)).collect::<anyhow::Result<_>>()?;
-        let total_ms: f64 = layers.iter().map(|e| e.time_ms).sum();
-        let flops: f64 = layers.iter().map(|e| e.flops).sum();
+        let total_ms: f64 = layers.iter().map(|e| e.timing.time_ms).sum();
+        let flops: f64 = layers.iter().map(|e| e.timing.flops).sum();
         if best.as_ref().is_none_or(|(_, b)| total_ms < b.total_ms) {
             let (tile, _) = tile_names(choice);
             let b = SweepBest { variant: choice.variant.name(), tile, total_ms, gflops: gflops(flops, total_ms) };
@@ -271,15 +251,15 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         "variant", "tile", "per inv.", "shape", "ms", "GFLOP/s", "peak"
     );
     for e in &r.gemm_sweep {
-        let peak = e.peak_fraction.map_or("-".to_string(), |f| format!("{:.1}%", 100.0 * f));
+        let peak = e.timing.peak_fraction.map_or("-".to_string(), |f| format!("{:.1}%", 100.0 * f));
         println!(
             "{:<10} {:>8} {:>9} {:>16} {:>10.3} {:>10.1} {:>8}",
             e.variant,
             e.tile,
             e.per_invocation.as_deref().unwrap_or("-"),
-            format!("{}x{}->{}", e.rows, e.in_dim, e.out_dim),
-            e.time_ms,
-            e.gflops,
+            format!("{}x{}->{}", e.timing.rows, e.timing.in_dim, e.timing.out_dim),
+            e.timing.time_ms,
+            e.timing.gflops,
             peak
         );
     }
