@@ -266,7 +266,8 @@ mod tests {
         assert_eq!(read(&path), Ok(None), "no file yet");
         write(&path, b"driver data").unwrap();
         assert_eq!(read(&path).unwrap().as_deref(), Some(&b"driver data"[..]));
-        let names: Vec<_> = std::fs::read_dir(path.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        let names: Vec<_> =
+            std::fs::read_dir(path.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(names, vec![path.file_name().unwrap().to_owned()], "no temp file is left");
         let name = path.display().to_string();
         std::fs::write(&path, b"garbage that is long enough to hold a header").unwrap();

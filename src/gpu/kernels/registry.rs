@@ -156,7 +156,11 @@ impl Kernels {
 
 /// The kernel in `slot`, compiled by `compile` when it is empty. Two threads may both compile it; either
 /// pipeline is the same, and one is kept.
-fn compiled<'a>(slot: &'a OnceLock<Kernel>, compile: impl FnOnce() -> Result<Kernel>, name: &str) -> Result<&'a Kernel> {
+fn compiled<'a>(
+    slot: &'a OnceLock<Kernel>,
+    compile: impl FnOnce() -> Result<Kernel>,
+    name: &str,
+) -> Result<&'a Kernel> {
     if slot.get().is_none() {
         let _ = slot.set(compile()?);
     }
