@@ -103,6 +103,9 @@ fn cache_file_in(dir: &Path, gpu: &Gpu) -> PathBuf {
     dir.join(wgpu::util::pipeline_cache_key(&gpu.context.info).expect("a Vulkan adapter has a cache key"))
 }
 
+/// A way to spoil the cache file, named.
+type Spoil<'a> = (&'static str, &'a dyn Fn(&Path));
+
 /// The first device writes the file when dropped; the next reads it (its header and checksum verify) and gives
 /// the same pose bit for bit, as does a device without a cache; every kind of unusable file is refused, the
 /// registration's pose unchanged, and the file replaced by a good one.
@@ -135,7 +138,7 @@ fn the_pipeline_cache_round_trips_and_bad_files_change_no_result() {
     let last = flipped.len() - 1;
     flipped[last] ^= 1;
     let oversized = |path: &Path| std::fs::File::create(path).unwrap().set_len(MAX_FILE_BYTES + 1).unwrap();
-    let bad: [(&str, &dyn Fn(&Path)); 4] = [
+    let bad: [Spoil; 4] = [
         ("a flipped bit", &|p| std::fs::write(p, &flipped).unwrap()),
         ("a truncated file", &|p| std::fs::write(p, &good[..good.len() / 2]).unwrap()),
         ("an oversized file", &oversized),
