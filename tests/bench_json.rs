@@ -582,6 +582,11 @@ fn bench_json_on_the_test_adapter_is_consistent() {
     assert_eq!(uint(&pair["points_per_scan"], "points"), args.pair_points as u64);
     assert_eq!(pair["clock"], clock);
     let wall = time_ms(&pair["wall_ms"], "pair wall_ms");
+    // Start-up, reported apart from the warm figure: the cold first registration (it compiled pipelines: it ran
+    // before any other stage) and the device's creation.
+    time_ms(&pair["cold_wall_ms"], "pair cold_wall_ms");
+    assert!(uint(&pair["cold_pipelines_compiled"], "pipelines compiled by the cold pair") > 0, "{pair}");
+    time_ms(&r["gpu"]["create_ms"], "gpu create_ms");
     let device = time_ms(&pair["device_ms"], "pair device_ms");
     if timestamps {
         assert!(device <= wall, "the device time of a pair ({device} ms) fits in its wall time ({wall} ms)");

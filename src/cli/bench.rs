@@ -1,7 +1,9 @@
 //! `dpr-gpu bench`: times every learned or massively parallel stage on synthetic inputs of a realistic shape
 //! (K keypoints x P points per patch), on the GPU backend and/or the CPU reference, the dense GEMM on its own
 //! (every CPU micro-kernel, the readable twin, each WGSL GEMM variant) in GFLOP/s, and one synthetic pair registered
-//! end to end; prints a table, or with `--json` one JSON document ([`Report`], schema [`SCHEMA`]).
+//! end to end: cold (a new `Registrar`'s first registration, measured before anything else, so on the GPU it
+//! compiles its pipelines) and warm (the `Registrar` reused), beside the device's creation time; prints a table,
+//! or with `--json` one JSON document ([`Report`], schema [`SCHEMA`]).
 //!
 //! GPU stages report the wall time of the backend call (upload, dispatches, readback) and the device time:
 //! the GPU timestamps of the submissions' compute passes where the adapter has `TIMESTAMP_QUERY`
@@ -180,6 +182,9 @@ pub struct GpuInfo {
     pub clock: Option<Clock>,
     /// Bytes uploaded once for the model's weights (not part of any stage).
     pub weights_upload_bytes: Option<u64>,
+    /// Wall time of creating the device (`Gpu::new`: adapter, device, pipeline cache; the pipelines are compiled
+    /// on first use), ms.
+    pub create_ms: Option<f64>,
     /// Why no GPU was measured (`None` when one was).
     pub note: Option<String>,
 }
@@ -306,8 +311,15 @@ pub struct PairReport {
     pub keypoints: usize,
     /// Correspondences found.
     pub correspondences: usize,
-    /// Fastest wall time of the whole registration, ms.
+    /// Warm: the fastest wall time of the whole registration over `--repeat` registrations reusing the
+    /// `Registrar` after the first, ms.
     pub wall_ms: f64,
+    /// Cold: the wall time of the first registration of a new `Registrar`, ms. It is measured before any other
+    /// stage, so on the GPU it includes compiling the pipelines the registration dispatches (through the
+    /// driver's pipeline cache, where it has one).
+    pub cold_wall_ms: f64,
+    /// Pipelines the first registration compiled (`None` on the CPU).
+    pub cold_pipelines_compiled: Option<usize>,
     /// Device time of the GPU stages, ms (`None` on the CPU).
     pub device_ms: Option<f64>,
     /// Where `device_ms` comes from.
@@ -323,6 +335,8 @@ pub struct PairReport {
 /// The best times of one measured call, and the traffic of one call.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Measured {
+    /// The untimed first call's wall time (the cold one: what a first call pays once).
+    first: Duration,
     wall: Duration,
     device: Option<Duration>,
     transfers: Option<Transfers>,
@@ -336,9 +350,11 @@ pub(super) fn measure<T>(
     mut f: impl FnMut() -> anyhow::Result<T>,
 ) -> anyhow::Result<Measured> {
     let before = gpu.map(|g| g.context.transfers());
+    let start = Instant::now();
     f()?;
+    let first = start.elapsed();
     let transfers = gpu.zip(before).map(|(g, b)| g.context.transfers().since(b));
-    let mut best = Measured { wall: Duration::MAX, device: None, transfers };
+    let mut best = Measured { first, wall: Duration::MAX, device: None, transfers };
     for _ in 0..repeat.max(1) {
         if let Some(g) = gpu {
             g.take_gpu_time();
@@ -553,7 +569,9 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
     if args.points == Some(0) {
         bail!("--points must be at least 1");
     }
+    let started = Instant::now();
     let device = open_device((use_cpu, use_gpu))?;
+    let create_ms = device.is_ok().then(|| ms(started.elapsed()));
     let sizes = Sizes::for_device(args, &device);
     if let Some(cut) = &sizes.cut {
         eprintln!("{cut}");
@@ -571,7 +589,18 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
 
     let (precision, _) = Precision::from_env()?;
     let cpu = use_cpu.then(|| CpuBackend::with_precision(model.clone(), precision)).transpose()?;
-    let (gpu, info) = open_gpu(&model, device, &note)?;
+    let (gpu, mut info) = open_gpu(&model, device, &note)?;
+    info.create_ms = create_ms;
+    // The pair first, so that its first registration is a process's cold one (it compiles its pipelines).
+    let pair = if args.pair_points == 0 {
+        None
+    } else {
+        let backend: Box<dyn Backend> = match &gpu {
+            Some(g) => Box::new(GpuBackend::with_gpu(Arc::clone(g.gpu_arc()), model.clone())?),
+            None => Box::new(CpuBackend::with_precision(model.clone(), precision)?),
+        };
+        Some(measure_pair(args, backend, gpu.as_ref().map(GpuBackend::gpu))?)
+    };
     let cpu_info = cpu.as_ref().map(|_| CpuInfo {
         threads: rayon::current_num_threads(),
         gemm_path: GemmPath::selected().name(),
@@ -600,15 +629,6 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
     stages.push(measure_train_step(args, &train_weights, &batch, cpu_precision, gpu.as_ref())?);
     let (gemm, gemm_unavailable) =
         gemm_variants(args, gpu.as_ref().map(GpuBackend::gpu), use_cpu.then_some(precision), k * p)?;
-    let pair = if args.pair_points == 0 {
-        None
-    } else {
-        let backend: Box<dyn Backend> = match &gpu {
-            Some(g) => Box::new(GpuBackend::with_gpu(Arc::clone(g.gpu_arc()), model.clone())?),
-            None => Box::new(CpuBackend::with_precision(model.clone(), precision)?),
-        };
-        Some(measure_pair(args, backend, gpu.as_ref().map(GpuBackend::gpu))?)
-    };
     let config = Config {
         keypoints: k,
         points_per_patch: p,
@@ -725,6 +745,7 @@ fn open_gpu(
         gemm_variant: None,
         clock: None,
         weights_upload_bytes: None,
+        create_ms: None,
         note: None,
     };
     let gpu = match device {
@@ -995,6 +1016,8 @@ fn measure_pair(args: &Args, backend: Box<dyn Backend>, gpu: Option<&Gpu>) -> an
     let (source, target) = synthetic_pair(args.seed, args.pair_points);
     let name = backend.name();
     let registrar = Registrar::with_backend(&pair_settings(args), backend)?;
+    let compiled = || gpu.map(|g| g.kernels.iter().count());
+    let compiled_before = compiled();
     let mut correspondences = 0;
     let m = measure(args.repeat, gpu, || {
         correspondences = registrar.register(&source, &target)?.correspondences;
@@ -1008,6 +1031,8 @@ fn measure_pair(args: &Args, backend: Box<dyn Backend>, gpu: Option<&Gpu>) -> an
         keypoints: args.keypoints,
         correspondences,
         wall_ms: ms(m.wall),
+        cold_wall_ms: ms(m.first),
+        cold_pipelines_compiled: compiled().zip(compiled_before).map(|(after, before)| after - before),
         device_ms: timing.map(|t| t.device_ms),
         clock: timing.map(|t| t.clock),
         host_to_device_bytes: timing.map(|t| t.transfers.host_to_device_bytes),
@@ -1125,7 +1150,8 @@ fn print_report(r: &Report) {
         (Some(a), _) => {
             let clock = if r.gpu.timestamps { "GPU timestamps" } else { "host wall time, no TIMESTAMP_QUERY" };
             let gemm = r.gpu.gemm_variant.unwrap_or("-");
-            println!("gpu: {a} (device times: {clock}; GEMM {gemm})")
+            let created = r.gpu.create_ms.map_or(String::new(), |t| format!("; created in {t:.1} ms"));
+            println!("gpu: {a} (device times: {clock}; GEMM {gemm}{created})")
         }
         (None, Some(note)) => println!("gpu: not measured: {note}"),
         (None, None) => {}
@@ -1181,13 +1207,15 @@ fn print_report(r: &Report) {
             _ => String::new(),
         };
         println!(
-            "\npair ({} points per scan, {} correspondences) on {}: {:.2} ms{}{bytes}",
+            "\npair ({} points per scan, {} correspondences) on {}: warm (Registrar reused) {:.2} ms{}{bytes}",
             p.points_per_scan,
             p.correspondences,
             p.backend,
             p.wall_ms,
             p.device_ms.map_or(String::new(), |d| format!(", {d:.2} ms on the device")),
         );
+        let compiled = p.cold_pipelines_compiled.map_or(String::new(), |n| format!(", compiling {n} pipelines"));
+        println!("pair cold (a new Registrar's first registration): {:.2} ms{compiled}", p.cold_wall_ms);
     }
     println!("\n(gpu GF/s uses the device time: GPU timestamps where the adapter has them, else the wall time)");
 }

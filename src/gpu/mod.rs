@@ -9,7 +9,8 @@
 //!   [`kernel::GpuKernel`] + its CPU twin `cpu/k.rs`, listed once in [`registry::KERNELS`]).
 //! - [`preprocess`] (a scan's cloud on the device: voxel grid, neighbours, normals, patches), [`nets`] (the
 //!   networks composed from kernels), [`train`] (the trainer and its backward passes).
-//! - Here: [`Gpu`] holds the device and the compiled pipelines; [`GpuBackend`] adds the uploaded weights and
+//! - Here: [`Gpu`] holds the device and its pipelines (compiled on first use, through the driver's pipeline
+//!   cache kept across runs: [`device::pipeline_cache`]); [`GpuBackend`] adds the uploaded weights and
 //!   implements [`Backend`], its steps in [`scan`], [`rows`] and [`icp`]; [`testing`] helps the tests.
 //!
 //! The dense layers' GEMM has variants ([`gemm::GemmVariant`]: the portable reference, a faster portable
@@ -65,7 +66,7 @@ pub(crate) fn workgroups(n: usize, wg_size: u32) -> u64 {
     (n as u64).div_ceil(u64::from(wg_size))
 }
 
-/// A device with every pipeline compiled: what the kernel functions (`gpu::k::run`) need.
+/// A device and its pipelines, each compiled on first use: what the kernel functions (`gpu::k::run`) need.
 pub struct Gpu {
     /// Device, queue and limits.
     pub context: GpuContext,
@@ -87,7 +88,7 @@ impl std::fmt::Debug for Gpu {
 }
 
 impl Gpu {
-    /// A device on the backends from the environment, with every kernel compiled.
+    /// A device on the backends from the environment (its kernels compiled on first use).
     pub fn new() -> Result<Gpu> {
         Gpu::from_context(GpuContext::new()?)
     }
@@ -97,9 +98,9 @@ impl Gpu {
         Gpu::from_context(GpuContext::with_policy(context::backends_from_env()?, policy)?)
     }
 
-    /// Compiles every kernel on `context`.
+    /// The kernels of `context` (compiled on first use: [`Kernels`]) and its GEMM choice.
     pub fn from_context(context: GpuContext) -> Result<Gpu> {
-        let kernels = Kernels::new(&context)?;
+        let kernels = Kernels::new(&context);
         let dummy = buffer::storage_buffer(&context, "dummy", 16)?;
         let dummy_rw = buffer::storage_buffer(&context, "dummy_rw", 16)?;
         let gemm = gemm::select(&context)?;

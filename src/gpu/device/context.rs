@@ -87,6 +87,9 @@ impl Transfers {
 
 /// Instance, adapter, device and queue, plus the limits work is chunked by.
 pub struct GpuContext {
+    /// The driver's pipeline cache kept across runs ([`super::pipeline_cache`]), where the device has one;
+    /// saved to its file when the context is dropped, before the device (fields drop in order).
+    pipeline_cache: Option<super::pipeline_cache::PipelineCache>,
     /// The adapter the device was created on.
     pub adapter: wgpu::Adapter,
     /// The logical device.
@@ -178,8 +181,9 @@ impl GpuContext {
                 return Err(Error::Gpu(format!("adapter {name} has {limit} = {have}; dpr-gpu needs at least {min}")));
             }
         }
-        let features =
-            (adapter.features() & wgpu::Features::TIMESTAMP_QUERY) | super::features::device_features(&adapter);
+        let features = (adapter.features() & wgpu::Features::TIMESTAMP_QUERY)
+            | super::features::device_features(&adapter)
+            | super::pipeline_cache::device_features(&adapter);
         let experimental = if features.contains(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX) {
             // SAFETY: wgpu marks cooperative matrices experimental (its implementation may have bugs). The feature
             // is requested only for the `dense_coop_f16` kernel, on an adapter that reports the configuration the
@@ -210,6 +214,7 @@ impl GpuContext {
             .and_then(|v| v.trim().parse::<u64>().ok())
             .filter(|&v| v > 0)
             .unwrap_or(DEFAULT_MAX_BUFFER_MIB);
+        let pipeline_cache = super::pipeline_cache::PipelineCache::open(&device, &info, features);
         let ctx = GpuContext {
             adapter,
             device,
@@ -217,6 +222,7 @@ impl GpuContext {
             info,
             limits,
             features,
+            pipeline_cache,
             max_buffer_bytes: AtomicU64::new(0),
             uncaptured,
             transferred: Default::default(),
@@ -242,6 +248,12 @@ impl GpuContext {
             if driver.is_empty() { "" } else { ", " },
             driver
         )
+    }
+
+    /// The pipeline cache pipelines are created with, where the device keeps one across runs
+    /// ([`super::pipeline_cache`]).
+    pub fn pipeline_cache(&self) -> Option<&super::pipeline_cache::PipelineCache> {
+        self.pipeline_cache.as_ref()
     }
 
     /// Largest buffer (and storage binding) the chunking may create, in bytes: the smallest of the device's

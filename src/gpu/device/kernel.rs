@@ -139,7 +139,8 @@ pub struct Kernel {
 }
 
 impl Kernel {
-    /// Compiles `spec` on the context's device; shader or layout errors become [`Error::Gpu`] naming the kernel.
+    /// Compiles `spec` on the context's device (through its pipeline cache, where it has one: see
+    /// [`super::pipeline_cache`]); shader or layout errors become [`Error::Gpu`] naming the kernel.
     pub fn new(ctx: &GpuContext, spec: &'static KernelSpec) -> Result<Kernel> {
         Kernel::with_source(ctx, spec, &spec.composed_source()?, spec.name)
     }
@@ -186,7 +187,7 @@ impl Kernel {
                 module: &module,
                 entry_point: Some("main"),
                 compilation_options: wgpu::PipelineCompilationOptions::default(),
-                cache: None,
+                cache: ctx.pipeline_cache().map(super::pipeline_cache::PipelineCache::wgpu),
             });
             Kernel { spec, pipeline, layout }
         })

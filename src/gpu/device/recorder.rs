@@ -59,7 +59,7 @@ impl<'a> Recorder<'a> {
         buffers: &[&wgpu::Buffer],
         workgroups: u64,
     ) -> Result<()> {
-        let kernel: &'a Kernel = self.gpu.kernels.get::<K>()?;
+        let kernel: &'a Kernel = self.gpu.kernels.get::<K>(&self.gpu.context)?;
         self.dispatch_on::<K>(kernel, params, buffers, workgroups)
     }
 

@@ -10,14 +10,13 @@
 
 use super::dense_fast::FastTile;
 use crate::error::{Error, Result};
+pub use crate::gpu::device::cache_dir::{CACHE_DIR_ENV, cache_dir_from};
 use crate::gpu::device::features::GemmVariant;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-/// Environment variable naming the cache directory (before `$XDG_CACHE_HOME/dpr-gpu` and `$HOME/.cache/dpr-gpu`).
-pub const CACHE_DIR_ENV: &str = "DPR_GPU_CACHE_DIR";
 /// The file's name in the cache directory.
 pub const FILE_NAME: &str = "gemm_choice.json";
 /// The `schema` field of the file.
@@ -85,18 +84,9 @@ pub struct ChoiceFile {
     pub adapters: BTreeMap<String, Entry>,
 }
 
-/// The cache directory from the environment lookup `var` ([`CACHE_DIR_ENV`], `XDG_CACHE_HOME`, `HOME`; empty
-/// values skipped), or `None` when none is set.
-pub fn cache_dir_from(var: impl Fn(&str) -> Option<std::ffi::OsString>) -> Option<PathBuf> {
-    let set = |name: &str| var(name).filter(|v| !v.is_empty()).map(PathBuf::from);
-    set(CACHE_DIR_ENV)
-        .or_else(|| set("XDG_CACHE_HOME").map(|d| d.join("dpr-gpu")))
-        .or_else(|| set("HOME").map(|d| d.join(".cache").join("dpr-gpu")))
-}
-
 /// The choice file of this process's environment, or `None` without any of the directories' variables.
 pub fn choice_file() -> Option<PathBuf> {
-    cache_dir_from(|name| std::env::var_os(name)).map(|d| d.join(FILE_NAME))
+    crate::gpu::device::cache_dir::cache_dir().map(|d| d.join(FILE_NAME))
 }
 
 /// The key of an adapter: its name, backend and driver (`driver` and `driver_info`), which a driver update
@@ -184,19 +174,6 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("dpr-gpu-gemm-choice-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         dir
-    }
-
-    #[test]
-    fn the_cache_directory_follows_the_documented_order() {
-        let env = |pairs: &'static [(&'static str, &'static str)]| {
-            move |name: &str| pairs.iter().find(|(k, _)| *k == name).map(|(_, v)| (*v).into())
-        };
-        let all = env(&[(CACHE_DIR_ENV, "/c"), ("XDG_CACHE_HOME", "/x"), ("HOME", "/h")]);
-        assert_eq!(cache_dir_from(all), Some(PathBuf::from("/c")));
-        let xdg = env(&[(CACHE_DIR_ENV, ""), ("XDG_CACHE_HOME", "/x"), ("HOME", "/h")]);
-        assert_eq!(cache_dir_from(xdg), Some(PathBuf::from("/x/dpr-gpu")));
-        assert_eq!(cache_dir_from(env(&[("HOME", "/h")])), Some(PathBuf::from("/h/.cache/dpr-gpu")));
-        assert_eq!(cache_dir_from(env(&[])), None);
     }
 
     #[test]

@@ -1,5 +1,5 @@
 //! The kernel registry: the one list of every WGSL kernel ([`KERNELS`], in pipeline order) and the pipelines
-//! compiled from it once per device ([`Kernels`]).
+//! compiled from it once per device, each on first use ([`Kernels`]).
 //!
 //! Adding a kernel: `shaders/k.wgsl`, a unit type implementing [`GpuKernel`] in `gpu/kernels/k.rs` (source,
 //! bindings, workgroup size, params type, CPU twin), the twin in `cpu/k.rs`, and its `SPEC` here.
@@ -43,6 +43,7 @@ use super::voxel_average::VoxelAverage;
 use crate::error::{Error, Result};
 use crate::gpu::device::context::GpuContext;
 use crate::gpu::device::kernel::{GpuKernel, Kernel, KernelSpec};
+use std::sync::OnceLock;
 
 /// Every kernel, in pipeline order (inference, then training).
 pub const KERNELS: &[KernelSpec] = &[
@@ -82,66 +83,86 @@ pub const KERNELS: &[KernelSpec] = &[
     Transpose::SPEC,
 ];
 
-/// Every pipeline of [`KERNELS`] the device can run, compiled once per device.
+/// The pipelines of [`KERNELS`] on one device, each compiled the first time it is asked for ([`Kernels::get`]),
+/// so a run compiles only the kernels it dispatches (inference never compiles the training kernels);
+/// [`Kernels::compile_all`] compiles every one the device can run.
 #[derive(Debug)]
 pub struct Kernels {
-    compiled: Vec<Kernel>,
+    /// One slot per entry of [`KERNELS`], in its order, filled on first use.
+    slots: Vec<OnceLock<Kernel>>,
     /// The fast GEMM's other tile shapes ([`FastTile::ALL`] after the default), compiled on first use.
-    fast_tiles: [std::sync::OnceLock<Kernel>; FastTile::ALL.len()],
-    /// Kernels not compiled because the device lacks features they need, with those features.
-    skipped: Vec<(&'static str, wgpu::Features)>,
+    fast_tiles: [OnceLock<Kernel>; FastTile::ALL.len()],
+    /// The device's features: a kernel needing others is never compiled.
+    features: wgpu::Features,
 }
 
 impl Kernels {
-    /// Compiles every kernel of [`KERNELS`] whose [`KernelSpec::features`] the device has (the others are
-    /// optional variants: see [`super::gemm`]).
-    pub fn new(ctx: &GpuContext) -> Result<Kernels> {
-        let (usable, skipped): (Vec<&'static KernelSpec>, Vec<&'static KernelSpec>) =
-            KERNELS.iter().partition(|spec| ctx.features.contains(spec.features));
-        Ok(Kernels {
-            compiled: usable.into_iter().map(|spec| Kernel::new(ctx, spec)).collect::<Result<_>>()?,
+    /// The registry on `ctx`, nothing compiled yet.
+    pub fn new(ctx: &GpuContext) -> Kernels {
+        Kernels {
+            slots: KERNELS.iter().map(|_| OnceLock::new()).collect(),
             fast_tiles: Default::default(),
-            skipped: skipped.into_iter().map(|spec| (spec.name, spec.features - ctx.features)).collect(),
-        })
-    }
-
-    /// The compiled pipeline of `K`, or an error when `K` is not in [`KERNELS`].
-    pub fn get<K: GpuKernel>(&self) -> Result<&Kernel> {
-        self.by_name(K::NAME)
-    }
-
-    /// The compiled pipeline named `name`.
-    pub fn by_name(&self, name: &str) -> Result<&Kernel> {
-        if let Some(k) = self.compiled.iter().find(|k| k.spec.name == name) {
-            return Ok(k);
+            features: ctx.features,
         }
-        Err(Error::Gpu(match self.skipped.iter().find(|(n, _)| *n == name) {
-            Some((_, missing)) => format!("kernel '{name}' needs device features this device lacks: {missing}"),
-            None => format!("kernel '{name}' is not registered in gpu::registry::KERNELS"),
-        }))
+    }
+
+    /// The pipeline of `K`, compiled on `ctx` (the device these kernels were made for) the first time; an error
+    /// when `K` is not in [`KERNELS`], the device lacks a feature it needs, or it does not compile.
+    pub fn get<K: GpuKernel>(&self, ctx: &GpuContext) -> Result<&Kernel> {
+        self.by_name(ctx, K::NAME)
+    }
+
+    /// The pipeline named `name`, compiled on `ctx` the first time (see [`Kernels::get`]).
+    pub fn by_name(&self, ctx: &GpuContext, name: &str) -> Result<&Kernel> {
+        let Some(index) = KERNELS.iter().position(|spec| spec.name == name) else {
+            return Err(Error::Gpu(format!("kernel '{name}' is not registered in gpu::registry::KERNELS")));
+        };
+        let spec = &KERNELS[index];
+        let missing = spec.features - self.features;
+        if !missing.is_empty() {
+            return Err(Error::Gpu(format!("kernel '{name}' needs device features this device lacks: {missing}")));
+        }
+        compiled(&self.slots[index], || Kernel::new(ctx, spec), name)
     }
 
     /// The fast GEMM's pipeline for `tile`: the registry's for [`FastTile::DEFAULT`], else the shape's
     /// generated source ([`FastTile::source`]), compiled on `ctx` the first time it is asked for.
     pub fn fast_tile(&self, ctx: &GpuContext, tile: FastTile) -> Result<&Kernel> {
         if tile == FastTile::DEFAULT {
-            return self.get::<DenseFast>();
+            return self.get::<DenseFast>(ctx);
         }
         let slot = tile
             .index()
             .and_then(|i| self.fast_tiles.get(i))
             .ok_or_else(|| Error::Gpu(format!("dense_fast: {tile} is not one of the swept tile shapes")))?;
-        if slot.get().is_none() {
-            let label = format!("dense_fast {tile}");
-            let kernel = Kernel::with_source(ctx, &DenseFast::SPEC, &tile.source()?, &label)?;
-            // Another thread may have compiled it meanwhile: either pipeline is the same.
-            let _ = slot.set(kernel);
-        }
-        slot.get().ok_or_else(|| Error::Gpu(format!("dense_fast {tile}: the pipeline was not kept")))
+        let label = format!("dense_fast {tile}");
+        compiled(slot, || Kernel::with_source(ctx, &DenseFast::SPEC, &tile.source()?, &label), &label)
     }
 
-    /// The compiled kernels, in [`KERNELS`] order.
-    pub fn iter(&self) -> impl Iterator<Item = &Kernel> {
-        self.compiled.iter()
+    /// Compiles every kernel of [`KERNELS`] whose [`KernelSpec::features`] the device has (the others are
+    /// optional variants: see [`super::gemm`]) that is not compiled yet; the number compiled then.
+    pub fn compile_all(&self, ctx: &GpuContext) -> Result<usize> {
+        for spec in KERNELS.iter().filter(|spec| self.features.contains(spec.features)) {
+            self.by_name(ctx, spec.name)?;
+        }
+        Ok(self.iter().count())
     }
+
+    /// The kernels compiled so far, in [`KERNELS`] order (the fast GEMM's other tile shapes not included).
+    pub fn iter(&self) -> impl Iterator<Item = &Kernel> {
+        self.slots.iter().filter_map(OnceLock::get)
+    }
+}
+
+/// The kernel in `slot`, compiled by `compile` when it is empty. Two threads may both compile it; either
+/// pipeline is the same, and one is kept.
+fn compiled<'a>(
+    slot: &'a OnceLock<Kernel>,
+    compile: impl FnOnce() -> Result<Kernel>,
+    name: &str,
+) -> Result<&'a Kernel> {
+    if slot.get().is_none() {
+        let _ = slot.set(compile()?);
+    }
+    slot.get().ok_or_else(|| Error::Gpu(format!("{name}: the pipeline was not kept")))
 }
