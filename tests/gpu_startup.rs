@@ -135,7 +135,8 @@ fn the_pipeline_cache_round_trips_and_bad_files_change_no_result() {
     let last = flipped.len() - 1;
     flipped[last] ^= 1;
     let oversized = |path: &Path| std::fs::File::create(path).unwrap().set_len(MAX_FILE_BYTES + 1).unwrap();
-    let bad: [(&str, &dyn Fn(&Path)); 4] = [
+    type Spoil<'a> = &'a dyn Fn(&Path);
+    let bad: [(&str, Spoil); 4] = [
         ("a flipped bit", &|p| std::fs::write(p, &flipped).unwrap()),
         ("a truncated file", &|p| std::fs::write(p, &good[..good.len() / 2]).unwrap()),
         ("an oversized file", &oversized),
