@@ -649,13 +649,14 @@ fn run_sweep(cache: &std::path::Path, env: &[(&str, &str)]) -> (bool, String, St
     (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
 }
 
-/// The sweep times every variant the adapter runs (every tile of `fast`) on both encoder shapes with consistent
-/// figures, records the fastest for the adapter, and a new device then runs the recorded choice unless
+/// The sweep times every variant the adapter runs (every tile of `fast`, every tile of `coop_f16` the workgroup
+/// memory holds) on both encoder shapes with consistent figures, records the fastest for the adapter, and a new device then runs the recorded choice unless
 /// `DPR_GPU_GEMM` says otherwise; a corrupt choice file is ignored with a warning and replaced.
 #[test]
 fn gemm_sweep_times_every_variant_and_tile_and_auto_takes_the_recorded_choice() {
+    use dpr_gpu::gpu::dense_coop_f16::CoopTile;
     use dpr_gpu::gpu::dense_fast::FastTile;
-    use dpr_gpu::gpu::gemm::gemm_choice;
+    use dpr_gpu::gpu::gemm::{GemmChoice, gemm_choice};
     let Some(gpu) = gpu_or_skip() else { return };
     let cache = std::env::temp_dir().join(format!("dpr-gpu-sweep-test-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&cache);
@@ -671,11 +672,14 @@ fn gemm_sweep_times_every_variant_and_tile_and_auto_takes_the_recorded_choice() 
             assert!(r["unavailable"].as_array().unwrap().iter().any(|u| u["variant"] == v.name()), "{v}");
             continue;
         }
-        let tiles: Vec<String> = if v == GemmVariant::Fast {
-            FastTile::ALL.iter().map(|t| t.name()).collect()
-        } else {
-            let (m, n) = v.tile();
-            vec![format!("{m}x{n}")]
+        let tiles: Vec<String> = match v {
+            GemmVariant::Fast => FastTile::ALL.iter().map(|t| t.name()).collect(),
+            GemmVariant::CoopF16 => CoopTile::ALL
+                .iter()
+                .filter(|t| t.unavailable_reason(&gpu.context.limits).is_none())
+                .map(|t| t.name())
+                .collect(),
+            GemmVariant::Portable => vec![GemmChoice::of(v).tile_name()],
         };
         for tile in tiles {
             for (i, o) in [(704, 512), (512, 512)] {
@@ -720,7 +724,7 @@ fn gemm_sweep_times_every_variant_and_tile_and_auto_takes_the_recorded_choice() 
     assert_eq!(recorded.adapters[&key].tile, best["tile"].as_str().unwrap());
 
     // A new device takes the recorded choice: record one the fixed order never picks.
-    let small = gemm_choice::GemmChoice { variant: GemmVariant::Fast, tile: FastTile { bm: 1, bn: 1 } };
+    let small = GemmChoice::fast(FastTile { bm: 1, bn: 1 });
     gemm_choice::record(&file, &key, small, 1.0).unwrap();
     let (ok, stdout, stderr) = run_sweep(&cache, &[]);
     assert!(ok, "{stderr}");
@@ -736,8 +740,11 @@ fn gemm_sweep_times_every_variant_and_tile_and_auto_takes_the_recorded_choice() 
     assert!(ok, "{stderr}");
     assert!(stderr.contains("warning") && stderr.contains(gemm_choice::FILE_NAME), "{stderr}");
     let r = parse(&stdout, &stderr);
-    let fixed =
-        if GemmVariant::CoopF16.unavailable_reason(&gpu.context).is_none() { "coop_f16" } else { "fast 128x128" };
+    let fixed = if GemmVariant::CoopF16.unavailable_reason(&gpu.context).is_none() {
+        "coop_f16 64x64/4sg"
+    } else {
+        "fast 128x128"
+    };
     assert_eq!(r["selected_before"], fixed);
     assert!(gemm_choice::read(&file).unwrap().unwrap().adapters.contains_key(&key));
     let _ = std::fs::remove_dir_all(&cache);

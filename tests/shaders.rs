@@ -144,9 +144,16 @@ fn walk_spirv(words: &[u32], what: &str) -> SpirvSummary {
 #[test]
 fn every_shader_translates_to_well_formed_spirv() {
     for spec in KERNELS {
-        let module = module(spec);
+        translates_to_well_formed_spirv(spec, spec.name, &module(spec), spec.workgroup_size);
+    }
+}
+
+/// The checks of [`every_shader_translates_to_well_formed_spirv`] on `module` (`spec`'s source or a generated
+/// variant of it, named `label`, with `@workgroup_size(workgroup_size)`).
+fn translates_to_well_formed_spirv(spec: &KernelSpec, label: &str, module: &naga::Module, workgroup_size: u32) {
+    {
         let info = Validator::new(ValidationFlags::all(), capabilities(spec.features))
-            .validate(&module)
+            .validate(module)
             .expect("validated by `module`");
         let allowed = spirv_capabilities(spec.features);
         // The bindings wgpu maps one to one into descriptor set 0; anything else is a translation error.
@@ -157,7 +164,7 @@ fn every_shader_translates_to_well_formed_spirv() {
             })
             .collect();
         for lang_version in spirv_versions(spec.features) {
-            let what = format!("{} as SPIR-V {}.{}", spec.name, lang_version.0, lang_version.1);
+            let what = format!("{label} as SPIR-V {}.{}", lang_version.0, lang_version.1);
             let options = spv::Options {
                 lang_version,
                 flags: spv::WriterFlags::empty(),
@@ -169,7 +176,7 @@ fn every_shader_translates_to_well_formed_spirv() {
             };
             let pipeline =
                 spv::PipelineOptions { shader_stage: naga::ShaderStage::Compute, entry_point: "main".to_string() };
-            let words = spv::write_vec(&module, &info, &options, Some(&pipeline))
+            let words = spv::write_vec(module, &info, &options, Some(&pipeline))
                 .unwrap_or_else(|e| panic!("{what}: naga's SPIR-V backend fails: {e} ({e:?})"));
             let spirv = walk_spirv(&words, &what);
             assert_eq!(spirv.version, lang_version, "{what}: header version");
@@ -177,7 +184,7 @@ fn every_shader_translates_to_well_formed_spirv() {
             assert_eq!(spirv.entry_points.len(), 1, "{what}: one entry point");
             let (model, id, name) = &spirv.entry_points[0];
             assert_eq!((*model, name.as_str()), (GL_COMPUTE, "main"), "{what}: entry point");
-            assert_eq!(spirv.local_sizes, [(*id, [spec.workgroup_size, 1, 1])], "{what}: LocalSize");
+            assert_eq!(spirv.local_sizes, [(*id, [workgroup_size, 1, 1])], "{what}: LocalSize");
 
             let emitted: BTreeSet<Capability> = spirv
                 .capabilities
@@ -449,5 +456,37 @@ fn every_generated_fast_gemm_tile_validates_and_translates() {
             spv::PipelineOptions { shader_stage: naga::ShaderStage::Compute, entry_point: "main".to_string() };
         spv::write_vec(&module, &info, &options, Some(&pipeline))
             .unwrap_or_else(|e| panic!("dense_fast {tile}: naga's SPIR-V backend fails: {e}"));
+    }
+}
+
+/// Every tile shape of the cooperative-matrix GEMM that `bench --gemm-sweep` compiles (generated from
+/// `shaders/dense_coop_f16.wgsl`) parses and validates with the kernel's capabilities, declares the workgroup
+/// memory its host side states (double-buffered operand tiles and one accumulator per subgroup, within 48 KiB)
+/// and translates to well-formed SPIR-V with the cooperative-matrix instructions, as the registered kernel
+/// does. No adapter here has cooperative matrices: whether the shapes run, and how fast, only a GPU shows.
+#[test]
+fn every_generated_coop_gemm_tile_validates_and_translates() {
+    use dpr_gpu::gpu::dense_coop_f16::{CoopTile, DenseCoopF16};
+    use dpr_gpu::gpu::kernel::GpuKernel;
+    let spec = &DenseCoopF16::SPEC;
+    for tile in CoopTile::ALL {
+        let source = tile.source().unwrap();
+        let label = format!("dense_coop_f16 {tile}");
+        let module = naga::front::wgsl::parse_str(&source)
+            .unwrap_or_else(|e| panic!("{label} does not parse:\n{}", e.emit_to_string(&source)));
+        Validator::new(ValidationFlags::all(), capabilities(spec.features))
+            .validate(&module)
+            .unwrap_or_else(|e| panic!("{label} does not validate:\n{}", e.emit_to_string(&source)));
+        let mut layouter = naga::proc::Layouter::default();
+        layouter.update(module.to_ctx()).unwrap();
+        let workgroup_bytes: u32 = module
+            .global_variables
+            .iter()
+            .filter(|(_, g)| g.space == naga::AddressSpace::WorkGroup)
+            .map(|(_, g)| layouter[g.ty].size)
+            .sum();
+        assert_eq!(workgroup_bytes, tile.workgroup_bytes(), "{label}: workgroup memory");
+        assert!(workgroup_bytes <= 48 * 1024, "{label}: {workgroup_bytes} bytes of workgroup memory");
+        translates_to_well_formed_spirv(spec, &label, &module, tile.workgroup_size());
     }
 }

@@ -1,15 +1,20 @@
 //! `dpr-gpu bench --gemm-sweep`: times every GEMM the adapter can run (`portable`, `fast` at each tile shape of
-//! [`FastTile::ALL`], `coop_f16`) on the dense layer shapes the encoders run (rows x 704 -> 512 and
-//! rows x 512 -> 512, bias and ReLU), prints a table (or with `--json` one document whose `gemm_sweep` array has
-//! one entry per variant, tile and shape), and records the fastest variant and tile for this adapter in the
-//! choice file ([`gemm_choice`]), which [`crate::gpu::gemm::select`] then takes for the adapter when
-//! `DPR_GPU_GEMM` is not set. Times are the fastest of `--repeat` runs after a warm-up, on GPU timestamps where
-//! the adapter has them; the choice is the smallest total time over the shapes.
+//! [`FastTile::ALL`], `coop_f16` at each of [`CoopTile::ALL`] its workgroup memory holds) on the dense layer
+//! shapes the encoders run (rows x 704 -> 512 and rows x 512 -> 512, bias and ReLU), prints a table (or with
+//! `--json` one document whose `gemm_sweep` array has one entry per variant, tile and shape), and records the
+//! fastest variant and tile for this adapter in the choice file ([`gemm_choice`]), which
+//! [`crate::gpu::gemm::select`] then takes for the adapter when `DPR_GPU_GEMM` is not set. Each candidate is
+//! first checked against its CPU twin on one small ragged layer ([`check_against_twin`]); one that disagrees is
+//! listed as unavailable and never timed or recorded. Times are the fastest of `--repeat` runs after a warm-up,
+//! on GPU timestamps where the adapter has them; the choice is the smallest total time over the shapes.
 
 use super::bench::{Args, GemmTiming, gflops, gpu_timing, measure};
 use crate::cpu::dense::DenseShape;
-use crate::gpu::dense_fast::FastTile;
+use crate::gpu::dense::Dense;
+use crate::gpu::dense_coop_f16::{CoopTile, DenseCoopF16};
+use crate::gpu::dense_fast::{DenseFast, FastTile};
 use crate::gpu::gemm::{GemmChoice, GemmVariant, gemm_choice};
+use crate::gpu::kernel::GpuKernel;
 use crate::gpu::{Gpu, buffer::GpuBuffer, dense as gpu_dense, recorder::Recorder};
 use crate::rng::Rng;
 use anyhow::{Context, bail};
@@ -34,18 +39,20 @@ pub struct SweepEntry {
     /// Output tile of one workgroup, `ROWSxCOLS`.
     pub tile: String,
     /// Outputs one invocation computes, `ROWSxCOLS` (`null` for the cooperative-matrix kernel, whose
-    /// subgroups share their tiles).
+    /// subgroups share their tiles: its tile names its subgroups, `128x128/8sg`).
     pub per_invocation: Option<String>,
     /// The layer and its time (the fields of a `bench` GEMM row).
     #[serde(flatten)]
     pub timing: GemmTiming,
 }
 
-/// A variant the adapter cannot run.
+/// A variant (or one tile of it) the adapter cannot run, or that gave wrong results.
 #[derive(Clone, Debug, Serialize)]
 pub struct SweepUnavailable {
     /// The variant.
     pub variant: &'static str,
+    /// The tile shape, when only it is unavailable.
+    pub tile: Option<String>,
     /// Why.
     pub reason: String,
 }
@@ -96,30 +103,94 @@ pub struct SweepReport {
     pub record_error: Option<String>,
 }
 
-/// Every (variant, tile) the adapter can run, and the variants it cannot with the reason.
+/// Every (variant, tile) the adapter can run, and the variants and tiles it cannot with the reason.
 fn candidates(g: &Gpu) -> (Vec<GemmChoice>, Vec<SweepUnavailable>) {
     let (mut run, mut unavailable) = (Vec::new(), Vec::new());
     for variant in GemmVariant::ALL {
-        match variant.unavailable_reason(&g.context) {
-            Some(reason) => unavailable.push(SweepUnavailable { variant: variant.name(), reason }),
-            None if variant == GemmVariant::Fast => {
-                run.extend(FastTile::ALL.into_iter().map(|tile| GemmChoice { variant, tile }));
+        if let Some(reason) = variant.unavailable_reason(&g.context) {
+            unavailable.push(SweepUnavailable { variant: variant.name(), tile: None, reason });
+            continue;
+        }
+        let choices: Vec<GemmChoice> = match variant {
+            GemmVariant::Fast => FastTile::ALL.into_iter().map(GemmChoice::fast).collect(),
+            GemmVariant::CoopF16 => CoopTile::ALL.into_iter().map(GemmChoice::coop).collect(),
+            GemmVariant::Portable => vec![GemmChoice::of(variant)],
+        };
+        for choice in choices {
+            match choice.unavailable_reason(&g.context) {
+                Some(reason) => unavailable.push(unavailable_tile(choice, reason)),
+                None => run.push(choice),
             }
-            None => run.push(GemmChoice::of(variant)),
         }
     }
     (run, unavailable)
 }
 
+/// `choice`'s tile, unavailable for `reason`.
+fn unavailable_tile(choice: GemmChoice, reason: String) -> SweepUnavailable {
+    SweepUnavailable { variant: choice.variant.name(), tile: Some(choice.tile_name()), reason }
+}
+
 /// The tile and outputs per invocation of `choice`, as reported.
 fn tile_names(choice: GemmChoice) -> (String, Option<String>) {
-    if choice.variant == GemmVariant::Fast {
-        let (m, n) = choice.tile.per_invocation();
-        return (choice.tile.name(), Some(format!("{m}x{n}")));
+    let per = match choice.variant {
+        GemmVariant::Fast => {
+            let (m, n) = choice.tile.per_invocation();
+            Some(format!("{m}x{n}"))
+        }
+        GemmVariant::Portable => {
+            let (m, n) = choice.variant.tile();
+            Some(format!("{}x{}", m / 16, n / 16))
+        }
+        GemmVariant::CoopF16 => None,
+    };
+    (choice.tile_name(), per)
+}
+
+/// The layer [`check_against_twin`] runs: ragged against every tile (rows and columns not multiples of 16 or
+/// 64, the input width not a multiple of 4 or of a k-tile), with a group term and ReLU.
+pub const CHECK_SHAPE: DenseShape =
+    DenseShape { rows: 131, in_dim: 70, out_dim: 133, rows_per_group: 40, accumulate: true, relu: true };
+
+/// Runs `choice` once on [`CHECK_SHAPE`] and compares it with the variant's CPU twin within the parity tests'
+/// bound (the f32 kernels' summation bound, the cooperative kernel's f16 bound); `Err` says how many outputs
+/// differ and the worst.
+pub fn check_against_twin(g: &Gpu, choice: GemmChoice, seed: u64) -> anyhow::Result<()> {
+    use crate::gpu::parity::inference::f32_gemm_tolerance;
+    let s = CHECK_SHAPE;
+    let mut rng = Rng::new(seed ^ 0xC4EC);
+    let mut v = |n: usize| (0..n).map(|_| rng.normal() as f32).collect::<Vec<f32>>();
+    let (x, w, init) = (v(s.rows * s.in_dim), v(s.in_dim * s.out_dim), v(s.rows * s.out_dim));
+    let group = v(s.rows.div_ceil(s.rows_per_group) * s.out_dim);
+    let twin = match choice.variant {
+        GemmVariant::Portable => Dense::CPU_TWIN,
+        GemmVariant::Fast => DenseFast::CPU_TWIN,
+        GemmVariant::CoopF16 => DenseCoopF16::CPU_TWIN,
+    };
+    let mut want = init.clone();
+    twin(&s, &x, &w, &group, &mut want);
+    let mut got = init.clone();
+    crate::block_on(gpu_dense::run_choice(g, choice, &s, &x, &w, &group, &mut got))?;
+    let tol = match choice.variant {
+        GemmVariant::CoopF16 => crate::cpu::dense_coop_f16::parity_tolerance(&s, &x, &w, &group, &init),
+        _ => f32_gemm_tolerance(&s, &x, &w, &group, &init),
+    };
+    // NaN is never within the bound.
+    let within = |i: usize| (got[i] - want[i]).abs() <= tol[i];
+    let bad: Vec<(usize, f32)> = (0..got.len()).filter(|&i| !within(i)).map(|i| (i, got[i] - want[i])).collect();
+    if let Some(&(i, d)) = bad.iter().max_by(|a, b| a.1.abs().total_cmp(&b.1.abs())) {
+        bail!(
+            "wrong results on {}x{} -> {}: {} of {} outputs off the CPU twin by more than the bound (worst: output {i}, \
+             off by {d}, bound {})",
+            s.rows,
+            s.in_dim,
+            s.out_dim,
+            bad.len(),
+            got.len(),
+            tol[i]
+        );
     }
-    let (m, n) = choice.variant.tile();
-    let per = (choice.variant == GemmVariant::Portable).then(|| format!("{}x{}", m / 16, n / 16));
-    (format!("{m}x{n}"), per)
+    Ok(())
 }
 
 /// Times `choice` on one layer shape.
@@ -188,10 +259,15 @@ pub fn measure_sweep(args: &Args) -> anyhow::Result<SweepReport> {
         );
     }
     let timed = Args { repeat, ..args.clone() };
-    let (run, unavailable) = candidates(&g);
+    let (run, mut unavailable) = candidates(&g);
     let mut entries = Vec::new();
     let mut best: Option<(GemmChoice, SweepBest)> = None;
     for &choice in &run {
+        if let Err(e) = check_against_twin(&g, choice, args.seed) {
+            eprintln!("warning: GEMM {} is not timed: {e:#}", choice.name());
+            unavailable.push(unavailable_tile(choice, format!("{e:#}")));
+            continue;
+        }
         let layers: Vec<SweepEntry> =
             SHAPES.iter().map(|&s| time_layer(&g, &timed, choice, rows, s)).collect::<anyhow::Result<_>>()?;
         let total_ms: f64 = layers.iter().map(|e| e.timing.time_ms).sum();
@@ -264,7 +340,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         );
     }
     for u in &r.unavailable {
-        println!("{:<10} not available: {}", u.variant, u.reason);
+        println!("{:<10} {:>8} not available: {}", u.variant, u.tile.as_deref().unwrap_or(""), u.reason);
     }
     if let Some(b) = &r.best {
         println!("best: {} {} ({:.3} ms over the shapes, {:.1} GFLOP/s)", b.variant, b.tile, b.total_ms, b.gflops);

@@ -126,7 +126,13 @@ impl Gpu {
         self.gemm.tile
     }
 
-    /// The variant and tile shape the dense layers run on ([`gemm::select`] at creation).
+    /// The cooperative-matrix GEMM's tile shape ([`gemm::select`] at creation: the recorded sweep's choice, else
+    /// the default); it applies whenever the dense layers run [`gemm::GemmVariant::CoopF16`].
+    pub fn gemm_coop_tile(&self) -> dense_coop_f16::CoopTile {
+        self.gemm.coop
+    }
+
+    /// The variant and tile shapes the dense layers run on ([`gemm::select`] at creation).
     pub fn gemm_choice(&self) -> gemm::GemmChoice {
         self.gemm
     }

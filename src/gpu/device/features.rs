@@ -9,12 +9,14 @@ use crate::error::{Error, Result};
 /// What the cooperative-matrix GEMM (`shaders/dense_coop_f16.wgsl`, [`crate::gpu::kernels::dense_coop_f16`]) needs from a
 /// device; the kernel's host side re-exports these.
 pub mod coop_f16 {
-    /// The subgroup width the kernel's layout assumes (four subgroups, each owning a 32 x 32 quarter).
+    /// The subgroup width the kernel's layout assumes (each subgroup owns a block of the tile).
     pub const SUBGROUP_SIZE: u32 = 32;
     /// The cooperative matrix size M = N = K the kernel uses (`coop_mat16x16`).
     pub const MATRIX: u32 = 16;
-    /// Workgroup memory the shader declares: 64 x 32 and 32 x 64 f16 operand tiles and the 64 x 64 f32 product.
-    pub const WORKGROUP_STORAGE_BYTES: u32 = 2 * 64 * 32 * 2 + 64 * 64 * 4;
+    /// Workgroup memory the shader declares at its default 64 x 64 tile: two buffers of the 64 x 32 and
+    /// 32 x 64 f16 operand tiles and one 16 x 16 f32 accumulator for each of its four subgroups (the other tile
+    /// shapes say theirs: [`crate::gpu::kernels::dense_coop_f16::CoopTile::workgroup_bytes`]).
+    pub const WORKGROUP_STORAGE_BYTES: u32 = 2 * 2 * (64 * 32 + 32 * 64) + 4 * 16 * 16 * 4;
     /// The device features the kernel is compiled with.
     pub const FEATURES: wgpu::Features = wgpu::Features::SHADER_F16
         .union(wgpu::Features::SUBGROUP)
@@ -78,8 +80,8 @@ pub fn requested() -> Result<Option<GemmVariant>> {
 
 /// Whether `adapter` can run the cooperative-matrix kernel: it has `SHADER_F16`, `SUBGROUP` and
 /// `EXPERIMENTAL_COOPERATIVE_MATRIX`, reports a 16 x 16 x 16 configuration with f16 A/B and f32 C/result,
-/// runs subgroups of exactly 32 invocations (the kernel's four subgroups each own a 32 x 32 quarter of the
-/// tile), and has the kernel's workgroup memory. `Err` says what is missing.
+/// runs subgroups of exactly 32 invocations (each of the kernel's subgroups owns a block of the tile), and has
+/// the default tile's workgroup memory. `Err` says what is missing.
 pub fn coop_f16_support(adapter: &wgpu::Adapter) -> std::result::Result<(), String> {
     let missing = coop_f16::FEATURES - adapter.features();
     if !missing.is_empty() {

@@ -40,6 +40,23 @@ pub fn compose(source: &str) -> Result<Cow<'_, str>> {
     Ok(Cow::Owned(out))
 }
 
+/// `source` (the shader `file`) with `u32` constants set: each `(NAME, default, value)` replaces the line
+/// `const NAME: u32 = {default}u;`, which must occur exactly once, by `const NAME: u32 = {value}u;`. This is
+/// how a kernel's tile shapes are generated from one shader written at its default shape
+/// ([`crate::gpu::kernels::dense_fast::FastTile`], [`crate::gpu::kernels::dense_coop_f16::CoopTile`]); an error
+/// names the line that is missing or repeated.
+pub fn with_constants(file: &str, source: &str, constants: &[(&str, u32, u32)]) -> Result<String> {
+    let mut out = source.to_string();
+    for &(name, default, value) in constants {
+        let line = format!("const {name}: u32 = {default}u;");
+        if source.matches(&line).count() != 1 {
+            return Err(Error::Gpu(format!("{file}: expected one line '{line}'")));
+        }
+        out = out.replace(&line, &format!("const {name}: u32 = {value}u;"));
+    }
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -50,5 +67,16 @@ mod tests {
         let composed = compose("a\n// #include point\nb\n").unwrap();
         assert_eq!(composed, format!("a\n{}b\n", MODULES.iter().find(|m| m.0 == "point").unwrap().1));
         assert!(compose("// #include nothing\n").unwrap_err().to_string().contains("nothing"));
+    }
+
+    #[test]
+    fn with_constants_replaces_each_default_line_once_and_names_a_missing_one() {
+        let src = "const A: u32 = 2u;\nconst B: u32 = 2u;\nconst AB: u32 = A * B;\n";
+        let out = with_constants("k.wgsl", src, &[("A", 2, 1), ("B", 2, 4)]).unwrap();
+        assert_eq!(out, "const A: u32 = 1u;\nconst B: u32 = 4u;\nconst AB: u32 = A * B;\n");
+        let err = with_constants("k.wgsl", src, &[("C", 2, 1)]).unwrap_err().to_string();
+        assert!(err.contains("k.wgsl") && err.contains("const C: u32 = 2u;"), "{err}");
+        let twice = format!("{src}{src}");
+        assert!(with_constants("k.wgsl", &twice, &[("A", 2, 1)]).is_err());
     }
 }

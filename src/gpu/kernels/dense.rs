@@ -46,8 +46,8 @@ pub fn record<'a>(
     record_with(rec, gpu, gpu.gemm_variant(), params, [x, w_t], group, out)
 }
 
-/// [`record`] with an explicit variant (an error when the device cannot run it); `fast` runs the device's tile
-/// shape ([`Gpu::gemm_tile`]).
+/// [`record`] with an explicit variant (an error when the device cannot run it); `fast` and `coop_f16` run the
+/// device's tile shapes ([`Gpu::gemm_choice`]).
 pub fn record_with<'a>(
     rec: &mut Recorder<'a>,
     gpu: &'a Gpu,
@@ -57,11 +57,12 @@ pub fn record_with<'a>(
     group: Option<&wgpu::Buffer>,
     out: &wgpu::Buffer,
 ) -> Result<()> {
-    let choice = GemmChoice { variant, tile: gpu.gemm_tile() };
+    let choice = GemmChoice { variant, ..gpu.gemm_choice() };
     record_choice(rec, gpu, choice, params, [x, w_t], group, out)
 }
 
-/// [`record_with`] with an explicit tile shape for `fast` too (`dpr-gpu bench --gemm-sweep`, parity tests).
+/// [`record_with`] with explicit tile shapes too (`dpr-gpu bench --gemm-sweep`, parity tests); a cooperative
+/// tile the device's workgroup memory cannot hold is an error naming the limit.
 pub fn record_choice<'a>(
     rec: &mut Recorder<'a>,
     gpu: &'a Gpu,
@@ -73,7 +74,11 @@ pub fn record_choice<'a>(
 ) -> Result<()> {
     let group = group.unwrap_or(&gpu.dummy);
     let variant = choice.variant;
-    let tile = if variant == GemmVariant::Fast { choice.tile.tile() } else { variant.tile() };
+    let tile = match variant {
+        GemmVariant::Fast => choice.tile.tile(),
+        GemmVariant::CoopF16 => choice.coop.tile(),
+        GemmVariant::Portable => variant.tile(),
+    };
     let params = params.tiled(tile)?;
     let buffers = [x, w_t, group, out];
     let workgroups = u64::from(params.tiles);
@@ -83,7 +88,10 @@ pub fn record_choice<'a>(
             let kernel = gpu.kernels.fast_tile(&gpu.context, choice.tile)?;
             rec.dispatch_on::<DenseFast>(kernel, &params, &buffers, workgroups)
         }
-        GemmVariant::CoopF16 => rec.dispatch::<DenseCoopF16>(&params, &buffers, workgroups),
+        GemmVariant::CoopF16 => {
+            let kernel = gpu.kernels.coop_tile(&gpu.context, choice.coop)?;
+            rec.dispatch_on::<DenseCoopF16>(kernel, &params, &buffers, workgroups)
+        }
     }
 }
 
@@ -111,6 +119,19 @@ pub async fn run_with(
     group_term: &[f32],
     out: &mut [f32],
 ) -> Result<()> {
+    run_choice(gpu, GemmChoice { variant, ..gpu.gemm_choice() }, shape, x, w_t, group_term, out).await
+}
+
+/// [`run`] with an explicit variant and tile shapes (an error when the device cannot run them).
+pub async fn run_choice(
+    gpu: &Gpu,
+    choice: GemmChoice,
+    shape: &DenseShape,
+    x: &[f32],
+    w_t: &[f32],
+    group_term: &[f32],
+    out: &mut [f32],
+) -> Result<()> {
     let groups = shape.rows.div_ceil(shape.rows_per_group.max(1));
     if x.len() != shape.rows * shape.in_dim
         || w_t.len() != shape.in_dim * shape.out_dim
@@ -127,7 +148,7 @@ pub async fn run_with(
     let params = DenseParams::new(shape, 0, !group_term.is_empty())?;
     let mut rec = Recorder::new(gpu, "dense");
     let group = (!group_term.is_empty()).then_some(gb.raw());
-    record_with(&mut rec, gpu, variant, &params, [xb.raw(), wb.raw()], group, ob.raw())?;
+    record_choice(&mut rec, gpu, choice, &params, [xb.raw(), wb.raw()], group, ob.raw())?;
     let r = rec.read(ob.raw(), 0, (out.len() * 4) as u64);
     let bytes = rec.finish().await?;
     out.copy_from_slice(bytemuck::cast_slice(&bytes[r]));

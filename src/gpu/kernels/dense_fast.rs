@@ -10,7 +10,7 @@
 
 use super::dense_params::DenseParams;
 use crate::cpu::dense::DenseShape;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::gpu::device::kernel::{BindKind, GpuKernel};
 
 /// Invocations per workgroup (`WG_SIZE` in the shader).
@@ -68,16 +68,8 @@ impl FastTile {
 
     /// The shader for this shape: `shaders/dense_fast.wgsl` with its `BM` and `BN` lines replaced.
     pub fn source(self) -> Result<String> {
-        let src = DenseFast::SOURCE;
-        let mut out = src.to_string();
-        for (name, value) in [("BM", self.bm), ("BN", self.bn)] {
-            let line = format!("const {name}: u32 = 2u;");
-            if src.matches(&line).count() != 1 {
-                return Err(Error::Gpu(format!("shaders/dense_fast.wgsl: expected one line '{line}'")));
-            }
-            out = out.replace(&line, &format!("const {name}: u32 = {value}u;"));
-        }
-        Ok(out)
+        let constants = [("BM", 2, self.bm), ("BN", 2, self.bn)];
+        crate::gpu::device::wgsl::with_constants("shaders/dense_fast.wgsl", DenseFast::SOURCE, &constants)
     }
 }
 

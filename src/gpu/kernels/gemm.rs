@@ -7,12 +7,12 @@
 //!   workgroup-memory reads, double-buffered k-tiles; the same f32 function in the same summation order. Needs
 //!   16 KiB of workgroup memory (every Vulkan, Metal and DX12 device has it).
 //! - [`GemmVariant::CoopF16`] (`shaders/dense_coop_f16.wgsl`): tensor cores through wgpu's
-//!   `EXPERIMENTAL_COOPERATIVE_MATRIX`, f16 inputs and f32 accumulation, 16 x 16 x 16 matrices. Chosen only when
-//!   the adapter reports that configuration ([`coop_f16_support`]); its precision has its own twin
-//!   ([`crate::cpu::dense_coop_f16`]).
+//!   `EXPERIMENTAL_COOPERATIVE_MATRIX`, f16 inputs and f32 accumulation, 16 x 16 x 16 matrices, tiles from
+//!   64 x 64 to 128 x 128 ([`dense_coop_f16::CoopTile`]). Chosen only when the adapter reports that
+//!   configuration ([`coop_f16_support`]); its precision has its own twin ([`crate::cpu::dense_coop_f16`]).
 //!
-//! Automatic choice: the choice `dpr-gpu bench --gemm-sweep` recorded for the adapter ([`gemm_choice`]) when the
-//! device can run it, else `coop_f16` where supported, else `fast`, else `portable`. The portable kernel stays the
+//! Automatic choice: the choice `dpr-gpu bench --gemm-sweep` recorded for the adapter ([`gemm_choice`]: variant
+//! and tile shape) when the device can run it, else `coop_f16` where supported, else `fast`, else `portable`. The portable kernel stays the
 //! reference every other variant is tested against, and the fallback.
 
 use super::dense::Dense;
@@ -75,37 +75,49 @@ impl GemmVariant {
     }
 }
 
-/// The variant a new device runs: [`GEMM_ENV`]'s when set (an error naming the reason when the device cannot
-/// run it), else the choice `dpr-gpu bench --gemm-sweep` recorded for this adapter ([`gemm_choice`]) when the
-/// device can run it, else the first of `coop_f16`, `fast`, `portable` the device can run.
+impl GemmChoice {
+    /// Why the choice cannot run on `ctx`'s device (its variant cannot, or its cooperative tile needs more
+    /// workgroup memory than the device has), or `None` when it can.
+    pub fn unavailable_reason(&self, ctx: &GpuContext) -> Option<String> {
+        self.variant.unavailable_reason(ctx).or_else(|| match self.variant {
+            GemmVariant::CoopF16 => self.coop.unavailable_reason(&ctx.limits),
+            _ => None,
+        })
+    }
+}
+
+/// The variant a new device runs: [`GEMM_ENV`]'s when set (at the default tiles; an error naming the reason
+/// when the device cannot run it), else the choice `dpr-gpu bench --gemm-sweep` recorded for this adapter
+/// ([`gemm_choice`]: variant and tile) when the device can run it, else the first of `coop_f16`, `fast`,
+/// `portable` the device can run, at the default tiles.
 pub fn select(ctx: &GpuContext) -> Result<GemmChoice> {
     let requested = requested()?;
     let recorded = match (requested, gemm_choice::choice_file()) {
         (None, Some(path)) => gemm_choice::lookup(&path, &gemm_choice::adapter_key(&ctx.info)),
         _ => None,
     };
-    resolve(requested, recorded, |v| v.unavailable_reason(ctx))
+    resolve(requested, recorded, |c| c.unavailable_reason(ctx))
 }
 
 /// [`select`]'s rule on `requested` ([`GEMM_ENV`]) and `recorded` (the sweep's choice for the adapter), with
-/// `unavailable` saying why the device cannot run a variant.
+/// `unavailable` saying why the device cannot run a choice.
 pub fn resolve(
     requested: Option<GemmVariant>,
     recorded: Option<GemmChoice>,
-    unavailable: impl Fn(GemmVariant) -> Option<String>,
+    unavailable: impl Fn(&GemmChoice) -> Option<String>,
 ) -> Result<GemmChoice> {
     if let Some(v) = requested {
-        return match unavailable(v) {
-            None => Ok(GemmChoice::of(v)),
+        let choice = GemmChoice::of(v);
+        return match unavailable(&choice) {
+            None => Ok(choice),
             Some(why) => Err(Error::Gpu(format!("{GEMM_ENV}={v}: this adapter cannot run it: {why}"))),
         };
     }
-    if let Some(choice) = recorded.filter(|c| unavailable(c.variant).is_none()) {
+    if let Some(choice) = recorded.filter(|c| unavailable(c).is_none()) {
         return Ok(choice);
     }
-    let order = [GemmVariant::CoopF16, GemmVariant::Fast, GemmVariant::Portable];
-    let variant = order.into_iter().find(|&v| unavailable(v).is_none()).unwrap_or(GemmVariant::Portable);
-    Ok(GemmChoice::of(variant))
+    let order = [GemmVariant::CoopF16, GemmVariant::Fast, GemmVariant::Portable].map(GemmChoice::of);
+    Ok(order.into_iter().find(|c| unavailable(c).is_none()).unwrap_or(GemmChoice::of(GemmVariant::Portable)))
 }
 
 #[cfg(test)]
@@ -126,10 +138,11 @@ mod tests {
 
     #[test]
     fn the_environment_wins_then_a_runnable_recorded_choice_then_the_fixed_order() {
+        use super::super::dense_coop_f16::CoopTile;
         use super::super::dense_fast::FastTile;
-        let all = |_: GemmVariant| None;
-        let no_coop = |v: GemmVariant| (v == GemmVariant::CoopF16).then(|| "no coop".to_string());
-        let small = GemmChoice { variant: GemmVariant::Fast, tile: FastTile { bm: 1, bn: 1 } };
+        let all = |_: &GemmChoice| None;
+        let no_coop = |c: &GemmChoice| (c.variant == GemmVariant::CoopF16).then(|| "no coop".to_string());
+        let small = GemmChoice::fast(FastTile { bm: 1, bn: 1 });
         // No record: today's rule.
         assert_eq!(resolve(None, None, all).unwrap(), GemmChoice::of(GemmVariant::CoopF16));
         assert_eq!(resolve(None, None, no_coop).unwrap(), GemmChoice::of(GemmVariant::Fast));
@@ -145,5 +158,12 @@ mod tests {
         assert_eq!(resolve(Some(GemmVariant::Fast), Some(small), all).unwrap(), GemmChoice::of(GemmVariant::Fast));
         let err = resolve(Some(GemmVariant::CoopF16), Some(small), no_coop).unwrap_err().to_string();
         assert!(err.contains(GEMM_ENV) && err.contains("no coop"), "{err}");
+        // A recorded cooperative tile is taken; one the device cannot hold is not (the default tile is, first
+        // in the fixed order), and the environment's `coop` runs the default tile.
+        let big = GemmChoice::coop(CoopTile::ALL[4]);
+        assert_eq!(resolve(None, Some(big), all).unwrap(), big);
+        let small_memory = |c: &GemmChoice| (c.coop != CoopTile::DEFAULT).then(|| "too big".to_string());
+        assert_eq!(resolve(None, Some(big), small_memory).unwrap(), GemmChoice::of(GemmVariant::CoopF16));
+        assert_eq!(resolve(Some(GemmVariant::CoopF16), Some(big), all).unwrap(), GemmChoice::of(GemmVariant::CoopF16));
     }
 }

@@ -1,5 +1,5 @@
 //! The GEMM choice recorded per adapter by `dpr-gpu bench --gemm-sweep`: the fastest [`GemmVariant`] (and, for
-//! `fast`, tile shape) it measured, kept in a small JSON file ([`choice_file`]: `gemm_choice.json` in
+//! `fast` and `coop_f16`, tile shape) it measured, kept in a small JSON file ([`choice_file`]: `gemm_choice.json` in
 //! [`CACHE_DIR_ENV`], else `$XDG_CACHE_HOME/dpr-gpu`, else `$HOME/.cache/dpr-gpu`) under a key naming the adapter,
 //! its backend and its driver ([`adapter_key`]). [`super::gemm::select`] takes the recorded choice for its adapter
 //! when there is one the device can run, unless [`super::gemm::GEMM_ENV`] asks for a variant.
@@ -8,6 +8,7 @@
 //! [`MAX_FILE_BYTES`] and [`MAX_ENTRIES`] adapters; a file that is too large, unreadable or not the expected JSON
 //! is ignored with a warning on stderr (and replaced by the next sweep). Deleting it restores the automatic rule.
 
+use super::dense_coop_f16::CoopTile;
 use super::dense_fast::FastTile;
 use crate::error::{Error, Result};
 pub use crate::gpu::device::cache_dir::{CACHE_DIR_ENV, cache_dir_from};
@@ -29,26 +30,51 @@ pub const MAX_ENTRIES: usize = 64;
 /// Longest adapter key kept (longer driver strings are cut).
 const MAX_KEY_CHARS: usize = 400;
 
-/// A GEMM kernel and, for [`GemmVariant::Fast`], its tile shape ([`FastTile::DEFAULT`] for the others).
+/// A GEMM kernel and its tile shape: [`GemmChoice::tile`] applies to [`GemmVariant::Fast`] and
+/// [`GemmChoice::coop`] to [`GemmVariant::CoopF16`] (each the default otherwise).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct GemmChoice {
     /// The kernel.
     pub variant: GemmVariant,
     /// The fast kernel's tile shape.
     pub tile: FastTile,
+    /// The cooperative-matrix kernel's tile shape.
+    pub coop: CoopTile,
 }
 
 impl GemmChoice {
-    /// `variant` with the default tile.
+    /// `variant` with the default tiles.
     pub fn of(variant: GemmVariant) -> GemmChoice {
-        GemmChoice { variant, tile: FastTile::DEFAULT }
+        GemmChoice { variant, tile: FastTile::DEFAULT, coop: CoopTile::DEFAULT }
     }
 
-    /// `fast 64x128`, `portable`, `coop_f16`.
+    /// `fast` at `tile`.
+    pub fn fast(tile: FastTile) -> GemmChoice {
+        GemmChoice { tile, ..GemmChoice::of(GemmVariant::Fast) }
+    }
+
+    /// `coop_f16` at `coop`.
+    pub fn coop(coop: CoopTile) -> GemmChoice {
+        GemmChoice { coop, ..GemmChoice::of(GemmVariant::CoopF16) }
+    }
+
+    /// The name of the tile shape that runs (`128x128`, `64x64/4sg`; the portable kernel's fixed `64x64`).
+    pub fn tile_name(&self) -> String {
+        match self.variant {
+            GemmVariant::Fast => self.tile.name(),
+            GemmVariant::CoopF16 => self.coop.name(),
+            GemmVariant::Portable => {
+                let (m, n) = self.variant.tile();
+                format!("{m}x{n}")
+            }
+        }
+    }
+
+    /// `fast 64x128`, `coop_f16 128x128/8sg`, `portable`.
     pub fn name(&self) -> String {
         match self.variant {
-            GemmVariant::Fast => format!("fast {}", self.tile),
-            v => v.name().to_string(),
+            GemmVariant::Portable => self.variant.name().to_string(),
+            v => format!("{v} {}", self.tile_name()),
         }
     }
 }
@@ -58,7 +84,8 @@ impl GemmChoice {
 pub struct Entry {
     /// [`GemmVariant::name`].
     pub variant: String,
-    /// [`FastTile::name`] (the default for variants other than `fast`).
+    /// [`FastTile::name`] for `fast`, [`CoopTile::name`] for `coop_f16`, the fast default's name for
+    /// `portable` (and, in records written before the cooperative kernel had tile shapes, for `coop_f16`).
     pub tile: String,
     /// The throughput that made it the choice (GFLOP/s over the swept shapes).
     pub gflops: f64,
@@ -67,11 +94,17 @@ pub struct Entry {
 }
 
 impl Entry {
-    /// The choice it records, or `None` when it names no known variant or tile.
+    /// The choice it records, or `None` when it names no known variant or tile. A `coop_f16` record naming a
+    /// fast tile (as written before the cooperative kernel had tile shapes) is its default shape.
     pub fn choice(&self) -> Option<GemmChoice> {
         let variant = GemmVariant::parse(&self.variant).ok().flatten()?;
-        let tile = FastTile::parse(&self.tile)?;
-        Some(GemmChoice { variant, tile })
+        match variant {
+            GemmVariant::CoopF16 => {
+                let older = || FastTile::parse(&self.tile).map(|_| CoopTile::DEFAULT);
+                Some(GemmChoice::coop(CoopTile::parse(&self.tile).or_else(older)?))
+            }
+            _ => Some(GemmChoice { tile: FastTile::parse(&self.tile)?, ..GemmChoice::of(variant) }),
+        }
     }
 }
 
@@ -146,7 +179,10 @@ pub fn record(path: &Path, key: &str, choice: GemmChoice, gflops: f64) -> Result
     let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
     let entry = Entry {
         variant: choice.variant.name().to_string(),
-        tile: choice.tile.name(),
+        tile: match choice.variant {
+            GemmVariant::CoopF16 => choice.coop.name(),
+            _ => choice.tile.name(),
+        },
         gflops: if gflops.is_finite() { gflops } else { 0.0 },
         recorded_unix: now,
     };
@@ -181,7 +217,7 @@ mod tests {
         let dir = temp_dir("roundtrip");
         let path = dir.join("nested").join(FILE_NAME);
         assert_eq!(read(&path), Ok(None), "no file yet");
-        let fast = GemmChoice { variant: GemmVariant::Fast, tile: FastTile { bm: 1, bn: 2 } };
+        let fast = GemmChoice::fast(FastTile { bm: 1, bn: 2 });
         record(&path, "gpu a | Vulkan | d | 1", fast, 1234.5).unwrap();
         record(&path, "gpu b | Metal | d | 2", GemmChoice::of(GemmVariant::Portable), 10.0).unwrap();
         assert_eq!(lookup(&path, "gpu a | Vulkan | d | 1"), Some(fast));
@@ -191,9 +227,11 @@ mod tests {
         assert_eq!(file.schema, SCHEMA);
         assert_eq!(file.adapters["gpu a | Vulkan | d | 1"].tile, "64x128");
         assert_eq!(file.adapters["gpu a | Vulkan | d | 1"].gflops, 1234.5);
-        // Re-recording replaces the adapter's record; no temp file is left beside it.
-        record(&path, "gpu a | Vulkan | d | 1", GemmChoice::of(GemmVariant::CoopF16), 9.0).unwrap();
-        assert_eq!(lookup(&path, "gpu a | Vulkan | d | 1"), Some(GemmChoice::of(GemmVariant::CoopF16)));
+        // Re-recording replaces the adapter's record, a cooperative tile and all; no temp file is left beside it.
+        let coop = GemmChoice::coop(CoopTile::ALL[4]);
+        record(&path, "gpu a | Vulkan | d | 1", coop, 9.0).unwrap();
+        assert_eq!(lookup(&path, "gpu a | Vulkan | d | 1"), Some(coop));
+        assert_eq!(read(&path).unwrap().unwrap().adapters["gpu a | Vulkan | d | 1"].tile, "128x128/8sg");
         let names: Vec<_> =
             std::fs::read_dir(path.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(names, vec![std::ffi::OsString::from(FILE_NAME)]);
@@ -220,6 +258,18 @@ mod tests {
         std::fs::write(&path, text).unwrap();
         assert_eq!(lookup(&path, "a"), None);
         assert_eq!(lookup(&path, "b"), None);
+        // A cooperative record names a cooperative tile, or the fast default as older versions wrote; a fast
+        // record does not take a cooperative tile.
+        let text = r#"{"schema": "dpr-gpu-gemm-choice/1", "adapters": {
+            "old": {"variant": "coop_f16", "tile": "128x128", "gflops": 1, "recorded_unix": 0},
+            "new": {"variant": "coop_f16", "tile": "128x64/4sg", "gflops": 1, "recorded_unix": 0},
+            "bad": {"variant": "coop_f16", "tile": "256x256/4sg", "gflops": 1, "recorded_unix": 0},
+            "mixed": {"variant": "fast", "tile": "64x64/4sg", "gflops": 1, "recorded_unix": 0}}}"#;
+        std::fs::write(&path, text).unwrap();
+        assert_eq!(lookup(&path, "old"), Some(GemmChoice::of(GemmVariant::CoopF16)));
+        assert_eq!(lookup(&path, "new"), Some(GemmChoice::coop(CoopTile::ALL[1])));
+        assert_eq!(lookup(&path, "bad"), None);
+        assert_eq!(lookup(&path, "mixed"), None);
         // A corrupt file is replaced by the next record.
         std::fs::write(&path, b"\xff\xfe garbage").unwrap();
         record(&path, "k", GemmChoice::of(GemmVariant::Fast), 1.0).unwrap();

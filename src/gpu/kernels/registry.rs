@@ -15,7 +15,7 @@ use super::chamfer_grad::ChamferGrad;
 use super::chamfer_nearest::ChamferNearest;
 use super::codeword_distance::CodewordDistance;
 use super::dense::Dense;
-use super::dense_coop_f16::DenseCoopF16;
+use super::dense_coop_f16::{CoopTile, DenseCoopF16};
 use super::dense_fast::{DenseFast, FastTile};
 use super::dense_input_grad::DenseInputGrad;
 use super::dense_weight_grad::DenseWeightGrad;
@@ -90,8 +90,11 @@ pub const KERNELS: &[KernelSpec] = &[
 pub struct Kernels {
     /// One slot per entry of [`KERNELS`], in its order, filled on first use.
     slots: Vec<OnceLock<Kernel>>,
-    /// The fast GEMM's other tile shapes ([`FastTile::ALL`] after the default), compiled on first use.
+    /// The fast GEMM's tile shapes (slots of [`FastTile::ALL`]; the default's stays empty: it is the
+    /// registry's), compiled on first use.
     fast_tiles: [OnceLock<Kernel>; FastTile::ALL.len()],
+    /// The cooperative-matrix GEMM's tile shapes (slots of [`CoopTile::ALL`], the same way).
+    coop_tiles: [OnceLock<Kernel>; CoopTile::ALL.len()],
     /// The device's features: a kernel needing others is never compiled.
     features: wgpu::Features,
 }
@@ -102,6 +105,7 @@ impl Kernels {
         Kernels {
             slots: KERNELS.iter().map(|_| OnceLock::new()).collect(),
             fast_tiles: Default::default(),
+            coop_tiles: Default::default(),
             features: ctx.features,
         }
     }
@@ -131,12 +135,43 @@ impl Kernels {
         if tile == FastTile::DEFAULT {
             return self.get::<DenseFast>(ctx);
         }
-        let slot = tile
-            .index()
-            .and_then(|i| self.fast_tiles.get(i))
-            .ok_or_else(|| Error::Gpu(format!("dense_fast: {tile} is not one of the swept tile shapes")))?;
-        let label = format!("dense_fast {tile}");
-        compiled(slot, || Kernel::with_source(ctx, &DenseFast::SPEC, &tile.source()?, &label), &label)
+        let slot = tile.index().and_then(|i| self.fast_tiles.get(i));
+        self.generated(ctx, &DenseFast::SPEC, slot, &tile.to_string(), || tile.source())
+    }
+
+    /// The cooperative-matrix GEMM's pipeline for `tile`: an error naming the limit when the device's
+    /// `max_compute_workgroup_storage_size` cannot hold the shape ([`CoopTile::unavailable_reason`]), else the
+    /// registry's for [`CoopTile::DEFAULT`] or the shape's generated source ([`CoopTile::source`]), compiled on
+    /// `ctx` the first time it is asked for.
+    pub fn coop_tile(&self, ctx: &GpuContext, tile: CoopTile) -> Result<&Kernel> {
+        if let Some(why) = tile.unavailable_reason(&ctx.limits) {
+            return Err(Error::Gpu(why));
+        }
+        if tile == CoopTile::DEFAULT {
+            return self.get::<DenseCoopF16>(ctx);
+        }
+        let slot = tile.index().and_then(|i| self.coop_tiles.get(i));
+        self.generated(ctx, &DenseCoopF16::SPEC, slot, &tile.to_string(), || tile.source())
+    }
+
+    /// A generated tile shape `tile` of `spec` in `slot` (`None`: not a swept shape), compiled from `source()`
+    /// the first time; an error when the device lacks `spec`'s features.
+    fn generated<'a>(
+        &'a self,
+        ctx: &GpuContext,
+        spec: &'static KernelSpec,
+        slot: Option<&'a OnceLock<Kernel>>,
+        tile: &str,
+        source: impl FnOnce() -> Result<String>,
+    ) -> Result<&'a Kernel> {
+        let name = spec.name;
+        let slot = slot.ok_or_else(|| Error::Gpu(format!("{name}: {tile} is not one of the swept tile shapes")))?;
+        let missing = spec.features - self.features;
+        if !missing.is_empty() {
+            return Err(Error::Gpu(format!("kernel '{name}' needs device features this device lacks: {missing}")));
+        }
+        let label = format!("{name} {tile}");
+        compiled(slot, || Kernel::with_source(ctx, spec, &source()?, &label), &label)
     }
 
     /// Compiles every kernel of [`KERNELS`] whose [`KernelSpec::features`] the device has (the others are
@@ -148,7 +183,7 @@ impl Kernels {
         Ok(self.iter().count())
     }
 
-    /// The kernels compiled so far, in [`KERNELS`] order (the fast GEMM's other tile shapes not included).
+    /// The kernels compiled so far, in [`KERNELS`] order (the GEMMs' generated tile shapes not included).
     pub fn iter(&self) -> impl Iterator<Item = &Kernel> {
         self.slots.iter().filter_map(OnceLock::get)
     }

@@ -10,7 +10,7 @@ use crate::cpu::hypotheses::{Hypothesis, hypotheses as cpu_hypotheses};
 use crate::cpu::score_hypotheses::{HypothesisScore, squared_residual};
 use crate::gpu::codeword_distance::CodewordDistance;
 use crate::gpu::dense::Dense;
-use crate::gpu::dense_coop_f16::DenseCoopF16;
+use crate::gpu::dense_coop_f16::{CoopTile, DenseCoopF16};
 use crate::gpu::dense_fast::{DenseFast, FastTile};
 use crate::gpu::gemm::GemmVariant;
 use crate::gpu::gemm_choice::GemmChoice;
@@ -291,6 +291,17 @@ pub const DENSE_COOP_CASES: &[DenseCase] = &[
     (200, 100, 140, 50, false, false, true, 9),
 ];
 
+/// Cases around the cooperative kernel's larger tiles (128 rows or columns, eight subgroups) and its
+/// four-element loads: rows and columns one off 128, input widths not a multiple of 4 (a partial group at the
+/// end of each row of x) or of a 32-deep k-tile, an output width not a multiple of 4 (partial groups at the end of
+/// each row of the weight), a single k-tile and an odd number of them (the last in the second buffer).
+pub const DENSE_COOP_TILE_CASES: &[DenseCase] = &[
+    (127, 32, 129, 127, false, true, true, 0),
+    (129, 70, 127, 43, true, false, true, 5),
+    (257, 97, 130, 64, true, true, false, 0),
+    (1, 3, 1, 1, false, false, false, 2),
+];
+
 /// Runs `cases` on `variant` through the recorded path (weights at `w_row_offset` of a larger weight buffer,
 /// output pre-filled with the initial contents or the sentinel) and compares with `twin`, each element within
 /// `tol(shape, x, w, group, init)[i]`.
@@ -302,10 +313,10 @@ pub(crate) async fn check_dense_variant(
     twin: <Dense as GpuKernel>::CpuTwin,
     tol: impl Fn(&DenseShape, &[f32], &[f32], &[f32], &[f32]) -> Vec<f32>,
 ) {
-    check_dense_choice(g, GemmChoice { variant, tile: g.gemm_tile() }, seed, cases, twin, tol).await;
+    check_dense_choice(g, GemmChoice { variant, ..g.gemm_choice() }, seed, cases, twin, tol).await;
 }
 
-/// [`check_dense_variant`] on an explicit tile shape of the fast kernel too.
+/// [`check_dense_variant`] on explicit tile shapes too.
 pub(crate) async fn check_dense_choice(
     g: &Gpu,
     choice: GemmChoice,
@@ -380,7 +391,7 @@ pub async fn dense_fast_tiles_match_cpu_ragged(g: &Gpu) -> Outcome {
     }
     let s = seed(24);
     for tile in FastTile::ALL {
-        let choice = GemmChoice { variant: GemmVariant::Fast, tile };
+        let choice = GemmChoice::fast(tile);
         check_dense_choice(g, choice, s, DENSE_FAST_CASES, DenseFast::CPU_TWIN, f32_gemm_tolerance).await;
         check_dense_choice(g, choice, s + 1, DENSE_CASES, DenseFast::CPU_TWIN, f32_gemm_tolerance).await;
     }
@@ -399,6 +410,35 @@ pub async fn dense_coop_f16_matches_cpu_within_the_f16_bound(g: &Gpu) -> Outcome
     check_dense_variant(g, GemmVariant::CoopF16, s, DENSE_COOP_CASES, DenseCoopF16::CPU_TWIN, tol).await;
     check_dense_variant(g, GemmVariant::CoopF16, s + 1, DENSE_CASES, DenseCoopF16::CPU_TWIN, tol).await;
     Outcome::Passed
+}
+
+/// Every tile shape of the cooperative-matrix GEMM that `dpr-gpu bench --gemm-sweep` times ([`CoopTile::ALL`],
+/// each a generated variant of `shaders/dense_coop_f16.wgsl`) against the f16 twin within its bound, on the
+/// larger tiles' edge cases and the default tile's. SKIPPED without cooperative matrices; when the device's
+/// workgroup memory cannot hold some shapes (the host refuses them: [`CoopTile::unavailable_reason`]), the
+/// others are checked and the case is SKIPPED naming those.
+pub async fn dense_coop_f16_tiles_match_cpu_within_the_f16_bound(g: &Gpu) -> Outcome {
+    if let Some(why) = GemmVariant::CoopF16.unavailable_reason(&g.context) {
+        return Outcome::Skipped(format!("needs an adapter with cooperative matrices: {why}"));
+    }
+    let s = seed(25);
+    let tol = cpu::dense_coop_f16::parity_tolerance;
+    let mut refused = Vec::new();
+    for tile in CoopTile::ALL {
+        if let Some(why) = tile.unavailable_reason(&g.context.limits) {
+            refused.push(why);
+            continue;
+        }
+        let choice = GemmChoice::coop(tile);
+        check_dense_choice(g, choice, s, DENSE_COOP_TILE_CASES, DenseCoopF16::CPU_TWIN, tol).await;
+        check_dense_choice(g, choice, s + 1, DENSE_COOP_CASES, DenseCoopF16::CPU_TWIN, tol).await;
+    }
+    match refused.len() {
+        0 => Outcome::Passed,
+        n => {
+            Outcome::Skipped(format!("{} shapes passed, {n} not run: {}", CoopTile::ALL.len() - n, refused.join("; ")))
+        }
+    }
 }
 
 /// `max_pool` against its CPU twin (ragged).

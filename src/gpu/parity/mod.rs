@@ -68,6 +68,7 @@ pub const CASES: &[Case] = cases![
     inference::dense_fast_matches_cpu_ragged,
     inference::dense_fast_tiles_match_cpu_ragged,
     inference::dense_coop_f16_matches_cpu_within_the_f16_bound,
+    inference::dense_coop_f16_tiles_match_cpu_within_the_f16_bound,
     inference::max_pool_matches_cpu_ragged,
     inference::max_pool_matches_cpu_past_65535_workgroups,
     inference::unit_rows_matches_cpu_ragged,
