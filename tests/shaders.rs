@@ -267,6 +267,12 @@ fn every_shader_file_is_registered_once() {
         let on_disk = std::fs::read_to_string(dir.join(format!("{}.wgsl", spec.name))).expect("readable");
         assert_eq!(on_disk, spec.source, "{}: registered source is not shaders/{}.wgsl", spec.name, spec.name);
     }
+    // shaders/tiles/k.wgsl: the source other tile shapes of the registered kernel k are generated from.
+    for entry in std::fs::read_dir(dir.join("tiles")).expect("shaders/tiles/ exists") {
+        let path = entry.expect("readable").path();
+        let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        assert!(registered.contains(&stem), "{}: names no registered kernel", path.display());
+    }
 }
 
 /// Each shared module in shaders/common/ is embedded and included by at least two kernels, and no kernel
@@ -460,7 +466,7 @@ fn every_generated_fast_gemm_tile_validates_and_translates() {
 }
 
 /// Every tile shape of the cooperative-matrix GEMM that `bench --gemm-sweep` compiles (generated from
-/// `shaders/dense_coop_f16.wgsl`) parses and validates with the kernel's capabilities, declares the workgroup
+/// `shaders/tiles/dense_coop_f16.wgsl`, the default being `shaders/dense_coop_f16.wgsl`) parses and validates with the kernel's capabilities, declares the workgroup
 /// memory its host side states (double-buffered operand tiles and one accumulator per subgroup, within 48 KiB)
 /// and translates to well-formed SPIR-V with the cooperative-matrix instructions, as the registered kernel
 /// does. No adapter here has cooperative matrices: whether the shapes run, and how fast, only a GPU shows.

@@ -13,10 +13,10 @@ pub mod coop_f16 {
     pub const SUBGROUP_SIZE: u32 = 32;
     /// The cooperative matrix size M = N = K the kernel uses (`coop_mat16x16`).
     pub const MATRIX: u32 = 16;
-    /// Workgroup memory the shader declares at its default 64 x 64 tile: two buffers of the 64 x 32 and
-    /// 32 x 64 f16 operand tiles and one 16 x 16 f32 accumulator for each of its four subgroups (the other tile
-    /// shapes say theirs: [`crate::gpu::kernels::dense_coop_f16::CoopTile::workgroup_bytes`]).
-    pub const WORKGROUP_STORAGE_BYTES: u32 = 2 * 2 * (64 * 32 + 32 * 64) + 4 * 16 * 16 * 4;
+    /// Workgroup memory the default 64 x 64 tile's shader declares: 64 x 32 and 32 x 64 f16 operand tiles and
+    /// the 64 x 64 f32 product (the other tile shapes say theirs:
+    /// [`crate::gpu::kernels::dense_coop_f16::CoopTile::workgroup_bytes`]).
+    pub const WORKGROUP_STORAGE_BYTES: u32 = 2 * 64 * 32 * 2 + 64 * 64 * 4;
     /// The device features the kernel is compiled with.
     pub const FEATURES: wgpu::Features = wgpu::Features::SHADER_F16
         .union(wgpu::Features::SUBGROUP)

@@ -4,10 +4,12 @@
 //! [`DenseCoopF16::FEATURES`], which [`crate::gpu::device::features::device_features`] requests only when the adapter reports a
 //! suitable configuration ([`crate::gpu::device::features::coop_f16_support`]). CPU twin: [`crate::cpu::dense_coop_f16`].
 //!
-//! The tile shape is four constants of the shader (`SG_M` x `SG_N` subgroups of 32 invocations, each holding
-//! `FM` x `FN` accumulators of 16 x 16); [`CoopTile`] lists the shapes `dpr-gpu bench --gemm-sweep` times. The
-//! default, [`CoopTile::DEFAULT`] (64 x 64, four subgroups of 2 x 2 accumulators), is the shader as written (the
-//! registry's pipeline); the others are generated from it by [`CoopTile::source`] and compiled on first use
+//! [`CoopTile`] lists the tile shapes `dpr-gpu bench --gemm-sweep` times. The default, [`CoopTile::DEFAULT`]
+//! (64 x 64, four subgroups of 2 x 2 accumulators, single-buffered), is `shaders/dense_coop_f16.wgsl` (the
+//! registry's pipeline, the kernel whose parity was checked on an H200). The others are generated from
+//! `shaders/tiles/dense_coop_f16.wgsl` (four constants: `SG_M` x `SG_N` subgroups of 32 invocations, each
+//! holding `FM` x `FN` accumulators of 16 x 16; k-tiles double-buffered) by [`CoopTile::source`], run only once
+//! a sweep on the device has checked them against the twin and recorded one, and are compiled on first use
 //! ([`super::registry::Kernels::coop_tile`]), after a check that the device's
 //! `max_compute_workgroup_storage_size` holds the shape's workgroup memory ([`CoopTile::unavailable_reason`]).
 //! Every shape sums each output's products in the same order (16-deep cooperative multiply-adds in increasing
@@ -73,9 +75,13 @@ impl CoopTile {
         self.subgroups() * SUBGROUP_SIZE
     }
 
-    /// Workgroup memory the shader declares: two f16 buffers of the `TILE_M x 32` and `32 x TILE_N` operand
-    /// tiles and one 16 x 16 f32 accumulator per subgroup.
+    /// Workgroup memory the shader declares: the default's [`WORKGROUP_STORAGE_BYTES`]; a generated shape's
+    /// two f16 buffers of the `TILE_M x 32` and `32 x TILE_N` operand tiles and one 16 x 16 f32 accumulator
+    /// per subgroup.
     pub fn workgroup_bytes(self) -> u32 {
+        if self == CoopTile::DEFAULT {
+            return WORKGROUP_STORAGE_BYTES;
+        }
         let (m, n) = self.tile();
         2 * TILE_K * (m + n) as u32 * 2 + self.subgroups() * MATRIX * MATRIX * 4
     }
@@ -107,15 +113,23 @@ impl CoopTile {
         CoopTile::ALL.iter().position(|&t| t == self)
     }
 
-    /// The shader for this shape: `shaders/dense_coop_f16.wgsl` with its `SG_M`, `SG_N`, `FM` and `FN` lines
-    /// replaced.
+    /// The shader for this shape: `shaders/dense_coop_f16.wgsl` for the default, else
+    /// `shaders/tiles/dense_coop_f16.wgsl` with its `SG_M`, `SG_N`, `FM` and `FN` lines replaced.
     pub fn source(self) -> Result<String> {
-        let d = CoopTile::DEFAULT;
+        if self == CoopTile::DEFAULT {
+            return Ok(DenseCoopF16::SOURCE.to_string());
+        }
+        let w = TILES_WRITTEN;
         let constants =
-            [("SG_M", d.sg_m, self.sg_m), ("SG_N", d.sg_n, self.sg_n), ("FM", d.fm, self.fm), ("FN", d.fn_, self.fn_)];
-        crate::gpu::device::wgsl::with_constants("shaders/dense_coop_f16.wgsl", DenseCoopF16::SOURCE, &constants)
+            [("SG_M", w.sg_m, self.sg_m), ("SG_N", w.sg_n, self.sg_n), ("FM", w.fm, self.fm), ("FN", w.fn_, self.fn_)];
+        crate::gpu::device::wgsl::with_constants("shaders/tiles/dense_coop_f16.wgsl", TILES_SOURCE, &constants)
     }
 }
+
+/// The source the generated shapes come from.
+const TILES_SOURCE: &str = include_str!("../../../shaders/tiles/dense_coop_f16.wgsl");
+/// The shape `shaders/tiles/dense_coop_f16.wgsl` is written with.
+const TILES_WRITTEN: CoopTile = CoopTile { sg_m: 2, sg_n: 2, fm: 2, fn_: 2 };
 
 impl std::fmt::Display for CoopTile {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -149,6 +163,9 @@ mod tests {
         assert_eq!(names.len(), CoopTile::ALL.len());
         for t in CoopTile::ALL {
             assert_eq!(CoopTile::parse(&t.name()), Some(t));
+            if t == CoopTile::DEFAULT {
+                continue;
+            }
             let src = t.source().unwrap();
             for (name, v) in [("SG_M", t.sg_m), ("SG_N", t.sg_n), ("FM", t.fm), ("FN", t.fn_)] {
                 assert!(src.contains(&format!("const {name}: u32 = {v}u;")), "{t}: {name}");

@@ -413,7 +413,7 @@ pub async fn dense_coop_f16_matches_cpu_within_the_f16_bound(g: &Gpu) -> Outcome
 }
 
 /// Every tile shape of the cooperative-matrix GEMM that `dpr-gpu bench --gemm-sweep` times ([`CoopTile::ALL`],
-/// each a generated variant of `shaders/dense_coop_f16.wgsl`) against the f16 twin within its bound, on the
+/// the default `shaders/dense_coop_f16.wgsl`, the others generated from `shaders/tiles/dense_coop_f16.wgsl`) against the f16 twin within its bound, on the
 /// larger tiles' edge cases and the default tile's. SKIPPED without cooperative matrices; when the device's
 /// workgroup memory cannot hold some shapes (the host refuses them: [`CoopTile::unavailable_reason`]), the
 /// others are checked and the case is SKIPPED naming those.
