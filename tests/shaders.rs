@@ -434,26 +434,33 @@ fn every_kernel_is_declared_in_its_host_module_with_its_twin_in_cpu_named_after_
     }
 }
 
+/// A generated kernel variant (`label` in messages) parsed and validated with `caps`, panicking with naga's
+/// rendered diagnostic; with its validation info and the workgroup memory it declares (bytes).
+fn validated_variant(label: &str, source: &str, caps: Capabilities) -> (naga::Module, naga::valid::ModuleInfo, u32) {
+    let module = naga::front::wgsl::parse_str(source)
+        .unwrap_or_else(|e| panic!("{label} does not parse:\n{}", e.emit_to_string(source)));
+    let info = Validator::new(ValidationFlags::all(), caps)
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("{label} does not validate:\n{}", e.emit_to_string(source)));
+    let mut layouter = naga::proc::Layouter::default();
+    layouter.update(module.to_ctx()).unwrap();
+    let workgroup_bytes = module
+        .global_variables
+        .iter()
+        .filter(|(_, g)| g.space == naga::AddressSpace::WorkGroup)
+        .map(|(_, g)| layouter[g.ty].size)
+        .sum();
+    (module, info, workgroup_bytes)
+}
+
 /// Every tile shape of the fast GEMM that `bench --gemm-sweep` compiles (generated from `shaders/dense_fast.wgsl`)
 /// parses, validates with no capability, fits the default tile's workgroup memory, and translates to SPIR-V.
 #[test]
 fn every_generated_fast_gemm_tile_validates_and_translates() {
     use dpr_gpu::gpu::dense_fast::{FastTile, WORKGROUP_STORAGE_BYTES};
     for tile in FastTile::ALL {
-        let source = tile.source().unwrap();
-        let module = naga::front::wgsl::parse_str(&source)
-            .unwrap_or_else(|e| panic!("dense_fast {tile} does not parse:\n{}", e.emit_to_string(&source)));
-        let info = Validator::new(ValidationFlags::all(), Capabilities::empty())
-            .validate(&module)
-            .unwrap_or_else(|e| panic!("dense_fast {tile} does not validate:\n{}", e.emit_to_string(&source)));
-        let mut layouter = naga::proc::Layouter::default();
-        layouter.update(module.to_ctx()).unwrap();
-        let workgroup_bytes: u32 = module
-            .global_variables
-            .iter()
-            .filter(|(_, g)| g.space == naga::AddressSpace::WorkGroup)
-            .map(|(_, g)| layouter[g.ty].size)
-            .sum();
+        let (module, info, workgroup_bytes) =
+            validated_variant(&format!("dense_fast {tile}"), &tile.source().unwrap(), Capabilities::empty());
         let (m, n) = tile.tile();
         assert_eq!(workgroup_bytes, 2 * 8 * 4 * (m + n) as u32, "dense_fast {tile}: double-buffered 8-deep k-tiles");
         assert!(workgroup_bytes <= WORKGROUP_STORAGE_BYTES, "dense_fast {tile}");
@@ -476,21 +483,9 @@ fn every_generated_coop_gemm_tile_validates_and_translates() {
     use dpr_gpu::gpu::kernel::GpuKernel;
     let spec = &DenseCoopF16::SPEC;
     for tile in CoopTile::ALL {
-        let source = tile.source().unwrap();
         let label = format!("dense_coop_f16 {tile}");
-        let module = naga::front::wgsl::parse_str(&source)
-            .unwrap_or_else(|e| panic!("{label} does not parse:\n{}", e.emit_to_string(&source)));
-        Validator::new(ValidationFlags::all(), capabilities(spec.features))
-            .validate(&module)
-            .unwrap_or_else(|e| panic!("{label} does not validate:\n{}", e.emit_to_string(&source)));
-        let mut layouter = naga::proc::Layouter::default();
-        layouter.update(module.to_ctx()).unwrap();
-        let workgroup_bytes: u32 = module
-            .global_variables
-            .iter()
-            .filter(|(_, g)| g.space == naga::AddressSpace::WorkGroup)
-            .map(|(_, g)| layouter[g.ty].size)
-            .sum();
+        let (module, _, workgroup_bytes) =
+            validated_variant(&label, &tile.source().unwrap(), capabilities(spec.features));
         assert_eq!(workgroup_bytes, tile.workgroup_bytes(), "{label}: workgroup memory");
         assert!(workgroup_bytes <= 48 * 1024, "{label}: {workgroup_bytes} bytes of workgroup memory");
         translates_to_well_formed_spirv(spec, &label, &module, tile.workgroup_size());
