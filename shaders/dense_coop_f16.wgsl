@@ -16,31 +16,13 @@
 enable f16;
 enable wgpu_cooperative_matrix;
 
-struct DenseParams {
-    rows: u32,
-    in_dim: u32,
-    out_dim: u32,
-    rows_per_group: u32,
-    w_row_offset: u32,
-    flags: u32,
-    col_tiles: u32,
-    tiles: u32,
-}
+// #include dense_layer
 
 const WG_SIZE: u32 = 128u;
 const TILE_M: u32 = 64u;
 const TILE_N: u32 = 64u;
 const TILE_K: u32 = 32u;
 const MAT: u32 = 16u;
-const ACCUMULATE: u32 = 1u;
-const RELU: u32 = 2u;
-const HAS_GROUP: u32 = 4u;
-
-@group(0) @binding(0) var<uniform> params: DenseParams;
-@group(0) @binding(1) var<storage, read> x: array<f32>;
-@group(0) @binding(2) var<storage, read> w_t: array<f32>;
-@group(0) @binding(3) var<storage, read> group_term: array<f32>;
-@group(0) @binding(4) var<storage, read_write> out: array<f32>;
 
 // x tile row-major [m][k] (row stride TILE_K), w_t tile row-major [k][n] (row stride TILE_N), product tile
 // row-major [m][n]: 4 + 4 + 16 KiB.

@@ -13,16 +13,7 @@
 // Bindings: 0 params (uniform) | 1 x, 2 w_t, 3 group (read) | 4 out (read_write).
 // CPU twin: src/cpu/dense_fast.rs
 
-struct DenseParams {
-    rows: u32,
-    in_dim: u32,
-    out_dim: u32,
-    rows_per_group: u32,
-    w_row_offset: u32,
-    flags: u32,
-    col_tiles: u32,
-    tiles: u32,
-}
+// #include dense_layer
 
 const WG_SIZE: u32 = 256u;
 // The tile shape: BM (BN) blocks of 4 rows (columns) per invocation, 64 apart, so a tile is 64 BM x 64 BN
@@ -38,15 +29,6 @@ const X_ROW: u32 = 16u * BM;
 const W_ROW: u32 = 16u * BN;
 const X_BUF: u32 = TILE_K * X_ROW;
 const W_BUF: u32 = TILE_K * W_ROW;
-const ACCUMULATE: u32 = 1u;
-const RELU: u32 = 2u;
-const HAS_GROUP: u32 = 4u;
-
-@group(0) @binding(0) var<uniform> params: DenseParams;
-@group(0) @binding(1) var<storage, read> x: array<f32>;
-@group(0) @binding(2) var<storage, read> w_t: array<f32>;
-@group(0) @binding(3) var<storage, read> group_term: array<f32>;
-@group(0) @binding(4) var<storage, read_write> out: array<f32>;
 
 // Two buffers of [k][m / 4] (x, k-major) and [k][n / 4] (w_t).
 var<workgroup> x_s: array<vec4<f32>, 2u * X_BUF>;

@@ -434,14 +434,15 @@ fn every_kernel_is_declared_in_its_host_module_with_its_twin_in_cpu_named_after_
     }
 }
 
-/// A generated kernel variant (`label` in messages) parsed and validated with `caps`, panicking with naga's
+/// A generated kernel variant (`label` in messages), its shared modules composed in, parsed and validated with `caps`, panicking with naga's
 /// rendered diagnostic; with its validation info and the workgroup memory it declares (bytes).
 fn validated_variant(label: &str, source: &str, caps: Capabilities) -> (naga::Module, naga::valid::ModuleInfo, u32) {
-    let module = naga::front::wgsl::parse_str(source)
-        .unwrap_or_else(|e| panic!("{label} does not parse:\n{}", e.emit_to_string(source)));
+    let source = dpr_gpu::gpu::device::wgsl::compose(source).unwrap_or_else(|e| panic!("{label}: {e}"));
+    let module = naga::front::wgsl::parse_str(&source)
+        .unwrap_or_else(|e| panic!("{label} does not parse:\n{}", e.emit_to_string(&source)));
     let info = Validator::new(ValidationFlags::all(), caps)
         .validate(&module)
-        .unwrap_or_else(|e| panic!("{label} does not validate:\n{}", e.emit_to_string(source)));
+        .unwrap_or_else(|e| panic!("{label} does not validate:\n{}", e.emit_to_string(&source)));
     let mut layouter = naga::proc::Layouter::default();
     layouter.update(module.to_ctx()).unwrap();
     let workgroup_bytes = module

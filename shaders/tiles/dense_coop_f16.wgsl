@@ -25,16 +25,7 @@
 enable f16;
 enable wgpu_cooperative_matrix;
 
-struct DenseParams {
-    rows: u32,
-    in_dim: u32,
-    out_dim: u32,
-    rows_per_group: u32,
-    w_row_offset: u32,
-    flags: u32,
-    col_tiles: u32,
-    tiles: u32,
-}
+// #include dense_layer
 
 // The shape (replaced by the host for the other tile shapes).
 const SG_M: u32 = 2u;
@@ -55,19 +46,10 @@ const B_SIZE: u32 = TILE_K * TILE_N;
 const A_QUADS: u32 = A_SIZE / (4u * WG_SIZE);
 const B_QUADS: u32 = B_SIZE / (4u * WG_SIZE);
 const_assert A_SIZE % (4u * WG_SIZE) == 0u && B_SIZE % (4u * WG_SIZE) == 0u;
-const ACCUMULATE: u32 = 1u;
-const RELU: u32 = 2u;
-const HAS_GROUP: u32 = 4u;
 
 alias MatA = coop_mat16x16<f16, A>;
 alias MatB = coop_mat16x16<f16, B>;
 alias MatC = coop_mat16x16<f32, C>;
-
-@group(0) @binding(0) var<uniform> params: DenseParams;
-@group(0) @binding(1) var<storage, read> x: array<f32>;
-@group(0) @binding(2) var<storage, read> w_t: array<f32>;
-@group(0) @binding(3) var<storage, read> group_term: array<f32>;
-@group(0) @binding(4) var<storage, read_write> out: array<f32>;
 
 // Two buffers of the x tile, row-major [m][k] (row stride TILE_K), and of the w_t tile, row-major [k][n] (row
 // stride TILE_N); one 16 x 16 accumulator per subgroup for the epilogue. 64 x 64: 8 + 8 + 4 KiB.

@@ -9,6 +9,7 @@ use std::borrow::Cow;
 
 /// The shared modules by name, embedded like the kernels' own sources.
 pub const MODULES: &[(&str, &str)] = &[
+    ("dense_layer", include_str!("../../../shaders/common/dense_layer.wgsl")),
     ("distance_squared", include_str!("../../../shaders/common/distance_squared.wgsl")),
     ("point", include_str!("../../../shaders/common/point.wgsl")),
     ("run_keys", include_str!("../../../shaders/common/run_keys.wgsl")),

@@ -122,10 +122,7 @@ impl Kernels {
             return Err(Error::Gpu(format!("kernel '{name}' is not registered in gpu::registry::KERNELS")));
         };
         let spec = &KERNELS[index];
-        let missing = spec.features - self.features;
-        if !missing.is_empty() {
-            return Err(Error::Gpu(format!("kernel '{name}' needs device features this device lacks: {missing}")));
-        }
+        self.runnable(spec)?;
         compiled(&self.slots[index], || Kernel::new(ctx, spec), name)
     }
 
@@ -166,12 +163,18 @@ impl Kernels {
     ) -> Result<&'a Kernel> {
         let name = spec.name;
         let slot = slot.ok_or_else(|| Error::Gpu(format!("{name}: {tile} is not one of the swept tile shapes")))?;
-        let missing = spec.features - self.features;
-        if !missing.is_empty() {
-            return Err(Error::Gpu(format!("kernel '{name}' needs device features this device lacks: {missing}")));
-        }
+        self.runnable(spec)?;
         let label = format!("{name} {tile}");
         compiled(slot, || Kernel::with_source(ctx, spec, &source()?, &label), &label)
+    }
+
+    /// An error naming `spec` and the features it needs that the device lacks, if any.
+    fn runnable(&self, spec: &KernelSpec) -> Result<()> {
+        let missing = spec.features - self.features;
+        if missing.is_empty() {
+            return Ok(());
+        }
+        Err(Error::Gpu(format!("kernel '{}' needs device features this device lacks: {missing}", spec.name)))
     }
 
     /// Compiles every kernel of [`KERNELS`] whose [`KernelSpec::features`] the device has (the others are
