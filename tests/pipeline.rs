@@ -281,19 +281,40 @@ fn a_moved_scan_described_from_its_moved_sensor_gets_the_moved_normals() {
     assert!(flipped(&left_behind) > 0.05, "{}", flipped(&left_behind));
 }
 
-/// The bf16 encoders (the default where the CPU has AVX-512 BF16, see `Precision::choose`) against the
-/// f32 ones on the shipped example pair with the shipped weights: codewords within the rounding the encoders'
-/// four bf16 layers can add (each rounds both factors of every product to 8 significant bits, a relative
-/// 2 x 2^-8 at most, so 4 x 2 x 2^-8 ~ 0.031 without cancellation), nearly the same correspondences, and after
-/// ICP the same pose.
+/// The bf16 encoders (the default where the CPU has AVX-512 BF16 and AMX or no VNNI, see `Precision::choose`)
+/// against the f32 ones on the shipped example pair with the shipped weights: codewords within the rounding the
+/// encoders' four bf16 layers can add (each rounds both factors of every product to 8 significant bits, a
+/// relative 2 x 2^-8 at most, so 4 x 2 x 2^-8 ~ 0.031 without cancellation), nearly the same correspondences,
+/// and after ICP the same pose.
 #[test]
 fn bf16_encoders_register_the_example_pair_like_f32() {
-    use dpr_gpu::cpu::gemm::Precision;
-    if !Precision::Bf16.is_available() {
+    if !dpr_gpu::cpu::gemm::Precision::Bf16.is_available() {
         eprintln!("SKIPPED: this CPU has no AVX-512 BF16, so the bf16 encoders are never used here");
         return;
     }
-    const CODEWORD_RELATIVE_TOL: f64 = 4.0 * 2.0 / 256.0;
+    reduced_precision_registers_the_example_pair_like_f32(dpr_gpu::cpu::gemm::Precision::Bf16, 4.0 * 2.0 / 256.0);
+}
+
+/// The int8 encoders (the default where the CPU has AVX-512 VNNI and no AMX) likewise: each of the four int8
+/// layers rounds every input to half a step of its row's largest value (1/255 of it, or 1/127 for a row with
+/// negative values) and every weight to half a step of its column's (1/127), so about 4 x (1/255 + 1/127) ~
+/// 0.047 relative to the codeword without cancellation.
+#[test]
+fn int8_encoders_register_the_example_pair_like_f32() {
+    if !dpr_gpu::cpu::gemm::Precision::Int8.is_available() {
+        eprintln!("SKIPPED: this CPU has no AVX-512 VNNI, so the int8 encoders are never used here");
+        return;
+    }
+    reduced_precision_registers_the_example_pair_like_f32(
+        dpr_gpu::cpu::gemm::Precision::Int8,
+        4.0 * (1.0 / 255.0 + 1.0 / 127.0),
+    );
+}
+
+fn reduced_precision_registers_the_example_pair_like_f32(
+    precision: dpr_gpu::cpu::gemm::Precision,
+    codeword_relative_tol: f64,
+) {
     const ROTATION_DEG_TOL: f64 = 0.25;
     const TRANSLATION_TOL: f64 = 0.01;
     let weights = Weights::built_in().unwrap();
@@ -303,10 +324,10 @@ fn bf16_encoders_register_the_example_pair_like_f32() {
     let (source, target) = (load("cloud_bin_1.ply"), load("cloud_bin_0.ply"));
     let settings = dpr_gpu::RegistrationSettings { keypoints: 500, first_keypoints: None, ..Default::default() };
     let f32_reg = dpr_gpu::Registrar::with_backend(&settings, Box::new(CpuBackend::new(model.clone()))).unwrap();
-    let bf16_backend = CpuBackend::with_precision(model, Precision::Bf16).unwrap();
-    let bf16_reg = dpr_gpu::Registrar::with_backend(&settings, Box::new(bf16_backend)).unwrap();
+    let reduced_backend = CpuBackend::with_precision(model, precision).unwrap();
+    let reduced_reg = dpr_gpu::Registrar::with_backend(&settings, Box::new(reduced_backend)).unwrap();
 
-    let (a, b) = (f32_reg.describe(&source, 0).unwrap(), bf16_reg.describe(&source, 0).unwrap());
+    let (a, b) = (f32_reg.describe(&source, 0).unwrap(), reduced_reg.describe(&source, 0).unwrap());
     assert_eq!(a.keypoints, b.keypoints, "the same keypoints and patches");
     let (ca, cb) = (a.read_codewords().unwrap(), b.read_codewords().unwrap());
     let dim = ca.len() / a.keypoints.len();
@@ -316,19 +337,19 @@ fn bf16_encoders_register_the_example_pair_like_f32() {
         let diff = ra.iter().zip(rb).map(|(&x, &y)| f64::from(x - y).powi(2)).sum::<f64>().sqrt();
         worst = worst.max(diff / norm.max(1e-12));
     }
-    assert!(worst <= CODEWORD_RELATIVE_TOL, "codewords differ by {worst} (relative)");
-    assert!(worst > 0.0, "bf16 rounding must show: the bf16 layer did not run");
+    assert!(worst <= codeword_relative_tol, "codewords differ by {worst} (relative)");
+    assert!(worst > 0.0, "the rounding must show: the {precision:?} layers did not run");
 
-    let (ta, tb) = (f32_reg.describe(&target, 1).unwrap(), bf16_reg.describe(&target, 1).unwrap());
+    let (ta, tb) = (f32_reg.describe(&target, 1).unwrap(), reduced_reg.describe(&target, 1).unwrap());
     let pairs = |reg: &dpr_gpu::Registrar, s, t| -> std::collections::HashSet<(u32, u32)> {
         reg.correspond(s, t).unwrap().iter().map(|c| (c.source_index, c.target_index)).collect()
     };
-    let (pa, pb) = (pairs(&f32_reg, &a, &ta), pairs(&bf16_reg, &b, &tb));
+    let (pa, pb) = (pairs(&f32_reg, &a, &ta), pairs(&reduced_reg, &b, &tb));
     // A mutual nearest neighbour flips where its runner-up is within the perturbation (here about 1 in 9).
     let shared = pa.intersection(&pb).count();
     assert!(shared * 4 >= 3 * pa.len().max(pb.len()), "{shared} shared of {} / {}", pa.len(), pb.len());
 
-    let (ra, rb) = (f32_reg.register(&source, &target).unwrap(), bf16_reg.register(&source, &target).unwrap());
+    let (ra, rb) = (f32_reg.register(&source, &target).unwrap(), reduced_reg.register(&source, &target).unwrap());
     let (ea, eb) = (&ra.estimate, &rb.estimate);
     let angle = rotation_error_deg(&ea.target_from_source, &eb.target_from_source);
     let shift = translation_error(&ea.target_from_source, &eb.target_from_source);

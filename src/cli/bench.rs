@@ -1066,6 +1066,7 @@ fn gemm_variants(
             precision: match variant.as_str() {
                 "gpu_dense_coop_f16" => "f16",
                 "cpu_gemm_bf16" | "cpu_gemm_bf16_amx" => "bf16",
+                "cpu_gemm_int8" => "int8",
                 _ => "f32",
             },
             variant,
@@ -1101,9 +1102,15 @@ fn gemm_variants(
             let units = [("cpu_gemm_bf16", Bf16Unit::Vector), ("cpu_gemm_bf16_amx", Bf16Unit::Tiles)];
             for (name, unit) in units.into_iter().filter(|u| u.1 == Bf16Unit::Vector || amx) {
                 let m = time_cpu(&|s, xc, o| dense_bf16_packed_on(unit, s, &[(xc, in_dim)], &packed, &b, o))?;
-                let used = !f32_used && (unit == Bf16Unit::Tiles) == amx;
+                let used = precision == Precision::Bf16 && (unit == Bf16Unit::Tiles) == amx;
                 out.push(report(name.into(), "cpu", used, ms(m.wall), Clock::HostWall));
             }
+        }
+        if Precision::Int8.is_available() {
+            let quantized = crate::cpu::gemm_int8::quantize_weight(&w, in_dim, out_dim);
+            let m = time_cpu(&|s, xc, o| crate::cpu::gemm_int8::dense_int8(s, &[(xc, in_dim)], &quantized, &b, o))?;
+            let used = precision == Precision::Int8;
+            out.push(report("cpu_gemm_int8".into(), "cpu", used, ms(m.wall), Clock::HostWall));
         }
         let m = time_cpu(&|s, xc, o| dense_twin(s, xc, &w, &b, o))?;
         out.push(report("cpu_twin".into(), "cpu", false, ms(m.wall), Clock::HostWall));

@@ -227,7 +227,11 @@ fn train_precision(args: &Args) -> anyhow::Result<Precision> {
                 Precision::F32
             }
         }
-        (None, _) => Precision::from_env()?.0,
+        // int8 is for inference: the trainer takes bf16 there.
+        (None, _) => match Precision::from_env()?.0 {
+            Precision::Int8 => Precision::Bf16,
+            p => p,
+        },
     })
 }
 

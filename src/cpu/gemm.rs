@@ -335,9 +335,34 @@ pub enum Precision {
     F32,
     /// bf16 inputs and weights, f32 sums: [`crate::cpu::gemm_bf16::dense_bf16`].
     Bf16,
+    /// Inference only: int8 inputs (a scale per row) and weights (a scale per column), exact integer sums
+    /// ([`crate::cpu::gemm_int8::dense_int8`]); bf16 wherever the int8 layer does not apply.
+    Int8,
 }
 
-/// Environment variable that picks the CPU backend's encoder precision: `f32`, `bf16` or `auto`.
+/// What a CPU offers the encoders' reduced-precision layers.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CpuUnits {
+    /// AVX-512 BF16 ([`Precision::Bf16`]).
+    pub bf16: bool,
+    /// AVX-512 VNNI and BF16 ([`Precision::Int8`]; bf16 serves its narrow-offset layers).
+    pub int8: bool,
+    /// AMX tiles for bf16 ([`crate::cpu::gemm_amx`]).
+    pub amx: bool,
+}
+
+impl CpuUnits {
+    /// This CPU's.
+    pub fn of_this_cpu() -> CpuUnits {
+        CpuUnits {
+            bf16: Precision::Bf16.is_available(),
+            int8: Precision::Int8.is_available(),
+            amx: Precision::Bf16.is_available() && crate::cpu::gemm_amx::is_available(),
+        }
+    }
+}
+
+/// Environment variable that picks the CPU backend's encoder precision: `f32`, `bf16`, `int8` or `auto`.
 pub const CPU_PRECISION_ENV: &str = "DPR_GPU_CPU_PRECISION";
 
 /// Narrowest input the bf16 layer takes: the first layers (3-4 wide PPF / PC inputs) cost nothing and keep
@@ -345,40 +370,52 @@ pub const CPU_PRECISION_ENV: &str = "DPR_GPU_CPU_PRECISION";
 pub const BF16_MIN_IN_DIM: usize = 32;
 
 impl Precision {
-    /// `f32` or `bf16`.
+    /// `f32`, `bf16` or `int8`.
     pub fn name(self) -> &'static str {
         match self {
             Precision::F32 => "f32",
             Precision::Bf16 => "bf16",
+            Precision::Int8 => "int8",
         }
     }
 
-    /// The precision [`CPU_PRECISION_ENV`] asks for, and why: see [`Precision::choose`].
+    /// The precision [`CPU_PRECISION_ENV`] asks for on this CPU, and why: see [`Precision::choose`].
     pub fn from_env() -> crate::error::Result<(Precision, String)> {
-        let (precision, why) =
-            Precision::choose(std::env::var(CPU_PRECISION_ENV).ok().as_deref(), Precision::Bf16.is_available())?;
+        let value = std::env::var(CPU_PRECISION_ENV).ok();
+        let (precision, why) = Precision::choose(value.as_deref(), CpuUnits::of_this_cpu())?;
         Ok(match precision {
             Precision::Bf16 => (precision, format!("{why}; {}", crate::cpu::gemm_bf16::Bf16Unit::Tiles.describe())),
-            Precision::F32 => (precision, why),
+            Precision::F32 | Precision::Int8 => (precision, why),
         })
     }
 
-    /// The precision a value of [`CPU_PRECISION_ENV`] asks for on a CPU with or without AVX-512 BF16, and why.
-    /// Unset, empty or `auto`: bf16 where the CPU has it, else f32 (the default: the encoders take half the
-    /// time, and on the shipped weights bf16 registers the same pairs as f32, see docs/speed.md);
-    /// `f32`: f32 (bit-identical on every CPU); `bf16`: bf16, an error where the CPU lacks it.
-    pub fn choose(value: Option<&str>, bf16_available: bool) -> crate::error::Result<(Precision, String)> {
+    /// The precision a value of [`CPU_PRECISION_ENV`] asks for on a CPU with `units`, and why.
+    /// Unset, empty or `auto`: the fastest the CPU has, where each registers the same pairs as f32 on the
+    /// shipped weights (docs/speed.md): bf16 on AMX tiles where the CPU has them, else int8 where it has AVX-512
+    /// VNNI (about 1.5x bf16's encoder speed on the vector unit), else bf16 on the vector unit, else f32;
+    /// `f32`: f32 (bit-identical on every CPU); `bf16` or `int8`: that, an error where the CPU lacks it.
+    pub fn choose(value: Option<&str>, units: CpuUnits) -> crate::error::Result<(Precision, String)> {
         let invalid = |why: String| Err(crate::error::Error::invalid(why));
+        let asked = |p: Precision| format!("{} encoders: {CPU_PRECISION_ENV}={}", p.name(), p.name());
         match value.map(str::trim) {
-            None | Some("" | "auto") if bf16_available => Ok((
-                Precision::Bf16,
-                "bf16 encoders: this CPU has AVX-512 BF16 (DPR_GPU_CPU_PRECISION=f32 for f32)".into(),
-            )),
-            None | Some("" | "auto") => Ok((Precision::F32, "f32 encoders: this CPU has no AVX-512 BF16".into())),
-            Some("f32") => Ok((Precision::F32, format!("f32 encoders: {CPU_PRECISION_ENV}=f32"))),
-            Some("bf16") if bf16_available => Ok((Precision::Bf16, format!("bf16 encoders: {CPU_PRECISION_ENV}=bf16"))),
+            None | Some("" | "auto") => Ok(if units.bf16 && units.amx {
+                (Precision::Bf16, format!("bf16 encoders: this CPU has AMX tiles ({CPU_PRECISION_ENV}=f32 for f32)"))
+            } else if units.int8 {
+                (
+                    Precision::Int8,
+                    format!("int8 encoders: this CPU has AVX-512 VNNI and no AMX ({CPU_PRECISION_ENV}=f32 for f32)"),
+                )
+            } else if units.bf16 {
+                (Precision::Bf16, format!("bf16 encoders: this CPU has AVX-512 BF16 ({CPU_PRECISION_ENV}=f32 for f32)"))
+            } else {
+                (Precision::F32, "f32 encoders: this CPU has no AVX-512 BF16".into())
+            }),
+            Some("f32") => Ok((Precision::F32, asked(Precision::F32))),
+            Some("bf16") if units.bf16 => Ok((Precision::Bf16, asked(Precision::Bf16))),
             Some("bf16") => invalid(format!("{CPU_PRECISION_ENV}=bf16, but this CPU has no AVX-512 BF16")),
-            Some(other) => invalid(format!("{CPU_PRECISION_ENV}='{other}': expected f32, bf16 or auto")),
+            Some("int8") if units.int8 => Ok((Precision::Int8, asked(Precision::Int8))),
+            Some("int8") => invalid(format!("{CPU_PRECISION_ENV}=int8, but this CPU lacks AVX-512 VNNI or BF16")),
+            Some(other) => invalid(format!("{CPU_PRECISION_ENV}='{other}': expected f32, bf16, int8 or auto")),
         }
     }
 
@@ -387,6 +424,7 @@ impl Precision {
         match self {
             Precision::F32 => true,
             Precision::Bf16 => crate::cpu::gemm_bf16::is_available(),
+            Precision::Int8 => crate::cpu::gemm_int8::is_available() && crate::cpu::gemm_bf16::is_available(),
         }
     }
 }
@@ -395,6 +433,26 @@ impl Precision {
 mod tests {
     use super::*;
     use crate::rng::Rng;
+
+    #[test]
+    fn auto_takes_the_fastest_unit_and_an_explicit_choice_is_kept_or_refused() {
+        let units = |bf16, int8, amx| CpuUnits { bf16, int8, amx };
+        let auto = |u| Precision::choose(None, u).unwrap().0;
+        assert_eq!(auto(units(true, true, true)), Precision::Bf16, "AMX tiles");
+        assert_eq!(auto(units(true, true, false)), Precision::Int8, "VNNI without AMX");
+        assert_eq!(auto(units(true, false, false)), Precision::Bf16);
+        assert_eq!(auto(units(false, false, false)), Precision::F32);
+        assert_eq!(Precision::choose(Some(" auto "), units(true, true, false)).unwrap().0, Precision::Int8);
+        for u in [units(true, true, true), units(false, false, false)] {
+            assert_eq!(Precision::choose(Some("f32"), u).unwrap().0, Precision::F32);
+        }
+        assert_eq!(Precision::choose(Some("int8"), units(true, true, true)).unwrap().0, Precision::Int8);
+        assert_eq!(Precision::choose(Some("bf16"), units(true, true, false)).unwrap().0, Precision::Bf16);
+        let refused = Precision::choose(Some("int8"), units(true, false, true)).unwrap_err().to_string();
+        assert!(refused.contains("VNNI"), "{refused}");
+        assert!(Precision::choose(Some("bf16"), units(false, false, false)).is_err());
+        assert!(Precision::choose(Some("fp8"), units(true, true, true)).unwrap_err().to_string().contains("fp8"));
+    }
 
     #[test]
     fn every_path_matches_the_portable_loop_bit_for_bit() {

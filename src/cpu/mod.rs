@@ -21,6 +21,7 @@ pub mod farthest_point;
 pub mod gemm;
 pub mod gemm_amx;
 pub mod gemm_bf16;
+pub mod gemm_int8;
 pub mod grid_knn;
 pub mod group_row_sums;
 pub mod hypotheses;

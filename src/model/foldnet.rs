@@ -8,6 +8,7 @@ use super::weights::Weights;
 use crate::cpu::dense::DenseShape;
 use crate::cpu::gemm::{BF16_MIN_IN_DIM, Precision, dense};
 use crate::cpu::gemm_bf16::dense_bf16_packed_on;
+use crate::cpu::gemm_int8::Int8Weight;
 use crate::cpu::max_pool::max_pool;
 use crate::error::Result;
 use rayon::prelude::*;
@@ -110,6 +111,12 @@ fn dense_layer_into(
         out.clear();
         out.resize(rows * n, 0.0);
     }
+    if let Some(weight) = int8_weight(precision, layer, segments) {
+        let parts: Vec<(&[f32], usize)> = segments.iter().map(|&(x, w, _)| (x, w)).collect();
+        let shape = DenseShape { rows, in_dim: weight.k, out_dim: n, rows_per_group, accumulate: false, relu };
+        crate::cpu::gemm_int8::dense_int8(&shape, &parts, weight, group_term, out);
+        return;
+    }
     if bf16_segments(precision, segments) {
         let parts: Vec<(&[f32], usize)> = segments.iter().map(|&(x, w, _)| (x, w)).collect();
         let in_dim = parts.iter().map(|p| p.1).sum();
@@ -148,12 +155,24 @@ fn chain_into(precision: Precision, layers: &[Linear], input: &[f32], rows: usiz
 /// (but the last), so they are rows of the layer's packed weight.
 fn bf16_segments(precision: Precision, segments: &[Slice<'_>]) -> bool {
     let width: usize = segments.iter().map(|s| s.1).sum();
-    precision == Precision::Bf16
+    matches!(precision, Precision::Bf16 | Precision::Int8)
         && Precision::Bf16.is_available()
         && width >= BF16_MIN_IN_DIM
         && segments.first().is_some_and(|s| s.2 % 2 == 0)
         && segments.iter().rev().skip(1).all(|s| s.1 % 2 == 0)
         && segments.windows(2).all(|w| w[0].2 + w[0].1 == w[1].2)
+}
+
+/// The layer's int8 weight when `segments` go through the int8 layer: int8 asked for and available, at least
+/// [`BF16_MIN_IN_DIM`] wide, and the segments the layer's weight rows from its first one on, consecutive.
+fn int8_weight<'l>(precision: Precision, layer: &'l Linear, segments: &[Slice<'_>]) -> Option<&'l Int8Weight> {
+    let width: usize = segments.iter().map(|s| s.1).sum();
+    let usable = precision == Precision::Int8
+        && Precision::Int8.is_available()
+        && width >= BF16_MIN_IN_DIM
+        && segments.first().is_some_and(|s| s.2 == 0)
+        && segments.windows(2).all(|w| w[0].2 + w[0].1 == w[1].2);
+    if usable { layer.quantized_int8(width) } else { None }
 }
 
 /// Everything the encoder computed for a batch of patches: the codewords, and every layer's output (what the
