@@ -160,8 +160,9 @@ pub struct CpuInfo {
     pub threads: usize,
     /// The GEMM micro-kernel the CPU backend uses (`avx512`, `avx2`, `portable`).
     pub gemm_path: &'static str,
-    /// The arithmetic of the encoders and of the training stages on the CPU (`bf16` where the CPU has AVX-512
-    /// BF16, else `f32`; `DPR_GPU_CPU_PRECISION=f32` or `bf16` overrides it).
+    /// The arithmetic of the encoders on the CPU (`Precision::choose`: `bf16` on AMX tiles, else `int8` where the
+    /// CPU has AVX-512 VNNI, else `bf16` where it has AVX-512 BF16, else `f32`; `DPR_GPU_CPU_PRECISION=f32`,
+    /// `bf16` or `int8` overrides it); the training stages take bf16 where this says int8.
     pub precision: &'static str,
     /// Where the bf16 multiplies run (`amx` tiles or the `vector` unit); `None` in f32.
     pub bf16_unit: Option<&'static str>,
@@ -620,7 +621,8 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
     let (ppf, pc) = (&inputs.ppf, &inputs.pc);
     let mut stages = measure_stages(args, &model, &inputs, cpu.as_ref(), gpu.as_ref())?;
     let backward_patches = k.min(BACKWARD_PATCHES);
-    let cpu_precision = cpu.is_some().then_some(precision);
+    // The training stages at the trainer's precision (int8 is for inference).
+    let cpu_precision = cpu.is_some().then_some(precision.for_training());
     stages.push(measure_encode_backward(args, &weights, &model, ppf, backward_patches, cpu_precision, gpu.as_ref())?);
     let train_pairs = (k / 2).clamp(1, sizes.train_pairs);
     let batch = train_batch(args.seed, &model, [ppf, pc], k, train_pairs);

@@ -227,11 +227,7 @@ fn train_precision(args: &Args) -> anyhow::Result<Precision> {
                 Precision::F32
             }
         }
-        // int8 is for inference: the trainer takes bf16 there.
-        (None, _) => match Precision::from_env()?.0 {
-            Precision::Int8 => Precision::Bf16,
-            p => p,
-        },
+        (None, _) => Precision::from_env()?.0.for_training(),
     })
 }
 

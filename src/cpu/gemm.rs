@@ -336,7 +336,8 @@ pub enum Precision {
     /// bf16 inputs and weights, f32 sums: [`crate::cpu::gemm_bf16::dense_bf16`].
     Bf16,
     /// Inference only: int8 inputs (a scale per row) and weights (a scale per column), exact integer sums
-    /// ([`crate::cpu::gemm_int8::dense_int8`]); bf16 wherever the int8 layer does not apply.
+    /// ([`crate::cpu::gemm_int8::dense_int8`]); a layer the int8 layer does not take runs in bf16 where the CPU
+    /// has it, else in f32.
     Int8,
 }
 
@@ -345,7 +346,7 @@ pub enum Precision {
 pub struct CpuUnits {
     /// AVX-512 BF16 ([`Precision::Bf16`]).
     pub bf16: bool,
-    /// AVX-512 VNNI and BF16 ([`Precision::Int8`]; bf16 serves its narrow-offset layers).
+    /// AVX-512 VNNI ([`Precision::Int8`]).
     pub int8: bool,
     /// AMX tiles for bf16 ([`crate::cpu::gemm_amx`]).
     pub amx: bool,
@@ -414,8 +415,18 @@ impl Precision {
             Some("bf16") if units.bf16 => Ok((Precision::Bf16, asked(Precision::Bf16))),
             Some("bf16") => invalid(format!("{CPU_PRECISION_ENV}=bf16, but this CPU has no AVX-512 BF16")),
             Some("int8") if units.int8 => Ok((Precision::Int8, asked(Precision::Int8))),
-            Some("int8") => invalid(format!("{CPU_PRECISION_ENV}=int8, but this CPU lacks AVX-512 VNNI or BF16")),
+            Some("int8") => invalid(format!("{CPU_PRECISION_ENV}=int8, but this CPU has no AVX-512 VNNI")),
             Some(other) => invalid(format!("{CPU_PRECISION_ENV}='{other}': expected f32, bf16, int8 or auto")),
+        }
+    }
+
+    /// The precision the trainer takes for this one: int8 is for inference, so training runs bf16 there (where
+    /// the CPU has it, else f32).
+    pub fn for_training(self) -> Precision {
+        match self {
+            Precision::Int8 if Precision::Bf16.is_available() => Precision::Bf16,
+            Precision::Int8 => Precision::F32,
+            p => p,
         }
     }
 
@@ -424,7 +435,7 @@ impl Precision {
         match self {
             Precision::F32 => true,
             Precision::Bf16 => crate::cpu::gemm_bf16::is_available(),
-            Precision::Int8 => crate::cpu::gemm_int8::is_available() && crate::cpu::gemm_bf16::is_available(),
+            Precision::Int8 => crate::cpu::gemm_int8::is_available(),
         }
     }
 }
