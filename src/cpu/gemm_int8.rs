@@ -26,8 +26,10 @@ pub fn is_available() -> bool {
     }
 }
 
-/// Rows per register tile and columns per register tile (two 16-lane vectors).
+/// Rows per register tile.
+#[cfg(target_arch = "x86_64")]
 const MR: usize = 8;
+/// Columns per register tile (two 16-lane vectors); the weight's columns are padded to a multiple of it.
 const NR: usize = 32;
 
 /// A transposed weight (`k x n`) quantized per output column: `q = round(w / scale)` in -127..=127 with
