@@ -483,6 +483,7 @@ fn bench_json_on_the_test_adapter_is_consistent() {
     let selected = match cpu_precision {
         "bf16" if amx => "cpu_gemm_bf16_amx".to_string(),
         "bf16" => "cpu_gemm_bf16".to_string(),
+        "int8" => "cpu_gemm_int8".to_string(),
         _ => format!("cpu_gemm_{}", r["cpu"]["gemm_path"].as_str().unwrap()),
     };
     let want_unit = (cpu_precision == "bf16").then_some(if amx { "amx" } else { "vector" });
@@ -545,6 +546,7 @@ fn bench_json_on_the_test_adapter_is_consistent() {
         let precision = match name {
             "gpu_dense_coop_f16" => "f16",
             "cpu_gemm_bf16" | "cpu_gemm_bf16_amx" => "bf16",
+            "cpu_gemm_int8" => "int8",
             _ => "f32",
         };
         assert_eq!(v["precision"], precision, "{name}");
