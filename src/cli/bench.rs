@@ -160,8 +160,8 @@ pub struct CpuInfo {
     pub threads: usize,
     /// The GEMM micro-kernel the CPU backend uses (`avx512`, `avx2`, `portable`).
     pub gemm_path: &'static str,
-    /// The arithmetic of the encoders on the CPU (`Precision::choose`: `bf16` on AMX tiles, else `int8` where the
-    /// CPU has AVX-512 VNNI, else `bf16` where it has AVX-512 BF16, else `f32`; `DPR_GPU_CPU_PRECISION=f32`,
+    /// The arithmetic of the encoders on the CPU (`Precision::choose`: `bf16` where the CPU has AVX-512 BF16, else
+    /// `int8` where it has AVX-512 VNNI, else `f32`; `DPR_GPU_CPU_PRECISION=f32`,
     /// `bf16` or `int8` overrides it); the training stages take bf16 where this says int8.
     pub precision: &'static str,
     /// Where the bf16 multiplies run (`amx` tiles or the `vector` unit); `None` in f32.

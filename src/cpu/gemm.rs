@@ -392,8 +392,9 @@ impl Precision {
 
     /// The precision a value of [`CPU_PRECISION_ENV`] asks for on a CPU with `units`, and why.
     /// Unset, empty or `auto`: the fastest the CPU has, where each registers the same pairs as f32 on the
-    /// shipped weights (docs/speed.md): bf16 on AMX tiles where the CPU has them, else int8 where it has AVX-512
-    /// VNNI (about 1.5x bf16's encoder speed on the vector unit), else bf16 on the vector unit, else f32;
+    /// shipped weights (docs/speed.md): bf16 (on AMX tiles where the CPU has them), else int8 where the CPU has
+    /// AVX-512 VNNI, else f32. int8 is 1.7x bf16's encoder speed on the vector unit but opt-in there: a Python
+    /// test's RANSAC pair went untrusted with it (docs/experiments/cpu-int8.md);
     /// `f32`: f32 (bit-identical on every CPU); `bf16` or `int8`: that, an error where the CPU lacks it.
     pub fn choose(value: Option<&str>, units: CpuUnits) -> crate::error::Result<(Precision, String)> {
         let invalid = |why: String| Err(crate::error::Error::invalid(why));
@@ -401,13 +402,13 @@ impl Precision {
         match value.map(str::trim) {
             None | Some("" | "auto") => Ok(if units.bf16 && units.amx {
                 (Precision::Bf16, format!("bf16 encoders: this CPU has AMX tiles ({CPU_PRECISION_ENV}=f32 for f32)"))
+            } else if units.bf16 {
+                (Precision::Bf16, format!("bf16 encoders: this CPU has AVX-512 BF16 ({CPU_PRECISION_ENV}=f32 for f32)"))
             } else if units.int8 {
                 (
                     Precision::Int8,
-                    format!("int8 encoders: this CPU has AVX-512 VNNI and no AMX ({CPU_PRECISION_ENV}=f32 for f32)"),
+                    format!("int8 encoders: this CPU has AVX-512 VNNI, no BF16 ({CPU_PRECISION_ENV}=f32 for f32)"),
                 )
-            } else if units.bf16 {
-                (Precision::Bf16, format!("bf16 encoders: this CPU has AVX-512 BF16 ({CPU_PRECISION_ENV}=f32 for f32)"))
             } else {
                 (Precision::F32, "f32 encoders: this CPU has no AVX-512 BF16".into())
             }),
@@ -450,10 +451,11 @@ mod tests {
         let units = |bf16, int8, amx| CpuUnits { bf16, int8, amx };
         let auto = |u| Precision::choose(None, u).unwrap().0;
         assert_eq!(auto(units(true, true, true)), Precision::Bf16, "AMX tiles");
-        assert_eq!(auto(units(true, true, false)), Precision::Int8, "VNNI without AMX");
+        assert_eq!(auto(units(true, true, false)), Precision::Bf16, "int8 is opt-in where bf16 runs");
+        assert_eq!(auto(units(false, true, false)), Precision::Int8, "VNNI without BF16");
         assert_eq!(auto(units(true, false, false)), Precision::Bf16);
         assert_eq!(auto(units(false, false, false)), Precision::F32);
-        assert_eq!(Precision::choose(Some(" auto "), units(true, true, false)).unwrap().0, Precision::Int8);
+        assert_eq!(Precision::choose(Some(" auto "), units(false, true, false)).unwrap().0, Precision::Int8);
         for u in [units(true, true, true), units(false, false, false)] {
             assert_eq!(Precision::choose(Some("f32"), u).unwrap().0, Precision::F32);
         }
