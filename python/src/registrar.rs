@@ -201,13 +201,15 @@ impl Registrar {
         self.inner.backend_name()
     }
 
-    /// The patch radius in use (cloud units).
+    /// The patch radius the steps (``describe``, ``estimate``) use (cloud units): the one given, else the default.
+    /// ``register`` with no radius given chooses its own from the two clouds: see ``RegistrationResult.scale``.
     #[getter]
     fn radius(&self) -> f32 {
         self.inner.radius()
     }
 
-    /// The inlier threshold in use (cloud units).
+    /// The inlier threshold the steps use (cloud units): the one given, else radius / 6. ``register`` with no
+    /// radius given derives its own from the scale it chose: see ``RegistrationResult.scale``.
     #[getter]
     fn inlier_threshold(&self) -> f32 {
         self.inner.inlier_threshold()
