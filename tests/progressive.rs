@@ -179,3 +179,58 @@ fn context_radii_only_when_untrusted_add_one_round_on_every_radius() {
     assert!(a.result.timings.iter().all(|t| !t.stage.ends_with("context_encoder")));
     assert_eq!(a.source.context[0].rows.rows(), 0);
 }
+
+/// `ContextWhen::AfterFirst`: the first round on the main radius alone, every later round on every radius, so
+/// the last round is the one `ContextWhen::Always` ends with on the same schedule and no context round follows;
+/// a pair trusted in the first round never describes the context patches.
+#[test]
+fn context_radii_after_the_first_round_match_every_later_round_on_every_radius() {
+    use dpr_gpu::settings::{ContextRadius, ContextWhen};
+    let (source, target, _) = common::room_pair(4, 4000);
+    let weights = tiny_weights();
+    let context = vec![ContextRadius { factor: 2.0, weight: 1.0 }];
+    for estimator in [Estimator::RelativeNet, Estimator::Ransac] {
+        let staged = RegistrationSettings {
+            first_keypoints: Some(40),
+            context_radii: context.clone(),
+            ..never_trusted(estimator)
+        };
+        let after = RegistrationSettings { context_when: ContextWhen::AfterFirst, ..staged.clone() };
+        let always = RegistrationSettings { context_when: ContextWhen::Always, ..staged.clone() };
+        let untrusted = RegistrationSettings { context_when: ContextWhen::Untrusted, ..staged };
+        let a = registrar(&after, &weights).register_detailed(&source, &target).unwrap();
+        let b = registrar(&always, &weights).register_detailed(&source, &target).unwrap();
+        let c = registrar(&untrusted, &weights).register_detailed(&source, &target).unwrap();
+        assert_eq!(a.result.estimate.target_from_source, b.result.estimate.target_from_source, "{estimator:?}");
+        assert_eq!(a.correspondences, b.correspondences);
+        // Untrusted ends with its context round on all 120 keypoints: the same matching as the last round here.
+        assert_eq!(a.correspondences, c.correspondences);
+        // Rounds at 40, 80 and 120 keypoints and no context round after them; the context patches described
+        // for the second round (80 keypoints) and the third (40 more), per scan.
+        assert_eq!(a.result.timings.iter().filter(|t| t.stage == "matching").count(), 3);
+        assert_eq!(c.result.timings.iter().filter(|t| t.stage == "matching").count(), 4);
+        assert_eq!(a.result.timings.iter().filter(|t| t.stage.ends_with("context_encoder")).count(), 4);
+        assert_eq!(a.source.context[0].rows.rows(), a.source.keypoints.len());
+        // Scans described in full (`eval`) give the same rounds.
+        let r = registrar(&after, &weights).at_scale_of(&[(&source, "source"), (&target, "target")]).unwrap();
+        let (s, t) = (r.describe(&source, 0).unwrap(), r.describe(&target, 1).unwrap());
+        let round = r.register_described(&s, &t, estimator).unwrap();
+        assert_eq!(round.estimate.target_from_source, a.result.estimate.target_from_source);
+        assert!(round.context);
+    }
+
+    // Trusted in the first round (the schedule of `early_stopping_pair` started where its main radius is
+    // trusted): the result of the main radius alone, no context description.
+    let (source, target, base) = early_stopping_pair();
+    let k = registrar(&base, &weights).register(&source, &target).unwrap().keypoints;
+    let base = RegistrationSettings { first_keypoints: Some(k), ..base };
+    let after = RegistrationSettings { context_radii: context, context_when: ContextWhen::AfterFirst, ..base.clone() };
+    let a = registrar(&after, &weights).register_detailed(&source, &target).unwrap();
+    let c = registrar(&base, &weights).register_detailed(&source, &target).unwrap();
+    assert!(a.result.success, "{:?}", a.result.reason);
+    assert_eq!(a.result.keypoints, k, "trusted in the first round");
+    assert_eq!(a.result.estimate.target_from_source, c.result.estimate.target_from_source);
+    assert_eq!(a.correspondences, c.correspondences);
+    assert!(a.result.timings.iter().all(|t| !t.stage.ends_with("context_encoder")));
+    assert_eq!(a.source.context[0].rows.rows(), 0);
+}
