@@ -157,34 +157,6 @@ pub enum ContextWhen {
     /// always, so described scans can be registered either way).
     #[default]
     Untrusted,
-    /// The first round on the main radius's codewords alone; every later round (and, with a single round, a
-    /// last one as for [`ContextWhen::Untrusted`]) on every radius. Pairs the first round trusts keep its result
-    /// and its speed; pairs that need more keypoints, the low-overlap and repeated ones, match on the wider
-    /// patches in every further round, where the main radius alone can be outvoted by a copy.
-    AfterFirst,
-}
-
-impl ContextWhen {
-    /// The names the command line and Python take, in the order they are listed.
-    pub const NAMES: [(&'static str, ContextWhen); 3] = [
-        ("untrusted", ContextWhen::Untrusted),
-        ("always", ContextWhen::Always),
-        ("after-first", ContextWhen::AfterFirst),
-    ];
-
-    /// The variant named `name` (one of [`ContextWhen::NAMES`]).
-    pub fn from_name(name: &str) -> Option<ContextWhen> {
-        ContextWhen::NAMES.iter().find(|(n, _)| *n == name).map(|&(_, w)| w)
-    }
-
-    /// Whether the round `index` of the progressive schedule (0 for the first) matches on every radius.
-    pub fn in_round(self, index: usize) -> bool {
-        match self {
-            ContextWhen::Always => true,
-            ContextWhen::Untrusted => false,
-            ContextWhen::AfterFirst => index > 0,
-        }
-    }
 }
 
 /// A context radius of [`RegistrationSettings::context_radii`].

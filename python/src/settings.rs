@@ -67,7 +67,7 @@ const BACKENDS: &[(&str, BackendKind)] =
 pub(crate) const ESTIMATORS: &[(&str, Estimator)] =
     &[("relativenet", Estimator::RelativeNet), ("ransac", Estimator::Ransac)];
 /// `context_when` names.
-const CONTEXT_WHEN: &[(&str, ContextWhen)] = &ContextWhen::NAMES;
+const CONTEXT_WHEN: &[(&str, ContextWhen)] = &[("untrusted", ContextWhen::Untrusted), ("always", ContextWhen::Always)];
 /// Keypoint mode names.
 const KEYPOINT_MODES: &[(&str, KeypointMode)] = &[("random", KeypointMode::Random), ("uniform", KeypointMode::Uniform)];
 

@@ -89,8 +89,7 @@ pub struct RegisterOptions {
     #[arg(long, value_name = "FACTOR:WEIGHT", default_value = "2:1")]
     pub context_radius: Vec<String>,
     /// Which rounds match on the context radii too: untrusted (only a last round on all keypoints, run when
-    /// matching on the main radius alone gave no trusted result), always, or after-first (every round after
-    /// the first).
+    /// matching on the main radius alone gave no trusted result), or always.
     #[arg(long, value_name = "WHEN", default_value = "untrusted")]
     pub context_when: String,
     /// How many of the estimator's best distinct poses compete: the one with most inliers stays when the
@@ -181,10 +180,11 @@ impl RegisterOptions {
             other => bail!("unknown backend '{other}' (expected cpu, gpu or auto)"),
         };
         s.context_radii = parse_context_radii(&self.context_radius)?;
-        s.context_when = ContextWhen::from_name(&self.context_when).ok_or_else(|| {
-            let names: Vec<&str> = ContextWhen::NAMES.iter().map(|(n, _)| *n).collect();
-            anyhow::anyhow!("unknown --context-when '{}' (expected {})", self.context_when, names.join(", "))
-        })?;
+        s.context_when = match self.context_when.as_str() {
+            "always" => ContextWhen::Always,
+            "untrusted" => ContextWhen::Untrusted,
+            other => bail!("unknown --context-when '{other}' (expected always or untrusted)"),
+        };
         s.ransac.max_iterations = self.ransac_iterations.max(1);
         s.verdict = crate::verdict::VerdictSettings {
             min_inliers: self.min_inliers,

@@ -317,7 +317,7 @@ impl Registrar {
         crate::block_on(async {
             let mut clock = Stopwatch::new(self.progress_for(stream));
             let mut scan = self.start_description(cloud, stream, viewpoint, &mut clock).await?;
-            self.extend_description(&mut scan, self.settings.keypoints, false, &mut clock).await?;
+            self.extend_description(&mut scan, self.settings.keypoints, &mut clock).await?;
             self.describe_context(&mut scan, &mut clock).await?;
             scan.cloud.complete_normals(&mut scan.features.cloud).await?;
             clock.lap("remaining_normals");
@@ -399,19 +399,17 @@ impl Registrar {
     }
 
     /// Describes the keypoints of `scan`'s order up to the first `candidates` (patches, network inputs, PPF
-    /// codewords), and when `context` every kept keypoint's context rows too; PC-FoldNet's inputs are kept for
-    /// [`Registrar::estimate`]. Errors when, with the whole order described, no keypoint has a patch.
+    /// codewords); PC-FoldNet's inputs are kept for [`Registrar::estimate`]. Errors when, with the whole order
+    /// described, no keypoint has a patch.
     async fn extend_description(
         &self,
         scan: &mut DescribingScan,
         candidates: usize,
-        context: bool,
         clock: &mut Stopwatch<'_>,
     ) -> Result<()> {
         let (from, to) = (scan.features.candidates, candidates.min(scan.order.len()));
         if from >= to {
-            // Nothing new to describe; a round on every radius still needs the context rows of what is.
-            return if context { self.describe_context(scan, clock).await } else { Ok(()) };
+            return Ok(());
         }
         let f = &mut scan.features;
         let described = scan
@@ -437,7 +435,7 @@ impl Registrar {
                 self.radius()
             )));
         }
-        if context {
+        if self.settings.context_when == ContextWhen::Always {
             self.describe_context(scan, clock).await?;
         }
         Ok(())
@@ -697,17 +695,14 @@ impl Registrar {
         keypoint_stages(self.settings.first_keypoints, self.settings.keypoints)
     }
 
-    /// Whether the progressive schedule's round `index` (0 for the first) matches on the context radii too
-    /// ([`ContextWhen::in_round`]).
-    fn context_in_round(&self, index: usize) -> bool {
-        self.settings.context_when.in_round(index)
+    /// Whether every round matches on the context radii too (else only the last round of [`ContextWhen::Untrusted`]).
+    fn context_in_every_round(&self) -> bool {
+        self.settings.context_when == ContextWhen::Always
     }
 
-    /// Whether the rounds of `outcome` call for a last round on every radius: there are context radii, no round
-    /// is trusted, and the last one matched on the main radius alone ([`ContextWhen::Untrusted`], or
-    /// [`ContextWhen::AfterFirst`] with a single round).
+    /// Whether the rounds of `outcome` call for the last round of [`ContextWhen::Untrusted`].
     fn needs_context_round(&self, outcome: &stages::Outcome) -> bool {
-        !self.settings.context_radii.is_empty() && !outcome.trusted() && !outcome.latest_matched_context()
+        !self.settings.context_radii.is_empty() && !self.context_in_every_round() && !outcome.trusted()
     }
 
     /// One round: correspondences among the first `keypoints` keypoints of each scan (on the context radii's
@@ -735,7 +730,7 @@ impl Registrar {
         let (estimate, verdict) = self.estimate_judged(source, target, &correspondences, estimator).await?;
         clock.lap("estimation");
         let verdict = verdict.unwrap_or_else(|| self.judge((source, target), &estimate, &correspondences));
-        Ok(Round { keypoints, correspondences, estimate, verdict, context })
+        Ok(Round { keypoints, correspondences, estimate, verdict })
     }
 
     /// Registers two described scans with the progressive schedule, over the keypoints they have: the rounds
@@ -749,7 +744,8 @@ impl Registrar {
     ) -> Result<Round> {
         crate::block_on(async {
             let mut clock = Stopwatch::new(None);
-            let (outcome, last) = self.progressive_rounds(&mut (source, target), estimator, &mut clock).await?;
+            let plan = (estimator, self.context_in_every_round());
+            let (outcome, last) = self.progressive_rounds(&mut (source, target), plan, &mut clock).await?;
             self.conclude(outcome, (source, target), last, estimator, &mut clock).await
         })
     }
@@ -760,22 +756,19 @@ impl Registrar {
     async fn progressive_rounds(
         &self,
         scans: &mut impl RoundScans,
-        estimator: Estimator,
+        plan: (Estimator, bool),
         clock: &mut Stopwatch<'_>,
     ) -> Result<(stages::Outcome, usize)> {
         let mut outcome = stages::Outcome::default();
         let mut rows = None;
         let stages = self.keypoint_stages();
-        let mut rounds_run = 0;
         for &k in &stages {
-            let context = self.context_in_round(rounds_run);
-            let now = scans.prepare(self, k, context, clock).await?;
+            let now = scans.prepare(self, k, clock).await?;
             if rows == Some(now) {
                 continue;
             }
             rows = Some(now);
-            rounds_run += 1;
-            if outcome.offer(self.round(scans.pair(), k, (estimator, context), clock).await) {
+            if outcome.offer(self.round(scans.pair(), k, plan, clock).await) {
                 break;
             }
         }
@@ -795,7 +788,7 @@ impl Registrar {
             let mut clock = Stopwatch::new(None);
             let mut outcome = stages::Outcome::default();
             let all = source.candidates.max(target.candidates);
-            let plan = (estimator, self.context_in_round(0));
+            let plan = (estimator, self.context_in_every_round());
             outcome.offer(self.round((source, target), all, plan, &mut clock).await);
             self.conclude(outcome, (source, target), all, estimator, &mut clock).await
         })
@@ -847,8 +840,9 @@ impl Registrar {
         let src = self.start_description(source, 0, viewpoint, &mut clock).await.map_err(|e| prefix("source", e))?;
         clock.scope = "target.";
         let tgt = self.start_description(target, 1, viewpoint, &mut clock).await.map_err(|e| prefix("target", e))?;
+        let plan = (self.settings.estimator, self.context_in_every_round());
         let mut scans = (src, tgt);
-        let (outcome, last) = self.progressive_rounds(&mut scans, self.settings.estimator, &mut clock).await?;
+        let (outcome, last) = self.progressive_rounds(&mut scans, plan, &mut clock).await?;
         let (mut src, mut tgt) = scans;
         if self.needs_context_round(&outcome) {
             clock.scope = "source.";
@@ -875,7 +869,7 @@ impl Registrar {
                 })
                 .collect();
         }
-        let Round { keypoints, correspondences, estimate, verdict, .. } = round;
+        let Round { keypoints, correspondences, estimate, verdict } = round;
         let result = RegistrationResult {
             success: verdict.success,
             reason: verdict.reason,
@@ -899,7 +893,6 @@ trait RoundScans {
         &mut self,
         registrar: &Registrar,
         keypoints: usize,
-        context: bool,
         clock: &mut Stopwatch<'_>,
     ) -> Result<(usize, usize)>;
 
@@ -909,13 +902,7 @@ trait RoundScans {
 
 /// Scans described already ([`Registrar::register_described`]): nothing to do but count rows.
 impl RoundScans for (&ScanFeatures, &ScanFeatures) {
-    async fn prepare(
-        &mut self,
-        _: &Registrar,
-        keypoints: usize,
-        _: bool,
-        _: &mut Stopwatch<'_>,
-    ) -> Result<(usize, usize)> {
+    async fn prepare(&mut self, _: &Registrar, keypoints: usize, _: &mut Stopwatch<'_>) -> Result<(usize, usize)> {
         Ok((self.0.rows_within(keypoints), self.1.rows_within(keypoints)))
     }
 
@@ -930,14 +917,12 @@ impl RoundScans for (DescribingScan, DescribingScan) {
         &mut self,
         registrar: &Registrar,
         keypoints: usize,
-        context: bool,
         clock: &mut Stopwatch<'_>,
     ) -> Result<(usize, usize)> {
         clock.scope = "source.";
-        let (source, target) = (&mut self.0, &mut self.1);
-        registrar.extend_description(source, keypoints, context, clock).await.map_err(|e| prefix("source", e))?;
+        registrar.extend_description(&mut self.0, keypoints, clock).await.map_err(|e| prefix("source", e))?;
         clock.scope = "target.";
-        registrar.extend_description(target, keypoints, context, clock).await.map_err(|e| prefix("target", e))?;
+        registrar.extend_description(&mut self.1, keypoints, clock).await.map_err(|e| prefix("target", e))?;
         Ok((self.0.features.keypoints.len(), self.1.features.keypoints.len()))
     }
 

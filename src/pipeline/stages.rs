@@ -32,8 +32,6 @@ pub struct Round {
     pub estimate: PoseEstimate,
     /// Whether it is trusted.
     pub verdict: Verdict,
-    /// Whether it matched on the context radii's codewords too ([`crate::settings::ContextWhen`]).
-    pub context: bool,
 }
 
 /// What a staged registration returns: the first trusted round, else the last round that gave a pose, else the
@@ -63,11 +61,6 @@ impl Outcome {
     /// Whether a round so far is trusted.
     pub(crate) fn trusted(&self) -> bool {
         self.latest.as_ref().is_some_and(|r| r.verdict.success)
-    }
-
-    /// Whether the latest round that gave a pose matched on the context radii too.
-    pub(crate) fn latest_matched_context(&self) -> bool {
-        self.latest.as_ref().is_some_and(|r| r.context)
     }
 
     /// The round to report.
