@@ -393,8 +393,8 @@ impl Precision {
     /// The precision a value of [`CPU_PRECISION_ENV`] asks for on a CPU with `units`, and why.
     /// Unset, empty or `auto`: the fastest the CPU has, where each registers the same pairs as f32 on the
     /// shipped weights (docs/speed.md): bf16 (on AMX tiles where the CPU has them), else int8 where the CPU has
-    /// AVX-512 VNNI, else f32. int8 is 1.7x bf16's encoder speed on the vector unit but opt-in there: a Python
-    /// test's RANSAC pair went untrusted with it (docs/experiments/cpu-int8.md);
+    /// AVX-512 VNNI, else f32. int8 is 1.7x bf16's encoder speed on the vector unit but opt-in there: it trusts
+    /// a wrong pose on the tuning set rm961 that bf16 does not (docs/experiments/cpu-int8.md, "Decision");
     /// `f32`: f32 (bit-identical on every CPU); `bf16` or `int8`: that, an error where the CPU lacks it.
     pub fn choose(value: Option<&str>, units: CpuUnits) -> crate::error::Result<(Precision, String)> {
         let invalid = |why: String| Err(crate::error::Error::invalid(why));
