@@ -5,7 +5,7 @@
 //! selection, ICP's 6x6 solves and the final rigid fit stay on the host.
 
 use crate::cpu::codeword_distance::codeword_distance;
-use crate::cpu::gemm::Precision;
+use crate::cpu::gemm::{EncoderPrecision, Precision};
 use crate::cpu::hypotheses::{Hypothesis, hypotheses};
 use crate::cpu::mutual_knn::{Match, mutual_knn};
 use crate::cpu::score_hypotheses::{HypothesisScore, score_hypotheses};
@@ -253,20 +253,22 @@ pub mod check {
 /// The plain-Rust reference backend: the oracle for the GPU and the fallback without one.
 pub struct CpuBackend {
     model: Model,
-    precision: Precision,
+    precision: EncoderPrecision,
 }
 
 impl CpuBackend {
     /// Wraps a model; the encoders run in f32 (bit-identical to the twins).
     pub fn new(model: Model) -> CpuBackend {
-        CpuBackend { model, precision: Precision::F32 }
+        CpuBackend { model, precision: Precision::F32.into() }
     }
 
-    /// Wraps a model whose encoders' wide layers run at `precision`; errors when this CPU lacks it.
-    pub fn with_precision(model: Model, precision: Precision) -> Result<CpuBackend> {
+    /// Wraps a model whose encoders' wide layers run at `precision` (one for both, or one per encoder); errors
+    /// when this CPU lacks it.
+    pub fn with_precision(model: Model, precision: impl Into<EncoderPrecision>) -> Result<CpuBackend> {
+        let precision = precision.into();
         if !precision.is_available() {
             return Err(Error::invalid(format!(
-                "CPU precision {} needs AVX-512 BF16, which this CPU does not have",
+                "CPU precision {} needs AVX-512 BF16 (bf16) or VNNI (int8), which this CPU does not have",
                 precision.name()
             )));
         }
@@ -274,16 +276,16 @@ impl CpuBackend {
     }
 
     /// The encoders' arithmetic.
-    pub fn precision(&self) -> Precision {
+    pub fn precision(&self) -> EncoderPrecision {
         self.precision
     }
 }
 
 impl Backend for CpuBackend {
     fn name(&self) -> String {
-        match self.precision {
-            Precision::F32 => format!("cpu ({} threads)", rayon::current_num_threads()),
-            p => format!("cpu ({} threads, {})", rayon::current_num_threads(), p.name()),
+        match self.precision.name().as_str() {
+            "f32" => format!("cpu ({} threads)", rayon::current_num_threads()),
+            p => format!("cpu ({} threads, {p})", rayon::current_num_threads()),
         }
     }
 
@@ -301,13 +303,13 @@ impl Backend for CpuBackend {
 
     fn encode<'a>(&'a self, net: Net, input: &'a [f32], patches: usize) -> StepFuture<'a, Vec<f32>> {
         let n = self.model.config.points_per_patch;
-        let foldnet = match net {
-            Net::Ppf => &self.model.ppf,
-            Net::Pc => &self.model.pc,
+        let (foldnet, precision) = match net {
+            Net::Ppf => (&self.model.ppf, self.precision.ppf),
+            Net::Pc => (&self.model.pc, self.precision.pc),
         };
         ready(
             check::encode_input(input, patches, n, net.io_width())
-                .map(|_| foldnet.encode_at(self.precision, input, patches, n)),
+                .map(|_| foldnet.encode_at(precision, input, patches, n)),
         )
     }
 

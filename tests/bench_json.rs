@@ -12,6 +12,7 @@ use dpr_gpu::backend::{
     ScanSettings, Verified,
 };
 use dpr_gpu::cli::bench::{self, Args};
+use dpr_gpu::cpu::gemm::Precision;
 use dpr_gpu::cpu::hypotheses::Hypothesis;
 use dpr_gpu::cpu::mutual_knn::Match;
 use dpr_gpu::cpu::score_hypotheses::HypothesisScore;
@@ -474,19 +475,22 @@ fn bench_json_on_the_test_adapter_is_consistent() {
 
     let gemm = r["gemm"].as_array().expect("gemm");
     let variants: Vec<&str> = gemm.iter().map(|v| v["variant"].as_str().unwrap()).collect();
-    // The CPU layer the backend runs: the bf16 one where the encoders run at bf16, else the f32 micro-kernel.
+    // The CPU layers the backend runs: the bf16 one for an encoder at bf16, the int8 one for an encoder at int8,
+    // else the f32 micro-kernel (`bf16,int8`: both of the first two).
     let cpu_precision = r["cpu"]["precision"].as_str().expect("cpu.precision");
-    let want_precision = dpr_gpu::cpu::gemm::Precision::from_env().unwrap().0.name();
-    assert_eq!(cpu_precision, want_precision, "the bench times the precision the CPU backend picks");
+    let want_precision = dpr_gpu::cpu::gemm::EncoderPrecision::from_env().unwrap().0;
+    assert_eq!(cpu_precision, want_precision.name(), "the bench times the precision the CPU backend picks");
     // bf16 runs on AMX tiles where the CPU has them (the bench says which unit in `cpu.bf16_unit`).
     let amx = dpr_gpu::cpu::gemm_amx::is_available();
-    let selected = match cpu_precision {
-        "bf16" if amx => "cpu_gemm_bf16_amx".to_string(),
-        "bf16" => "cpu_gemm_bf16".to_string(),
-        "int8" => "cpu_gemm_int8".to_string(),
-        _ => format!("cpu_gemm_{}", r["cpu"]["gemm_path"].as_str().unwrap()),
-    };
-    let want_unit = (cpu_precision == "bf16").then_some(if amx { "amx" } else { "vector" });
+    let selected: Vec<String> = [want_precision.ppf, want_precision.pc]
+        .map(|p| match p {
+            Precision::Bf16 if amx => "cpu_gemm_bf16_amx".to_string(),
+            Precision::Bf16 => "cpu_gemm_bf16".to_string(),
+            Precision::Int8 => "cpu_gemm_int8".to_string(),
+            Precision::F32 => format!("cpu_gemm_{}", r["cpu"]["gemm_path"].as_str().unwrap()),
+        })
+        .into();
+    let want_unit = want_precision.uses(Precision::Bf16).then_some(if amx { "amx" } else { "vector" });
     assert_eq!(r["cpu"]["bf16_unit"].as_str(), want_unit);
     // The FLOPs of one patch, from the default model's widths (the bench's random weights have its config):
     // per point every encoder layer and the head's per-point part, per patch the global slice of head 0.
@@ -509,7 +513,8 @@ fn bench_json_on_the_test_adapter_is_consistent() {
     let gpu_selected = format!("gpu_dense_{}", gpu.gemm_variant());
     let f32_selected = format!("cpu_gemm_{}", r["cpu"]["gemm_path"].as_str().unwrap());
     for want in [
-        selected.as_str(),
+        selected[0].as_str(),
+        selected[1].as_str(),
         f32_selected.as_str(),
         "cpu_gemm_portable",
         "cpu_twin",
@@ -542,7 +547,7 @@ fn bench_json_on_the_test_adapter_is_consistent() {
         assert_rel(gf, flops / (t * 1e-3) / 1e9, name);
         let on_gpu = v["device"] == "gpu";
         assert_eq!(v["clock"], if on_gpu { clock } else { "host_wall" }, "{name}");
-        assert_eq!(v["used_by_backend"], name == selected || name == gpu_selected, "{name}");
+        assert_eq!(v["used_by_backend"], selected.iter().any(|s| s == name) || name == gpu_selected, "{name}");
         let precision = match name {
             "gpu_dense_coop_f16" => "f16",
             "cpu_gemm_bf16" | "cpu_gemm_bf16_amx" => "bf16",

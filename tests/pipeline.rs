@@ -311,6 +311,34 @@ fn int8_encoders_register_the_example_pair_like_f32() {
     );
 }
 
+/// The default where the CPU has AVX-512 BF16 and VNNI and no AMX: each encoder at its own precision,
+/// PPF-FoldNet in bf16 and PC-FoldNet in int8. Oracle: the backends with one precision for both, whose codewords
+/// each encoder must reproduce bit for bit (and which differ from each other, so the check can fail).
+#[test]
+fn each_encoder_runs_at_its_own_precision() {
+    use dpr_gpu::cpu::gemm::{EncoderPrecision, Precision};
+    use dpr_gpu::model::Net;
+    if !(Precision::Bf16.is_available() && Precision::Int8.is_available()) {
+        eprintln!("SKIPPED: this CPU lacks AVX-512 BF16 or VNNI, so no encoder precision per network runs here");
+        return;
+    }
+    let model = Model::from_weights(&Weights::built_in().unwrap()).unwrap();
+    let backend = |p: EncoderPrecision| CpuBackend::with_precision(model.clone(), p).unwrap();
+    let mixed = backend(EncoderPrecision { ppf: Precision::Bf16, pc: Precision::Int8 });
+    let (bf16, int8) = (backend(Precision::Bf16.into()), backend(Precision::Int8.into()));
+    let (patches, points) = (5, model.config.points_per_patch);
+    let mut rng = Rng::new(17);
+    for net in [Net::Ppf, Net::Pc] {
+        let input: Vec<f32> = (0..patches * points * net.io_width()).map(|_| rng.normal() as f32 * 0.3).collect();
+        let encode = |b: &CpuBackend| dpr_gpu::block_on(b.encode(net, &input, patches)).unwrap();
+        let (got, want_bf16, want_int8) = (encode(&mixed), encode(&bf16), encode(&int8));
+        assert_ne!(want_bf16, want_int8, "{net:?}: bf16 and int8 codewords must differ for the check to mean anything");
+        let want = if net == Net::Ppf { want_bf16 } else { want_int8 };
+        assert_eq!(got, want, "{net:?}");
+    }
+    assert_eq!(mixed.name(), format!("cpu ({} threads, bf16,int8)", rayon::current_num_threads()));
+}
+
 fn reduced_precision_registers_the_example_pair_like_f32(
     precision: dpr_gpu::cpu::gemm::Precision,
     codeword_relative_tol: f64,

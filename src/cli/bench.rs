@@ -15,7 +15,7 @@
 
 use crate::backend::{Backend, CpuBackend, RotationInputs};
 use crate::cpu::dense::{DenseShape, dense as dense_twin};
-use crate::cpu::gemm::{GemmPath, Precision, dense_on};
+use crate::cpu::gemm::{EncoderPrecision, GemmPath, Precision, dense_on};
 use crate::cpu::gemm_bf16::Bf16Unit;
 use crate::cpu::hypotheses::Hypothesis;
 use crate::gpu::context::Transfers;
@@ -160,10 +160,10 @@ pub struct CpuInfo {
     pub threads: usize,
     /// The GEMM micro-kernel the CPU backend uses (`avx512`, `avx2`, `portable`).
     pub gemm_path: &'static str,
-    /// The arithmetic of the encoders on the CPU (`Precision::choose`: `bf16` where the CPU has AVX-512 BF16, else
-    /// `int8` where it has AVX-512 VNNI, else `f32`; `DPR_GPU_CPU_PRECISION=f32`,
-    /// `bf16` or `int8` overrides it); the training stages take bf16 where this says int8.
-    pub precision: &'static str,
+    /// The arithmetic of the encoders on the CPU (`EncoderPrecision::choose`: `bf16` on AMX tiles, `bf16,int8`
+    /// (PPF-FoldNet bf16, PC-FoldNet int8) where the CPU has AVX-512 BF16 and VNNI, else `bf16`, `int8` or
+    /// `f32`; `DPR_GPU_CPU_PRECISION` overrides it); the training stages take bf16 where PPF-FoldNet's is int8.
+    pub precision: String,
     /// Where the bf16 multiplies run (`amx` tiles or the `vector` unit); `None` in f32.
     pub bf16_unit: Option<&'static str>,
 }
@@ -588,7 +588,7 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
         args.repeat.max(1)
     ));
 
-    let (precision, _) = Precision::from_env()?;
+    let (precision, _) = EncoderPrecision::from_env()?;
     let cpu = use_cpu.then(|| CpuBackend::with_precision(model.clone(), precision)).transpose()?;
     let (gpu, mut info) = open_gpu(&model, device, &note)?;
     info.create_ms = create_ms;
@@ -606,7 +606,7 @@ pub fn measure_all(args: &Args) -> anyhow::Result<Report> {
         threads: rayon::current_num_threads(),
         gemm_path: GemmPath::selected().name(),
         precision: precision.name(),
-        bf16_unit: (precision == Precision::Bf16).then(|| match Bf16Unit::default().effective() {
+        bf16_unit: precision.uses(Precision::Bf16).then(|| match Bf16Unit::default().effective() {
             Bf16Unit::Tiles => "amx",
             Bf16Unit::Vector => "vector",
         }),
@@ -1052,7 +1052,7 @@ type DenseLayer<'a> = dyn Fn(&DenseShape, &[f32], &mut [f32]) + Sync + 'a;
 fn gemm_variants(
     args: &Args,
     gpu: Option<&Gpu>,
-    cpu_precision: Option<Precision>,
+    cpu_precision: Option<EncoderPrecision>,
     rows: usize,
 ) -> anyhow::Result<(Vec<GemmReport>, Vec<GemmUnavailable>)> {
     let rows = rows.clamp(1, 32_768);
@@ -1091,7 +1091,7 @@ fn gemm_variants(
             })
         };
         let selected = GemmPath::selected();
-        let f32_used = precision == Precision::F32;
+        let f32_used = precision.uses(Precision::F32);
         for path in GemmPath::available() {
             let m = time_cpu(&|s, xc, o| dense_on(path, s, xc, &w, &b, o))?;
             let used = f32_used && path == selected;
@@ -1104,14 +1104,14 @@ fn gemm_variants(
             let units = [("cpu_gemm_bf16", Bf16Unit::Vector), ("cpu_gemm_bf16_amx", Bf16Unit::Tiles)];
             for (name, unit) in units.into_iter().filter(|u| u.1 == Bf16Unit::Vector || amx) {
                 let m = time_cpu(&|s, xc, o| dense_bf16_packed_on(unit, s, &[(xc, in_dim)], &packed, &b, o))?;
-                let used = precision == Precision::Bf16 && (unit == Bf16Unit::Tiles) == amx;
+                let used = precision.uses(Precision::Bf16) && (unit == Bf16Unit::Tiles) == amx;
                 out.push(report(name.into(), "cpu", used, ms(m.wall), Clock::HostWall));
             }
         }
         if Precision::Int8.is_available() {
             let quantized = crate::cpu::gemm_int8::quantize_weight(&w, in_dim, out_dim);
             let m = time_cpu(&|s, xc, o| crate::cpu::gemm_int8::dense_int8(s, &[(xc, in_dim)], &quantized, &b, o))?;
-            let used = precision == Precision::Int8;
+            let used = precision.uses(Precision::Int8);
             out.push(report("cpu_gemm_int8".into(), "cpu", used, ms(m.wall), Clock::HostWall));
         }
         let m = time_cpu(&|s, xc, o| dense_twin(s, xc, &w, &b, o))?;

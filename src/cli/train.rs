@@ -227,7 +227,7 @@ fn train_precision(args: &Args) -> anyhow::Result<Precision> {
                 Precision::F32
             }
         }
-        (None, _) => Precision::from_env()?.0.for_training(),
+        (None, _) => crate::cpu::gemm::EncoderPrecision::from_env()?.0.for_training(),
     })
 }
 

@@ -380,47 +380,6 @@ impl Precision {
         }
     }
 
-    /// The precision [`CPU_PRECISION_ENV`] asks for on this CPU, and why: see [`Precision::choose`].
-    pub fn from_env() -> crate::error::Result<(Precision, String)> {
-        let value = std::env::var(CPU_PRECISION_ENV).ok();
-        let (precision, why) = Precision::choose(value.as_deref(), CpuUnits::of_this_cpu())?;
-        Ok(match precision {
-            Precision::Bf16 => (precision, format!("{why}; {}", crate::cpu::gemm_bf16::Bf16Unit::Tiles.describe())),
-            Precision::F32 | Precision::Int8 => (precision, why),
-        })
-    }
-
-    /// The precision a value of [`CPU_PRECISION_ENV`] asks for on a CPU with `units`, and why.
-    /// Unset, empty or `auto`: the fastest the CPU has, where each registers the same pairs as f32 on the
-    /// shipped weights (docs/speed.md): bf16 (on AMX tiles where the CPU has them), else int8 where the CPU has
-    /// AVX-512 VNNI, else f32. int8 is 1.7x bf16's encoder speed on the vector unit but opt-in there: it trusts
-    /// a wrong pose on the tuning set rm961 that bf16 does not (docs/experiments/cpu-int8.md, "Decision");
-    /// `f32`: f32 (bit-identical on every CPU); `bf16` or `int8`: that, an error where the CPU lacks it.
-    pub fn choose(value: Option<&str>, units: CpuUnits) -> crate::error::Result<(Precision, String)> {
-        let invalid = |why: String| Err(crate::error::Error::invalid(why));
-        let asked = |p: Precision| format!("{} encoders: {CPU_PRECISION_ENV}={}", p.name(), p.name());
-        match value.map(str::trim) {
-            None | Some("" | "auto") => Ok(if units.bf16 && units.amx {
-                (Precision::Bf16, format!("bf16 encoders: this CPU has AMX tiles ({CPU_PRECISION_ENV}=f32 for f32)"))
-            } else if units.bf16 {
-                (Precision::Bf16, format!("bf16 encoders: this CPU has AVX-512 BF16 ({CPU_PRECISION_ENV}=f32 for f32)"))
-            } else if units.int8 {
-                (
-                    Precision::Int8,
-                    format!("int8 encoders: this CPU has AVX-512 VNNI, no BF16 ({CPU_PRECISION_ENV}=f32 for f32)"),
-                )
-            } else {
-                (Precision::F32, "f32 encoders: this CPU has no AVX-512 BF16".into())
-            }),
-            Some("f32") => Ok((Precision::F32, asked(Precision::F32))),
-            Some("bf16") if units.bf16 => Ok((Precision::Bf16, asked(Precision::Bf16))),
-            Some("bf16") => invalid(format!("{CPU_PRECISION_ENV}=bf16, but this CPU has no AVX-512 BF16")),
-            Some("int8") if units.int8 => Ok((Precision::Int8, asked(Precision::Int8))),
-            Some("int8") => invalid(format!("{CPU_PRECISION_ENV}=int8, but this CPU has no AVX-512 VNNI")),
-            Some(other) => invalid(format!("{CPU_PRECISION_ENV}='{other}': expected f32, bf16, int8 or auto")),
-        }
-    }
-
     /// The precision the trainer takes for this one: int8 is for inference, so training runs bf16 there (where
     /// the CPU has it, else f32).
     pub fn for_training(self) -> Precision {
@@ -441,6 +400,113 @@ impl Precision {
     }
 }
 
+/// The arithmetic of each encoder on the CPU backend: PPF-FoldNet's codewords are matched, PC-FoldNet's feed
+/// RelativeNet's pose. A precision per network, because they respond differently to int8: int8 on PPF-FoldNet
+/// moves which correspondences match, on PC-FoldNet it changed no verdict measured (docs/experiments/cpu-int8.md).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct EncoderPrecision {
+    /// PPF-FoldNet's wide layers.
+    pub ppf: Precision,
+    /// PC-FoldNet's wide layers.
+    pub pc: Precision,
+}
+
+impl From<Precision> for EncoderPrecision {
+    fn from(p: Precision) -> EncoderPrecision {
+        EncoderPrecision { ppf: p, pc: p }
+    }
+}
+
+impl EncoderPrecision {
+    /// The value [`CPU_PRECISION_ENV`] takes for this choice: one name (`bf16`) when both encoders share it,
+    /// else `PPF,PC` (`bf16,int8`).
+    pub fn name(self) -> String {
+        if self.ppf == self.pc { self.ppf.name().into() } else { format!("{},{}", self.ppf.name(), self.pc.name()) }
+    }
+
+    /// Whether either encoder multiplies in bf16.
+    pub fn uses(self, p: Precision) -> bool {
+        self.ppf == p || self.pc == p
+    }
+
+    /// Whether this CPU computes both encoders' precisions.
+    pub fn is_available(self) -> bool {
+        self.ppf.is_available() && self.pc.is_available()
+    }
+
+    /// The trainer's precision for this choice: PPF-FoldNet's, int8 read as bf16 ([`Precision::for_training`]).
+    pub fn for_training(self) -> Precision {
+        self.ppf.for_training()
+    }
+
+    /// The precisions [`CPU_PRECISION_ENV`] asks for on this CPU, and why: see [`EncoderPrecision::choose`].
+    pub fn from_env() -> crate::error::Result<(EncoderPrecision, String)> {
+        let value = std::env::var(CPU_PRECISION_ENV).ok();
+        let (precision, why) = EncoderPrecision::choose(value.as_deref(), CpuUnits::of_this_cpu())?;
+        Ok(if precision.uses(Precision::Bf16) {
+            (precision, format!("{why}; {}", crate::cpu::gemm_bf16::Bf16Unit::Tiles.describe()))
+        } else {
+            (precision, why)
+        })
+    }
+
+    /// The precisions a value of [`CPU_PRECISION_ENV`] asks for on a CPU with `units`, and why.
+    /// Unset, empty or `auto`: the fastest the CPU has, where each registers the same pairs as bf16 on the
+    /// shipped weights (docs/speed.md): bf16 on AMX tiles where the CPU has them; else, where it has both AVX-512
+    /// BF16 and VNNI, PPF-FoldNet in bf16 and PC-FoldNet in int8 (int8 on PPF-FoldNet too is 1.7x bf16's speed
+    /// but opt-in: it trusts a wrong pose on the tuning set rm961 that bf16 does not,
+    /// docs/experiments/cpu-int8.md); else bf16; else int8; else f32.
+    /// `f32`, `bf16` or `int8`: that for both encoders (an error where the CPU lacks it); `PPF,PC` (`bf16,int8`):
+    /// one for each; f32 alone is bit-identical on every CPU.
+    pub fn choose(value: Option<&str>, units: CpuUnits) -> crate::error::Result<(EncoderPrecision, String)> {
+        let one = |name: &str| -> crate::error::Result<Precision> {
+            let refused = |what: &str| {
+                Err(crate::error::Error::invalid(format!(
+                    "{CPU_PRECISION_ENV}={}: {name}, but this CPU has no {what}",
+                    value.unwrap_or_default().trim()
+                )))
+            };
+            match name.trim() {
+                "f32" => Ok(Precision::F32),
+                "bf16" if units.bf16 => Ok(Precision::Bf16),
+                "bf16" => refused("AVX-512 BF16"),
+                "int8" if units.int8 => Ok(Precision::Int8),
+                "int8" => refused("AVX-512 VNNI"),
+                other => Err(crate::error::Error::invalid(format!(
+                    "{CPU_PRECISION_ENV}='{other}': expected f32, bf16, int8, auto or PPF,PC (e.g. bf16,int8)"
+                ))),
+            }
+        };
+        let off = format!("({CPU_PRECISION_ENV}=f32 for f32)");
+        match value.map(str::trim) {
+            None | Some("" | "auto") => Ok(if units.bf16 && units.amx {
+                (Precision::Bf16.into(), format!("bf16 encoders: this CPU has AMX tiles {off}"))
+            } else if units.bf16 && units.int8 {
+                (
+                    EncoderPrecision { ppf: Precision::Bf16, pc: Precision::Int8 },
+                    format!(
+                        "bf16,int8 encoders (PPF-FoldNet bf16, PC-FoldNet int8): this CPU has AVX-512 BF16 and VNNI \
+                         ({CPU_PRECISION_ENV}=bf16 for bf16 alone, f32 for f32)"
+                    ),
+                )
+            } else if units.bf16 {
+                (Precision::Bf16.into(), format!("bf16 encoders: this CPU has AVX-512 BF16 {off}"))
+            } else if units.int8 {
+                (Precision::Int8.into(), format!("int8 encoders: this CPU has AVX-512 VNNI, no BF16 {off}"))
+            } else {
+                (Precision::F32.into(), "f32 encoders: this CPU has no AVX-512 BF16".into())
+            }),
+            Some(v) => {
+                let precision = match v.split_once(',') {
+                    Some((ppf, pc)) => EncoderPrecision { ppf: one(ppf)?, pc: one(pc)? },
+                    None => one(v)?.into(),
+                };
+                Ok((precision, format!("{} encoders: {CPU_PRECISION_ENV}={v}", precision.name())))
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -449,22 +515,33 @@ mod tests {
     #[test]
     fn auto_takes_the_fastest_unit_and_an_explicit_choice_is_kept_or_refused() {
         let units = |bf16, int8, amx| CpuUnits { bf16, int8, amx };
-        let auto = |u| Precision::choose(None, u).unwrap().0;
-        assert_eq!(auto(units(true, true, true)), Precision::Bf16, "AMX tiles");
-        assert_eq!(auto(units(true, true, false)), Precision::Bf16, "int8 is opt-in where bf16 runs");
-        assert_eq!(auto(units(false, true, false)), Precision::Int8, "VNNI without BF16");
-        assert_eq!(auto(units(true, false, false)), Precision::Bf16);
-        assert_eq!(auto(units(false, false, false)), Precision::F32);
-        assert_eq!(Precision::choose(Some(" auto "), units(false, true, false)).unwrap().0, Precision::Int8);
+        let choose = |v, u| EncoderPrecision::choose(v, u).map(|c| c.0);
+        let auto = |u| choose(None, u).unwrap();
+        let both = EncoderPrecision::from;
+        let mixed = EncoderPrecision { ppf: Precision::Bf16, pc: Precision::Int8 };
+        assert_eq!(auto(units(true, true, true)), both(Precision::Bf16), "AMX tiles");
+        assert_eq!(auto(units(true, true, false)), mixed, "int8 only on PC-FoldNet where bf16 runs");
+        assert_eq!(auto(units(false, true, false)), both(Precision::Int8), "VNNI without BF16");
+        assert_eq!(auto(units(true, false, false)), both(Precision::Bf16));
+        assert_eq!(auto(units(false, false, false)), both(Precision::F32));
+        assert_eq!(choose(Some(" auto "), units(false, true, false)).unwrap(), both(Precision::Int8));
         for u in [units(true, true, true), units(false, false, false)] {
-            assert_eq!(Precision::choose(Some("f32"), u).unwrap().0, Precision::F32);
+            assert_eq!(choose(Some("f32"), u).unwrap(), both(Precision::F32));
         }
-        assert_eq!(Precision::choose(Some("int8"), units(true, true, true)).unwrap().0, Precision::Int8);
-        assert_eq!(Precision::choose(Some("bf16"), units(true, true, false)).unwrap().0, Precision::Bf16);
-        let refused = Precision::choose(Some("int8"), units(true, false, true)).unwrap_err().to_string();
+        assert_eq!(choose(Some("int8"), units(true, true, true)).unwrap(), both(Precision::Int8));
+        assert_eq!(choose(Some("bf16"), units(true, true, false)).unwrap(), both(Precision::Bf16));
+        assert_eq!(choose(Some("bf16, int8"), units(true, true, true)).unwrap(), mixed);
+        assert_eq!(choose(Some("f32,bf16"), units(true, false, false)).unwrap().pc, Precision::Bf16);
+        assert_eq!((mixed.name(), both(Precision::Int8).name()), ("bf16,int8".into(), "int8".into()));
+        let refused = choose(Some("int8"), units(true, false, true)).unwrap_err().to_string();
         assert!(refused.contains("VNNI"), "{refused}");
-        assert!(Precision::choose(Some("bf16"), units(false, false, false)).is_err());
-        assert!(Precision::choose(Some("fp8"), units(true, true, true)).unwrap_err().to_string().contains("fp8"));
+        let refused = choose(Some("bf16,int8"), units(true, false, false)).unwrap_err().to_string();
+        assert!(refused.contains("VNNI") && refused.contains("bf16,int8"), "{refused}");
+        assert!(choose(Some("bf16"), units(false, false, false)).is_err());
+        assert!(choose(Some("fp8"), units(true, true, true)).unwrap_err().to_string().contains("fp8"));
+        assert!(choose(Some("bf16,int8,f32"), units(true, true, true)).is_err());
+        // The trainer: PPF-FoldNet's precision, int8 read as bf16 where the CPU has it.
+        assert_eq!(mixed.for_training(), Precision::Bf16);
     }
 
     #[test]

@@ -4,7 +4,7 @@
 
 use crate::backend::{Backend, ContextRows, CpuBackend, MatchedRows, MatchedSide, RowMatch, ScanRows, ScanSettings};
 use crate::cloud::PointCloud;
-use crate::cpu::gemm::Precision;
+use crate::cpu::gemm::EncoderPrecision;
 use crate::error::{Error, Result};
 use crate::estimate::candidates;
 use crate::estimate::icp::IcpProblem;
@@ -65,7 +65,7 @@ pub fn create_backend(kind: BackendKind, model: Model) -> Result<Box<dyn Backend
 /// device type is CPU, such as lavapipe) unless `DPR_GPU_ALLOW_SOFTWARE=1` or `WGPU_ADAPTER_NAME` asks for it.
 pub fn choose_backend(kind: BackendKind, model: Model) -> Result<(Box<dyn Backend>, String)> {
     let cpu = |model: Model, why: String| -> Result<(Box<dyn Backend>, String)> {
-        let (precision, how) = Precision::from_env()?;
+        let (precision, how) = EncoderPrecision::from_env()?;
         Ok((Box::new(CpuBackend::with_precision(model, precision)?), format!("{why}; {how}")))
     };
     match kind {
