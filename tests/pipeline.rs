@@ -295,7 +295,8 @@ fn bf16_encoders_register_the_example_pair_like_f32() {
     reduced_precision_registers_the_example_pair_like_f32(dpr_gpu::cpu::gemm::Precision::Bf16, 4.0 * 2.0 / 256.0);
 }
 
-/// The int8 encoders (the default where the CPU has AVX-512 VNNI and no AMX) likewise: each of the four int8
+/// The int8 encoders (the default for both where the CPU has AVX-512 VNNI and no BF16, for PC-FoldNet where it
+/// has both and no AMX) likewise: each of the four int8
 /// layers rounds every input to half a step of its row's largest value (1/255 of it, or 1/127 for a row with
 /// negative values) and every weight to half a step of its column's (1/127), so about 4 x (1/255 + 1/127) ~
 /// 0.047 relative to the codeword without cancellation.
