@@ -168,7 +168,8 @@ pub trait Backend: Send + Sync {
         initial: nalgebra::Matrix4<f64>,
         problem: &'a crate::estimate::icp::IcpProblem,
     ) -> StepFuture<'a, nalgebra::Matrix4<f64>> {
-        ready(crate::estimate::icp::refine_on_host(&source.cloud, &target.cloud, initial, problem))
+        let target_cloud = (&target.cloud, target.known_normals());
+        ready(crate::estimate::icp::refine_on_host(&source.cloud, target_cloud, initial, problem))
     }
 
     /// PPF (P x N x 4) and PC (P x N x 3) network inputs of gathered patches.

@@ -209,6 +209,8 @@ impl DescribedScan {
             rows,
             context,
             held_points: None,
+            // Restored normals are taken as given (ICP estimates its own).
+            estimated_normals: None,
             timings,
         };
         let scan = DescribedScan::new(features, index, origin, key);

@@ -38,11 +38,21 @@ pub struct ScanFeatures {
     /// buffer; `None` on the host, where `cloud.points` are they), for stages after description (ICP) to read
     /// them where they are. Shared by clones.
     pub held_points: Option<Arc<dyn HeldPoints>>,
+    /// `Some(k)` where `cloud`'s normals are the host's PCA estimates over `k` neighbours facing `viewpoint`
+    /// (NaN placeholders where none was needed yet, [`super::ScanCloud::host_estimated_normals`]); `None` where
+    /// they came with the cloud or another backend holds them. ICP's copy of the target reuses such normals.
+    pub estimated_normals: Option<usize>,
     /// Stage times spent describing this scan.
     pub timings: Vec<StageTime>,
 }
 
 impl ScanFeatures {
+    /// The normals of `cloud` estimated on the host so far, and how ([`ScanFeatures::estimated_normals`]).
+    pub fn known_normals(&self) -> Option<crate::estimate::icp::KnownNormals<'_>> {
+        let (normals, neighbors) = (self.cloud.normals.as_deref()?, self.estimated_normals?);
+        Some(crate::estimate::icp::KnownNormals { normals, neighbors, viewpoint: self.viewpoint })
+    }
+
     /// Rows (kept keypoints) among the first `candidates` keypoints of the order.
     pub fn rows_within(&self, candidates: usize) -> usize {
         self.keypoint_ranks.partition_point(|&r| (r as usize) < candidates)

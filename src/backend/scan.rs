@@ -83,6 +83,13 @@ pub trait ScanCloud: Send + Sync {
         None
     }
 
+    /// `Some(k)` where the host cloud's normals are estimated on the host as they are needed (PCA over `k`
+    /// neighbours facing the settings' viewpoint, [`estimate_normals_at`] on the cloud's own k-d tree; NaN until
+    /// then); the provided version `None` (the file's normals, or normals another backend holds).
+    fn host_estimated_normals(&self) -> Option<usize> {
+        None
+    }
+
     /// Fills every normal of `cloud` (estimating or reading back those not in it yet).
     fn complete_normals<'a>(&'a mut self, cloud: &'a mut PointCloud) -> StepFuture<'a, ()>;
 
@@ -100,6 +107,8 @@ struct MissingNormals {
 pub struct HostScanCloud {
     index: PointIndex,
     missing: Option<MissingNormals>,
+    /// Whether the normals are estimated here (the cloud had none usable).
+    estimated: bool,
     settings: ScanSettings,
 }
 
@@ -160,7 +169,8 @@ pub fn host_start_scan(
         cloud.normals = Some(vec![[f32::NAN; 3]; cloud.len()]);
         Some(MissingNormals { ready: vec![false; cloud.len()], viewpoint: settings.viewpoint })
     };
-    Ok((cloud, Box::new(HostScanCloud { index, missing, settings: *settings })))
+    let estimated = missing.is_some();
+    Ok((cloud, Box::new(HostScanCloud { index, missing, estimated, settings: *settings })))
 }
 
 /// Positions in `asked` of the `kept` keypoints (a subsequence of `asked`, in order).
@@ -217,6 +227,10 @@ impl ScanCloud for HostScanCloud {
 
     fn normals_complete(&self) -> bool {
         self.missing.is_none()
+    }
+
+    fn host_estimated_normals(&self) -> Option<usize> {
+        self.estimated.then_some(self.settings.normal_neighbors)
     }
 }
 

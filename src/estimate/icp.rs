@@ -126,27 +126,131 @@ pub fn icp_point_to_plane(
     }))
 }
 
+/// Normals of a target's points estimated so far (NaN where not yet), by [`estimate_normals_at`] over
+/// `neighbors` neighbours facing `viewpoint` on a k-d tree of the target's own points.
+#[derive(Clone, Copy, Debug)]
+pub struct KnownNormals<'a> {
+    /// One per target point.
+    pub normals: &'a [[f32; 3]],
+    /// Neighbours of each PCA.
+    pub neighbors: usize,
+    /// Where they face.
+    pub viewpoint: [f32; 3],
+}
+
 /// Point-to-plane ICP from `initial` on the host (what a backend runs unless it overrides
 /// [`crate::backend::Backend::refine_icp`]): `target` voxel-downsampled at half the distance, PCA normals of
-/// the copy facing the origin, then [`icp_point_to_plane`] of every `source` point (strided).
+/// the copy facing the origin ([`copy_normals`]: those `known` already gives are reused), then
+/// [`icp_point_to_plane`] of every `source` point (strided).
 pub fn refine_on_host(
     source: &PointCloud,
-    target: &PointCloud,
+    (target, known): (&PointCloud, Option<KnownNormals<'_>>),
     initial: Matrix4<f64>,
     problem: &IcpProblem,
 ) -> Result<Matrix4<f64>> {
     let voxel = problem.max_distance / 2.0;
     let mut small = voxel_downsample(&PointCloud::from_points(target.points.clone()), voxel)?;
     let index = PointIndex::new(&small.points)?;
-    let ids: Vec<usize> = (0..small.len()).collect();
-    small.normals = Some(estimate_normals_at(&small.points, &index, &ids, problem.normal_neighbors, [0.0; 3]));
+    let known = known.filter(|_| small.points == target.points);
+    small.normals = Some(copy_normals(&small.points, &index, known, problem.normal_neighbors));
     icp_point_to_plane(source, &small, &index, initial, problem.max_distance, problem.max_iterations)
+}
+
+/// The normals of ICP's copy of the target (`points`, indexed by `index`): PCA over `neighbors` neighbours
+/// facing the origin. `known`, where given, holds normals of these very points (the copy equals the target
+/// when the target is already one point per voxel, as the pipeline's default voxel leaves it): where it was
+/// estimated the same way (same neighbours, facing the origin) its normals are taken as they are and only the
+/// rest estimated. The same function on the same points and k-d tree, so the same normals bit for bit.
+pub fn copy_normals(
+    points: &[[f32; 3]],
+    index: &PointIndex,
+    known: Option<KnownNormals<'_>>,
+    neighbors: usize,
+) -> Vec<[f32; 3]> {
+    const FACING: [f32; 3] = [0.0; 3];
+    let reusable =
+        known.filter(|k| k.neighbors == neighbors && k.viewpoint == FACING && k.normals.len() == points.len());
+    let mut normals = match reusable {
+        Some(k) => k.normals.to_vec(),
+        None => vec![[f32::NAN; 3]; points.len()],
+    };
+    let missing: Vec<usize> = (0..points.len()).filter(|&i| normals[i].iter().any(|c| c.is_nan())).collect();
+    for (i, n) in missing.iter().zip(estimate_normals_at(points, index, &missing, neighbors, FACING)) {
+        normals[*i] = n;
+    }
+    normals
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::pose::{rotation_error_deg, translation_error};
+
+    /// A bumpy sheet with a step, one point per 0.05 cell: enough curvature for distinct PCA normals.
+    fn bumpy_sheet() -> Vec<[f32; 3]> {
+        let mut pts = Vec::new();
+        for i in 0..40 {
+            for j in 0..40 {
+                let (x, y) = (i as f32 * 0.05 + 0.012, j as f32 * 0.05 + 0.013);
+                let z = 0.1 * (3.0 * x).sin() * (2.0 * y).cos() + if x > 1.0 { 0.2 } else { 0.0 } + 0.01;
+                pts.push([x, y, z]);
+            }
+        }
+        pts
+    }
+
+    #[test]
+    fn the_copy_reuses_normals_estimated_the_same_way_and_only_those() {
+        let pts = bumpy_sheet();
+        let index = PointIndex::new(&pts).unwrap();
+        let all: Vec<usize> = (0..pts.len()).collect();
+        let fresh = estimate_normals_at(&pts, &index, &all, 12, [0.0; 3]);
+        // Normals estimated the same way for every third point, NaN elsewhere (a scan's placeholders).
+        let partial: Vec<[f32; 3]> =
+            fresh.iter().enumerate().map(|(i, &n)| if i % 3 == 0 { n } else { [f32::NAN; 3] }).collect();
+        fn known(normals: &[[f32; 3]], neighbors: usize, viewpoint: [f32; 3]) -> Option<KnownNormals<'_>> {
+            Some(KnownNormals { normals, neighbors, viewpoint })
+        }
+        let same =
+            |a: &[[f32; 3]], b: &[[f32; 3]]| a.iter().zip(b).all(|(x, y)| x.map(f32::to_bits) == y.map(f32::to_bits));
+        assert!(same(&copy_normals(&pts, &index, known(&partial, 12, [0.0; 3]), 12), &fresh));
+        // Reused where known: a marker normal comes back where it stands, the rest is estimated.
+        let mut marked = partial.clone();
+        marked[0] = [0.0, 0.0, 1.0];
+        let got = copy_normals(&pts, &index, known(&marked, 12, [0.0; 3]), 12);
+        assert_eq!(got[0], [0.0, 0.0, 1.0]);
+        assert!(same(&got[1..], &fresh[1..]));
+        // Estimated otherwise (other neighbours or another viewpoint): never reused.
+        for (k, view) in [(8, [0.0; 3]), (12, [0.0, 0.0, 5.0])] {
+            assert!(same(&copy_normals(&pts, &index, known(&marked, k, view), 12), &fresh), "{k} {view:?}");
+        }
+    }
+
+    #[test]
+    fn icp_on_the_host_gives_the_same_pose_with_the_scans_normals() {
+        let target = PointCloud::from_points(bumpy_sheet());
+        let truth = matrix_from_parts(
+            &Rotation3::new(Vector3::new(0.01, -0.02, 0.015)).into_inner(),
+            &Vector3::new(0.02, -0.01, 0.01),
+        );
+        let inv = truth.try_inverse().unwrap();
+        let source = PointCloud::from_points(target.points.iter().map(|&p| transform_point(&inv, p)).collect());
+        let problem = IcpProblem { max_distance: 0.1, max_iterations: 30, normal_neighbors: 12 };
+        // The target already one point per voxel of the copy (0.05), its normals estimated for half its points.
+        let index = PointIndex::new(&target.points).unwrap();
+        let half: Vec<usize> = (0..target.len()).step_by(2).collect();
+        let mut normals = vec![[f32::NAN; 3]; target.len()];
+        for (&i, n) in half.iter().zip(estimate_normals_at(&target.points, &index, &half, 12, [0.0; 3])) {
+            normals[i] = n;
+        }
+        let copy = voxel_downsample(&target, problem.max_distance / 2.0).unwrap();
+        assert_eq!(copy.points, target.points, "the copy is the target: its normals are reused");
+        let known = KnownNormals { normals: &normals, neighbors: 12, viewpoint: [0.0; 3] };
+        let without = refine_on_host(&source, (&target, None), Matrix4::identity(), &problem).unwrap();
+        let with = refine_on_host(&source, (&target, Some(known)), Matrix4::identity(), &problem).unwrap();
+        assert_eq!(with, without, "bit for bit");
+        assert!(rotation_error_deg(&with, &truth) < 0.05 && translation_error(&with, &truth) < 1e-3);
+    }
 
     #[test]
     fn converges_from_a_small_offset_on_three_planes() {

@@ -392,6 +392,7 @@ impl Registrar {
                 })
                 .collect::<Result<_>>()?,
             held_points: scan_cloud.held_points(),
+            estimated_normals: scan_cloud.host_estimated_normals(),
             timings: Vec::new(),
         };
         let patch_seed = Rng::derived(s.seed, 2 * stream + 1).next_u64();
