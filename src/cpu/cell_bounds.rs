@@ -6,6 +6,10 @@
 //! coordinates must stay within `+-2^30` (and the point finite); otherwise the cloud is rejected.
 
 use crate::error::{Error, Result};
+use rayon::prelude::*;
+
+/// Points per parallel task of the grid's per-point passes (here and in [`super::cell_keys`]).
+pub const POINTS_PER_TASK: usize = 16_384;
 
 /// Largest magnitude of a cell coordinate (exclusive): `2^30`, so differences of two coordinates fit an `i32`.
 pub const CELL_COORD_LIMIT: f32 = 1_073_741_824.0;
@@ -24,11 +28,15 @@ pub struct CellBox {
 pub fn cell_of(p: &[f32; 3], inv_cell: f32) -> Option<[i32; 3]> {
     let mut c = [0i32; 3];
     for (a, &v) in p.iter().enumerate() {
-        let f = (v * inv_cell).floor();
-        if f.is_nan() || f.abs() >= CELL_COORD_LIMIT {
+        // `floor` without a libm call: below 2^30 in magnitude truncation is exact, and one less than it is the
+        // floor of a negative non-integer; a product at 2^30 or beyond is an integer already, so rejecting it
+        // rejects exactly the floors out of range (NaN fails the comparison too).
+        let scaled = v * inv_cell;
+        if !(scaled.abs() < CELL_COORD_LIMIT) {
             return None;
         }
-        c[a] = f as i32;
+        let t = scaled as i32;
+        c[a] = if (t as f32) > scaled { t - 1 } else { t };
     }
     Some(c)
 }
@@ -36,16 +44,33 @@ pub fn cell_of(p: &[f32; 3], inv_cell: f32) -> Option<[i32; 3]> {
 /// The box of the cells of `points`; an error for an empty slice or a point whose cell is out of range.
 pub fn cell_bounds(points: &[[f32; 3]], inv_cell: f32) -> Result<CellBox> {
     check_inv_cell(inv_cell)?;
-    let mut b = CellBox { min: [i32::MAX; 3], max: [i32::MIN; 3] };
-    for (i, p) in points.iter().enumerate() {
-        let c = cell_of(p, inv_cell).ok_or_else(|| out_of_range(Some((i, p)), inv_cell))?;
-        for (a, &ca) in c.iter().enumerate() {
-            b.min[a] = b.min[a].min(ca);
-            b.max[a] = b.max[a].max(ca);
-        }
-    }
     if points.is_empty() {
         return Err(Error::invalid("cell grid: no points"));
+    }
+    // Each task's box in point order, then the boxes merged in order: the first bad point is the one reported.
+    let boxes: Vec<Result<CellBox>> = points
+        .par_chunks(POINTS_PER_TASK)
+        .enumerate()
+        .map(|(task, chunk)| {
+            let mut b = CellBox { min: [i32::MAX; 3], max: [i32::MIN; 3] };
+            for (j, p) in chunk.iter().enumerate() {
+                let i = task * POINTS_PER_TASK + j;
+                let c = cell_of(p, inv_cell).ok_or_else(|| out_of_range(Some((i, p)), inv_cell))?;
+                for (a, &ca) in c.iter().enumerate() {
+                    b.min[a] = b.min[a].min(ca);
+                    b.max[a] = b.max[a].max(ca);
+                }
+            }
+            Ok(b)
+        })
+        .collect();
+    let mut b = CellBox { min: [i32::MAX; 3], max: [i32::MIN; 3] };
+    for part in boxes {
+        let part = part?;
+        for a in 0..3 {
+            b.min[a] = b.min[a].min(part.min[a]);
+            b.max[a] = b.max[a].max(part.max[a]);
+        }
     }
     Ok(b)
 }
@@ -77,10 +102,44 @@ mod tests {
         assert_eq!(cell_of(&[0.25, -0.25, 1.0], 2.0), Some([0, -1, 2]));
         assert_eq!(cell_of(&[f32::NAN, 0.0, 0.0], 2.0), None);
         assert_eq!(cell_of(&[1e30, 0.0, 0.0], 2.0), None);
+        // The floor without libm against `f32::floor`, around zero, integers and the range limit.
+        let limit = CELL_COORD_LIMIT;
+        for v in [
+            0.0f32,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            -1e-30,
+            2.9999998,
+            -2.9999998,
+            8388607.5,
+            -8388607.5,
+            limit - 64.0,
+            -(limit - 64.0),
+            limit,
+            -limit,
+            f32::INFINITY,
+        ] {
+            let want = v.floor();
+            let want = (want.abs() < limit).then_some(want as i32);
+            assert_eq!(cell_of(&[v, 0.0, 0.0], 1.0).map(|c| c[0]), want, "{v}");
+        }
         let b = cell_bounds(&[[0.25, -0.25, 1.0], [-3.0, 2.0, 0.0]], 2.0).unwrap();
         assert_eq!(b, CellBox { min: [-6, -1, 0], max: [0, 4, 2] });
         assert!(cell_bounds(&[], 2.0).is_err());
         assert!(cell_bounds(&[[0.0; 3]], 0.0).is_err());
         assert!(cell_bounds(&[[1e30, 0.0, 0.0]], 1.0).unwrap_err().to_string().contains("point 0"));
+        // Across parallel tasks: the box of every point, and the first bad point named.
+        let mut many: Vec<[f32; 3]> =
+            (0..3 * POINTS_PER_TASK + 5).map(|i| [i as f32 * 0.01, -(i as f32), 0.5]).collect();
+        let b = cell_bounds(&many, 1.0).unwrap();
+        let n = many.len() as i32;
+        assert_eq!(b, CellBox { min: [0, -(n - 1), 0], max: [((n - 1) as f32 * 0.01).floor() as i32, 0, 0] });
+        many[2 * POINTS_PER_TASK + 3][1] = f32::NAN;
+        many[POINTS_PER_TASK + 7][2] = 1e30;
+        let e = cell_bounds(&many, 1.0).unwrap_err().to_string();
+        assert!(e.contains(&format!("point {}", POINTS_PER_TASK + 7)), "{e}");
     }
 }

@@ -6,8 +6,9 @@
 //! A box wider than `2^21` cells on any axis has no key: a clear error, never a wrong order. Each key travels
 //! with its point's index as a [`SortKey`] `[hi, lo, index, 0]` (a `vec4<u32>` in WGSL).
 
-use super::cell_bounds::{CellBox, cell_of, out_of_range};
+use super::cell_bounds::{CellBox, POINTS_PER_TASK, cell_of, out_of_range};
 use crate::error::{Error, Result};
+use rayon::prelude::*;
 
 /// Bits per axis of a key.
 pub const AXIS_BITS: u32 = 21;
@@ -54,19 +55,28 @@ pub fn offsets(c: [i32; 3], b: &CellBox) -> [u32; 3] {
 /// outside `b` (or its cell out of range).
 pub fn cell_keys(points: &[[f32; 3]], inv_cell: f32, b: &CellBox) -> Result<Vec<SortKey>> {
     let dims = grid_dims(b)?;
-    points
-        .iter()
+    let mut keys = vec![[0u32; 4]; points.len()];
+    // Each task fills its keys in point order; the tasks' outcomes in order name the first bad point.
+    let outcomes: Vec<Result<()>> = keys
+        .par_chunks_mut(POINTS_PER_TASK)
+        .zip(points.par_chunks(POINTS_PER_TASK))
         .enumerate()
-        .map(|(i, p)| {
-            let c = cell_of(p, inv_cell).ok_or_else(|| out_of_range(Some((i, p)), inv_cell))?;
-            let o = offsets(c, b);
-            if (0..3).any(|a| o[a] >= dims[a]) {
-                return Err(Error::invalid(format!("cell grid: point {i} lies outside the grid's box")));
+        .map(|(task, (out, chunk))| {
+            for (j, (key, p)) in out.iter_mut().zip(chunk).enumerate() {
+                let i = task * POINTS_PER_TASK + j;
+                let c = cell_of(p, inv_cell).ok_or_else(|| out_of_range(Some((i, p)), inv_cell))?;
+                let o = offsets(c, b);
+                if (0..3).any(|a| o[a] >= dims[a]) {
+                    return Err(Error::invalid(format!("cell grid: point {i} lies outside the grid's box")));
+                }
+                let [hi, lo] = pack(o);
+                *key = [hi, lo, i as u32, 0];
             }
-            let [hi, lo] = pack(o);
-            Ok([hi, lo, i as u32, 0])
+            Ok(())
         })
-        .collect()
+        .collect();
+    outcomes.into_iter().collect::<Result<()>>()?;
+    Ok(keys)
 }
 
 #[cfg(test)]
@@ -84,6 +94,24 @@ mod tests {
             assert_eq!(unpack(*k), *c);
         }
         assert!(keys.iter().all(|k| k[0] < PAD_KEY[0]));
+    }
+
+    #[test]
+    fn keys_across_parallel_tasks_are_each_points_own_and_the_first_bad_point_is_named() {
+        let inv_cell = 4.0;
+        let mut points: Vec<[f32; 3]> = (0..2 * POINTS_PER_TASK + 9)
+            .map(|i| [(i % 97) as f32 * 0.3, -((i % 13) as f32), (i / 1000) as f32])
+            .collect();
+        let b = super::super::cell_bounds::cell_bounds(&points, inv_cell).unwrap();
+        let keys = cell_keys(&points, inv_cell, &b).unwrap();
+        for (i, (k, p)) in keys.iter().zip(&points).enumerate() {
+            let want = pack(offsets(cell_of(p, inv_cell).unwrap(), &b));
+            assert_eq!(*k, [want[0], want[1], i as u32, 0]);
+        }
+        points[POINTS_PER_TASK + 1] = [1000.0, 0.0, 0.0];
+        points[POINTS_PER_TASK + 5] = [f32::NAN, 0.0, 0.0];
+        let e = cell_keys(&points, inv_cell, &b).unwrap_err().to_string();
+        assert!(e.contains(&format!("point {} lies outside", POINTS_PER_TASK + 1)), "{e}");
     }
 
     #[test]
