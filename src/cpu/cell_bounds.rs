@@ -30,9 +30,9 @@ pub fn cell_of(p: &[f32; 3], inv_cell: f32) -> Option<[i32; 3]> {
     for (a, &v) in p.iter().enumerate() {
         // `floor` without a libm call: below 2^30 in magnitude truncation is exact, and one less than it is the
         // floor of a negative non-integer; a product at 2^30 or beyond is an integer already, so rejecting it
-        // rejects exactly the floors out of range (NaN fails the comparison too).
+        // rejects exactly the floors out of range.
         let scaled = v * inv_cell;
-        if !(scaled.abs() < CELL_COORD_LIMIT) {
+        if scaled.is_nan() || scaled.abs() >= CELL_COORD_LIMIT {
             return None;
         }
         let t = scaled as i32;
