@@ -23,6 +23,19 @@ pub struct CellBox {
     pub max: [i32; 3],
 }
 
+impl CellBox {
+    /// The box of no cell (what [`CellBox::include`] grows from).
+    const EMPTY: CellBox = CellBox { min: [i32::MAX; 3], max: [i32::MIN; 3] };
+
+    /// Grows the box to hold the box `other` (a single cell `c` is `CellBox { min: c, max: c }`).
+    fn include(&mut self, other: &CellBox) {
+        for a in 0..3 {
+            self.min[a] = self.min[a].min(other.min[a]);
+            self.max[a] = self.max[a].max(other.max[a]);
+        }
+    }
+}
+
 /// The cell of `p` (`floor(p * inv_cell)` in f32), or `None` when a coordinate is not finite or its cell is out
 /// of `+-2^30`.
 pub fn cell_of(p: &[f32; 3], inv_cell: f32) -> Option<[i32; 3]> {
@@ -52,25 +65,18 @@ pub fn cell_bounds(points: &[[f32; 3]], inv_cell: f32) -> Result<CellBox> {
         .par_chunks(POINTS_PER_TASK)
         .enumerate()
         .map(|(task, chunk)| {
-            let mut b = CellBox { min: [i32::MAX; 3], max: [i32::MIN; 3] };
+            let mut b = CellBox::EMPTY;
             for (j, p) in chunk.iter().enumerate() {
                 let i = task * POINTS_PER_TASK + j;
                 let c = cell_of(p, inv_cell).ok_or_else(|| out_of_range(Some((i, p)), inv_cell))?;
-                for (a, &ca) in c.iter().enumerate() {
-                    b.min[a] = b.min[a].min(ca);
-                    b.max[a] = b.max[a].max(ca);
-                }
+                b.include(&CellBox { min: c, max: c });
             }
             Ok(b)
         })
         .collect();
-    let mut b = CellBox { min: [i32::MAX; 3], max: [i32::MIN; 3] };
+    let mut b = CellBox::EMPTY;
     for part in boxes {
-        let part = part?;
-        for a in 0..3 {
-            b.min[a] = b.min[a].min(part.min[a]);
-            b.max[a] = b.max[a].max(part.max[a]);
-        }
+        b.include(&part?);
     }
     Ok(b)
 }

@@ -424,7 +424,7 @@ impl EncoderPrecision {
         if self.ppf == self.pc { self.ppf.name().into() } else { format!("{},{}", self.ppf.name(), self.pc.name()) }
     }
 
-    /// Whether either encoder multiplies in bf16.
+    /// Whether either encoder runs at `p`.
     pub fn uses(self, p: Precision) -> bool {
         self.ppf == p || self.pc == p
     }
