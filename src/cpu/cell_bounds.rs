@@ -27,6 +27,15 @@ impl CellBox {
     /// The box of no cell (what [`CellBox::include`] grows from).
     const EMPTY: CellBox = CellBox { min: [i32::MAX; 3], max: [i32::MIN; 3] };
 
+    /// The slack of a nearest-neighbour search's stopping rule on this box's grid, in cells: `1e-3` plus 8 ulp
+    /// of the largest cell coordinate, which covers the rounding of the cell assignment (`floor(p * inv_cell)`
+    /// in f32) and of the comparison.
+    pub fn search_slack(&self) -> f32 {
+        let max_abs =
+            (0..3).map(|a| (self.min[a].unsigned_abs().max(self.max[a].unsigned_abs() + 1)) as f32).fold(0.0, f32::max);
+        1e-3 + 8.0 * f32::EPSILON * max_abs
+    }
+
     /// Grows the box to hold the box `other` (a single cell `c` is `CellBox { min: c, max: c }`).
     fn include(&mut self, other: &CellBox) {
         for a in 0..3 {
@@ -34,6 +43,18 @@ impl CellBox {
             self.max[a] = self.max[a].max(other.max[a]);
         }
     }
+}
+
+/// How far `q` is from the nearest face of its cell, in cells (`min(f, 1 - f)` over the axes, `f` the fraction of
+/// `q * inv_cell`): what a neighbour search adds to the shells it has visited to bound what lies outside them.
+pub fn face_gap(q: &[f32; 3], inv_cell: f32) -> f32 {
+    q.iter()
+        .map(|&v| {
+            let u = v * inv_cell;
+            let f = u - u.floor();
+            f.min(1.0 - f)
+        })
+        .fold(f32::INFINITY, f32::min)
 }
 
 /// The cell of `p` (`floor(p * inv_cell)` in f32), or `None` when a coordinate is not finite or its cell is out

@@ -14,7 +14,7 @@
 //! empty cells (binary searches). Lavapipe (the CI's software Vulkan) also ends every loop of an invocation
 //! after 65,535 iterations in all, so tests keep searches short.
 
-use super::cell_bounds::{CellBox, cell_of};
+use super::cell_bounds::{CellBox, cell_of, face_gap};
 use super::cell_keys::{SortKey, grid_dims, offsets, pack};
 use super::segments::Segments;
 use crate::error::{Error, Result};
@@ -47,13 +47,10 @@ impl CellGrid {
         Ok(CellGrid { points: points.to_vec(), inv_cell, bounds, sorted, cells })
     }
 
-    /// The slack of the stopping rule, in cells: `1e-3` plus 8 ulp of the largest cell coordinate (the kernel
-    /// computes the same from the grid words).
+    /// The slack of the stopping rule, in cells ([`CellBox::search_slack`]; the kernel computes the same from
+    /// the grid words).
     pub fn slack(&self) -> f32 {
-        let b = &self.bounds;
-        let max_abs =
-            (0..3).map(|a| (b.min[a].unsigned_abs().max(b.max[a].unsigned_abs() + 1)) as f32).fold(0.0, f32::max);
-        1e-3 + 8.0 * f32::EPSILON * max_abs
+        self.bounds.search_slack()
     }
 }
 
@@ -74,13 +71,7 @@ pub fn knn_query(grid: &CellGrid, q: &[f32; 3], k: usize) -> Result<Vec<(f32, u3
     let c =
         cell_of(q, grid.inv_cell).ok_or_else(|| Error::invalid(format!("grid_knn: query {q:?} is out of range")))?;
     let oq = offsets(c, &grid.bounds).map(|o| o as i32);
-    let frac_gap = (0..3)
-        .map(|a| {
-            let u = q[a] * grid.inv_cell;
-            let f = u - u.floor();
-            f.min(1.0 - f)
-        })
-        .fold(f32::INFINITY, f32::min);
+    let frac_gap = face_gap(q, grid.inv_cell);
     let slack = grid.slack();
     let rmax = (0..3).map(|a| oq[a].max(dims[a] as i32 - 1 - oq[a])).max().unwrap_or(0).max(0);
     let mut best: Vec<(f32, u32)> = Vec::with_capacity(k + 1);

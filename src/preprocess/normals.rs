@@ -1,14 +1,15 @@
 //! Normals by PCA over the k nearest neighbours, oriented towards a viewpoint.
 
-use crate::spatial::PointIndex;
+use crate::spatial::{Neighbor, PointIndex, map_nearest};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
-use rayon::prelude::*;
 
 /// The unit normal of each point: the eigenvector of the smallest eigenvalue of the covariance of its `k`
-/// nearest neighbours (itself included), flipped to face `viewpoint`. Points with fewer than 3 neighbours or a
-/// degenerate neighbourhood get the direction to the viewpoint (or +z when they sit on it).
+/// nearest neighbours (itself included; ties at the k-th distance broken towards the lower index), flipped to
+/// face `viewpoint`. Points with fewer than 3 neighbours or a degenerate neighbourhood get the direction to the
+/// viewpoint (or +z when they sit on it).
 pub fn estimate_normals(points: &[[f32; 3]], index: &PointIndex, k: usize, viewpoint: [f32; 3]) -> Vec<[f32; 3]> {
-    points.par_iter().map(|p| point_normal(points, index, p, k, viewpoint)).collect()
+    let all: Vec<usize> = (0..points.len()).collect();
+    estimate_normals_at(points, index, &all, k, viewpoint)
 }
 
 /// [`estimate_normals`] for the points `ids` only, in that order: each is exactly the normal
@@ -20,12 +21,11 @@ pub fn estimate_normals_at(
     k: usize,
     viewpoint: [f32; 3],
 ) -> Vec<[f32; 3]> {
-    ids.par_iter().map(|&i| point_normal(points, index, &points[i], k, viewpoint)).collect()
+    map_nearest(points, index, ids, k.max(3), |i, neighbors| normal_of(points, &points[i], neighbors, viewpoint))
 }
 
-/// The normal of the point at `p` (see [`estimate_normals`]).
-fn point_normal(points: &[[f32; 3]], index: &PointIndex, p: &[f32; 3], k: usize, viewpoint: [f32; 3]) -> [f32; 3] {
-    let neighbors = index.nearest_n(p, k.max(3));
+/// The normal of the point at `p` from its `neighbors` (see [`estimate_normals`]).
+fn normal_of(points: &[[f32; 3]], p: &[f32; 3], neighbors: &[Neighbor], viewpoint: [f32; 3]) -> [f32; 3] {
     let to_view = Vector3::new(viewpoint[0] - p[0], viewpoint[1] - p[1], viewpoint[2] - p[2]);
     let fallback = || {
         let n = to_view.norm();
@@ -34,15 +34,12 @@ fn point_normal(points: &[[f32; 3]], index: &PointIndex, p: &[f32; 3], k: usize,
     if neighbors.len() < 3 {
         return fallback();
     }
-    let pts: Vec<Vector3<f64>> = neighbors
-        .iter()
-        .map(|n| {
-            let q = points[n.index];
-            Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64)
-        })
-        .collect();
-    let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
-    let cov = pts.iter().fold(Matrix3::zeros(), |acc, q| {
+    let at = |n: &Neighbor| {
+        let q = points[n.index];
+        Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64)
+    };
+    let mean = neighbors.iter().map(at).fold(Vector3::zeros(), |sum, q| sum + q) / neighbors.len() as f64;
+    let cov = neighbors.iter().map(at).fold(Matrix3::zeros(), |acc, q| {
         let d = q - mean;
         acc + d * d.transpose()
     });

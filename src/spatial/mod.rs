@@ -1,5 +1,10 @@
 //! Nearest-neighbour queries over 3-D points (a thin wrapper over kiddo's immutable k-d tree). Results are
-//! ordered by (squared distance, index), so ties break deterministically.
+//! ordered by (squared distance, index), so ties break deterministically. [`map_nearest`] answers the k nearest
+//! of many points of one cloud at once, on cells.
+
+mod knn_cells;
+
+pub use knn_cells::map_nearest;
 
 use crate::error::{Error, Result};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
