@@ -369,12 +369,12 @@ fn checked_outputs<'a>(args: &'a Args, weights: Option<&'a Path>) -> anyhow::Res
 
 /// Runs the pipeline with a progress bar on a terminal.
 fn register_pair(
-    settings: &RegistrationSettings,
+    registrar: Registrar,
     args: &Args,
     pair: &LoadedPair,
 ) -> anyhow::Result<(Registrar, crate::pipeline::Registration)> {
     let bar = stage_bar();
-    let registrar = Registrar::new(settings)?.with_progress({
+    let registrar = registrar.with_progress({
         let bar = bar.clone();
         Box::new(move |stage, seconds| {
             if bar.position() + 1 > bar.length().unwrap_or(0) {
@@ -490,9 +490,13 @@ pub fn run(args: Args) -> anyhow::Result<bool> {
     checked_outputs(&args, weights.as_deref())?;
     let load = args.options.load_options()?;
     let started = std::time::Instant::now();
-    let pair = LoadedPair::read(&args, load)?;
-    let load_seconds = started.elapsed().as_secs_f64();
-    let (registrar, mut registration) = register_pair(&settings, &args, &pair)?;
+    // The weights load on the other core while the scans are read (the scans' errors come first).
+    let (pair, registrar) = rayon::join(
+        || LoadedPair::read(&args, load).map(|pair| (pair, started.elapsed().as_secs_f64())),
+        || Registrar::new(&settings),
+    );
+    let (pair, load_seconds) = pair?;
+    let (registrar, mut registration) = register_pair(registrar?, &args, &pair)?;
     registration.result.timings.insert(0, StageTime { stage: "load".into(), seconds: load_seconds });
     let shifted = registration.result.estimate.target_from_source;
     registration.result.estimate.target_from_source = crate::pose::unshift_pose(&shifted, pair.origin);
