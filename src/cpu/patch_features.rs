@@ -10,6 +10,7 @@
 
 use super::rotation_head::normal_frame;
 use crate::model::config::PoseFrame;
+use rayon::prelude::*;
 
 /// Angle between two vectors in [0, pi]; 0 when either is zero.
 pub fn angle(a: [f32; 3], b: [f32; 3]) -> f32 {
@@ -50,16 +51,53 @@ pub fn patch_features(
     radius: f32,
     frame: PoseFrame,
 ) -> (Vec<f32>, Vec<f32>) {
-    let mut ppf = Vec::with_capacity(points.len() * 4);
-    let mut pc = Vec::with_capacity(points.len() * 3);
-    for (i, (p, n)) in points.iter().zip(normals).enumerate() {
-        let patch = i / points_per_patch;
-        let (f, c) = point_features(centers[patch], center_normals[patch], *p, *n, radius);
-        ppf.extend_from_slice(&f);
-        match frame {
-            PoseFrame::Fragment => pc.extend_from_slice(&c),
-            PoseFrame::Normal => pc.extend_from_slice(&apply_frame(&normal_frame(center_normals[patch]), c)),
+    // Patches in parallel; each patch's frame once (it depends on the keypoint's normal only).
+    let n = points_per_patch.max(1);
+    let mut ppf = vec![0.0; points.len() * 4];
+    let mut pc = vec![0.0; points.len() * 3];
+    ppf.par_chunks_mut(n * 4).zip(pc.par_chunks_mut(n * 3)).enumerate().for_each(|(patch, (ppf, pc))| {
+        let (center, center_normal) = (centers[patch], center_normals[patch]);
+        let rotation = match frame {
+            PoseFrame::Fragment => None,
+            PoseFrame::Normal => Some(normal_frame(center_normal)),
+        };
+        let rows = points[patch * n..].iter().zip(&normals[patch * n..]);
+        for ((f_out, c_out), (p, normal)) in ppf.chunks_exact_mut(4).zip(pc.chunks_exact_mut(3)).zip(rows) {
+            let (f, c) = point_features(center, center_normal, *p, *normal, radius);
+            f_out.copy_from_slice(&f);
+            c_out.copy_from_slice(&rotation.map_or(c, |m| apply_frame(&m, c)));
+        }
+    });
+    (ppf, pc)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+
+    /// Every row is its point's own features, in its patch's frame (the oracle: [`point_features`] and
+    /// [`apply_frame`] of [`normal_frame`] one point at a time), for whole and partial patches.
+    #[test]
+    fn each_row_is_its_points_features_in_its_patchs_frame() {
+        let mut rng = Rng::new(3);
+        let mut v = || [0; 3].map(|_: i32| rng.uniform(-1.0, 1.0) as f32);
+        let (patches, n) = (4, 5);
+        let centers: Vec<[f32; 3]> = (0..patches).map(|_| v()).collect();
+        let center_normals: Vec<[f32; 3]> = (0..patches).map(|_| v()).collect();
+        let rows = patches * n - 2;
+        let points: Vec<[f32; 3]> = (0..rows).map(|_| v()).collect();
+        let normals: Vec<[f32; 3]> = (0..rows).map(|_| v()).collect();
+        for frame in [PoseFrame::Fragment, PoseFrame::Normal] {
+            let (ppf, pc) = patch_features(&centers, &center_normals, &points, &normals, n, 0.7, frame);
+            assert_eq!((ppf.len(), pc.len()), (rows * 4, rows * 3));
+            for i in 0..rows {
+                let p = i / n;
+                let (f, c) = point_features(centers[p], center_normals[p], points[i], normals[i], 0.7);
+                let c = if frame == PoseFrame::Normal { apply_frame(&normal_frame(center_normals[p]), c) } else { c };
+                assert_eq!(ppf[i * 4..][..4], f, "row {i}, {frame:?}");
+                assert_eq!(pc[i * 3..][..3], c, "row {i}, {frame:?}");
+            }
         }
     }
-    (ppf, pc)
 }
