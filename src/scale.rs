@@ -16,6 +16,7 @@
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
+use rayon::prelude::*;
 use serde::Serialize;
 
 /// The auto-chosen patch radius as a multiple of the scans' size ([`scan_size`]).
@@ -124,10 +125,12 @@ pub fn scan_size(cloud: &PointCloud, what: &str) -> Result<f64> {
         )));
     }
     let f = |p: &[f32; 3]| p.map(f64::from);
-    let centre = [0, 1, 2].map(|axis| median(&mut cloud.points.iter().map(|p| f64::from(p[axis])).collect::<Vec<_>>()));
+    let axis_median = |axis: usize| median(&mut cloud.points.iter().map(|p| f64::from(p[axis])).collect::<Vec<_>>());
+    let (x, (y, z)) = rayon::join(|| axis_median(0), || rayon::join(|| axis_median(1), || axis_median(2)));
+    let centre = [x, y, z];
     let mut distances: Vec<f64> = cloud
         .points
-        .iter()
+        .par_iter()
         .map(|p| {
             let q = f(p);
             ((q[0] - centre[0]).powi(2) + (q[1] - centre[1]).powi(2) + (q[2] - centre[2]).powi(2)).sqrt()
@@ -149,7 +152,9 @@ pub fn choose(sizes: &[f64]) -> Result<ScaleChoice> {
 /// The radius for registering `clouds` together ([`choose`] over their [`scan_size`]s); `names` name them in
 /// errors.
 pub fn choose_for(clouds: &[(&PointCloud, &str)]) -> Result<ScaleChoice> {
-    let sizes = clouds.iter().map(|(c, what)| scan_size(c, what)).collect::<Result<Vec<_>>>()?;
+    // Measured in parallel, checked in order: the first scan's error is the one reported.
+    let sizes: Vec<Result<f64>> = clouds.par_iter().map(|(c, what)| scan_size(c, what)).collect();
+    let sizes = sizes.into_iter().collect::<Result<Vec<_>>>()?;
     choose(&sizes)
 }
 
