@@ -188,11 +188,14 @@ pub fn kept_positions(asked: &[usize], kept: &[usize]) -> Vec<usize> {
 
 impl HostScanCloud {
     /// Estimates the normals of the points `ids` of `cloud` that are still missing.
-    fn fill_normals(&mut self, cloud: &mut PointCloud, mut ids: Vec<usize>) {
+    fn fill_normals(&mut self, cloud: &mut PointCloud, ids: Vec<usize>) {
         let Some(m) = self.missing.as_mut() else { return };
-        ids.retain(|&i| !m.ready[i]);
-        ids.sort_unstable();
-        ids.dedup();
+        // The missing ones among `ids`, ascending and once each (a mark per point, not a sort).
+        let mut wanted = vec![false; m.ready.len()];
+        for i in ids {
+            wanted[i] = !m.ready[i];
+        }
+        let ids: Vec<usize> = wanted.iter().enumerate().filter_map(|(i, &w)| w.then_some(i)).collect();
         let computed =
             estimate_normals_at(&cloud.points, &self.index, &ids, self.settings.normal_neighbors, m.viewpoint);
         let normals = cloud.normals.as_mut().expect("placeholders set when the scan started");
