@@ -237,7 +237,9 @@ impl FoldNet {
     pub fn from_weights(weights: &Weights, net: Net) -> Result<FoldNet> {
         let c = &weights.config;
         let specs = foldnet_layers(c, net);
-        let layers: Vec<Linear> = specs.iter().map(|s| Linear::from_weights(weights, s)).collect::<Result<_>>()?;
+        // Transposed in parallel, checked in order (the first bad layer is the one reported).
+        let layers: Vec<Result<Linear>> = specs.par_iter().map(|s| Linear::from_weights(weights, s)).collect();
+        let layers: Vec<Linear> = layers.into_iter().collect::<Result<_>>()?;
         let (ne, nh, nf) = (c.encoder_widths.len(), c.head_widths.len(), c.fold_widths.len() + 1);
         let mut it = layers.into_iter();
         let mut take = |n: usize| (&mut it).take(n).collect::<Vec<_>>();

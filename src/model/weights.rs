@@ -165,8 +165,7 @@ impl Weights {
                 problems.push(format!("tensor '{name}' has shape {:?}, expected {:?}", view.shape(), shape));
                 continue;
             }
-            let data: Vec<f32> =
-                view.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+            let data = le_f32s(view.data());
             if let Some(i) = data.iter().position(|v| !v.is_finite()) {
                 problems.push(format!("tensor '{name}' element {i} is not finite"));
                 continue;
@@ -183,6 +182,18 @@ impl Weights {
         }
         Ok(Weights { config, tensors, notes })
     }
+}
+
+/// Little-endian f32 bytes as values: one copy (and a byte swap on a big-endian CPU). A trailing partial value
+/// is ignored.
+fn le_f32s(bytes: &[u8]) -> Vec<f32> {
+    let n = bytes.len() / 4;
+    let mut data = vec![0f32; n];
+    bytemuck::cast_slice_mut::<f32, u8>(&mut data).copy_from_slice(&bytes[..n * 4]);
+    if cfg!(target_endian = "big") {
+        data.iter_mut().for_each(|v| *v = f32::from_bits(v.to_bits().swap_bytes()));
+    }
+    data
 }
 
 /// The file length a safetensors header describes (8 + header + the largest tensor end offset).
