@@ -8,8 +8,10 @@
 //! both paths agree to the bit.
 
 use super::{Neighbor, PointIndex};
-use crate::cpu::cell_bounds::{cell_bounds, cell_of, face_gap};
-use crate::cpu::cell_keys::{grid_dims, offsets, pack, unpack};
+use crate::cpu::cell_bounds::face_gap;
+use crate::cpu::cell_keys::{SortKey, grid_dims, pack, unpack};
+use crate::cpu::segments::Segments;
+use crate::cpu::voxel_average::sorted_cells;
 use rayon::prelude::*;
 
 /// Queries sampled to choose the cell size.
@@ -62,23 +64,15 @@ fn nearest_by_index(points: &[[f32; 3]], index: &PointIndex, q: usize, k: usize)
     all
 }
 
-/// A cell's offsets from the grid's first cell as one integer, ordered like the offsets (x, then y, then z).
-fn cell_key(offsets: [u32; 3]) -> u64 {
-    let [hi, lo] = pack(offsets);
-    (u64::from(hi) << 32) | u64::from(lo)
-}
-
 /// The cloud's points sorted by cell.
 struct Cells {
     inv_cell: f32,
     /// Cells per axis.
     dims: [i32; 3],
-    /// Point indices sorted by (cell, index).
-    order: Vec<u32>,
-    /// The occupied cells' packed keys, ascending.
-    keys: Vec<u64>,
-    /// Where each occupied cell's run starts in `order` (one more entry: the end).
-    starts: Vec<u32>,
+    /// The points' keys sorted by (cell, index).
+    sorted: Vec<SortKey>,
+    /// One run of `sorted` per occupied cell.
+    cells: Segments,
     /// Slack of the stopping rule, in cells: the rounding of `p * inv_cell` and of the comparison.
     slack: f32,
 }
@@ -107,40 +101,26 @@ impl Cells {
             return None;
         }
         let inv_cell = 1.0 / size;
-        let bounds = cell_bounds(points, inv_cell).ok()?;
+        // The grid's cell table (`grid_knn` and voxel downsampling use the same): keys sorted by (cell, index).
+        let (bounds, sorted, cells) = sorted_cells(points, inv_cell).ok()?;
         let dims = grid_dims(&bounds).ok()?.map(|d| d as i32);
-        let key = |p: &[f32; 3]| cell_of(p, inv_cell).map(|c| cell_key(offsets(c, &bounds)));
-        let keys: Vec<u64> = points.par_iter().map(key).collect::<Option<_>>()?;
-        let mut sorted: Vec<(u64, u32)> = keys.into_iter().zip(0..).collect();
-        sorted.par_sort_unstable();
-        let mut keys = Vec::new();
-        let mut starts = Vec::new();
-        for (i, &(key, _)) in sorted.iter().enumerate() {
-            if keys.last() != Some(&key) {
-                keys.push(key);
-                starts.push(i as u32);
-            }
-        }
-        starts.push(sorted.len() as u32);
-        let slack = bounds.search_slack();
-        let order = sorted.into_iter().map(|(_, i)| i).collect();
-        Some(Cells { inv_cell, dims, order, keys, starts, slack })
+        Some(Cells { inv_cell, dims, sorted, cells, slack: bounds.search_slack() })
     }
 
     /// Occupied cells.
     fn len(&self) -> usize {
-        self.keys.len()
+        self.cells.len()
     }
 
-    /// The points of occupied cell `c`.
-    fn run(&self, c: usize) -> &[u32] {
-        &self.order[self.starts[c] as usize..self.starts[c + 1] as usize]
+    /// The points of occupied cell `c`, ascending.
+    fn run(&self, c: usize) -> impl Iterator<Item = u32> + '_ {
+        let (start, end) = (self.cells.starts[c] as usize, self.cells.starts[c + 1] as usize);
+        self.sorted[start..end].iter().map(|key| key[2])
     }
 
-    /// The cell coordinates (offsets from `min`) of occupied cell `c`.
+    /// The cell coordinates (offsets from the grid's first cell) of occupied cell `c`.
     fn offsets(&self, c: usize) -> [i32; 3] {
-        let key = self.keys[c];
-        unpack([(key >> 32) as u32, key as u32]).map(|o| o as i32)
+        unpack(self.cells.keys[c]).map(|o| o as i32)
     }
 
     /// `f` for every wanted point of occupied cell `c`.
@@ -155,14 +135,12 @@ impl Cells {
         scratch: &mut Scratch,
         f: &(impl Fn(usize, &[Neighbor]) -> T + Sync),
     ) -> Vec<(usize, T)> {
-        let run = self.run(c);
-        if !run.iter().any(|&q| wanted[q as usize]) {
+        if !self.run(c).any(|q| wanted[q as usize]) {
             return Vec::new();
         }
         self.gather(points, c, scratch);
         let mut out = Vec::new();
-        for &q in run.iter().filter(|&&q| wanted[q as usize]) {
-            let q = q as usize;
+        for q in self.run(c).map(|q| q as usize).filter(|&q| wanted[q]) {
             let value = if self.nearest_in_block(&points[q], k, scratch) {
                 f(q, &scratch.neighbors)
             } else {
@@ -187,8 +165,8 @@ impl Cells {
                     if (0..3).any(|a| n[a] < 0 || n[a] >= self.dims[a]) {
                         continue;
                     }
-                    let Ok(s) = self.keys.binary_search(&cell_key(n.map(|v| v as u32))) else { continue };
-                    for &i in self.run(s) {
+                    let Some(s) = self.cells.find(pack(n.map(|v| v as u32))) else { continue };
+                    for i in self.run(s) {
                         for (list, &v) in scratch.xyz.iter_mut().zip(&points[i as usize]) {
                             list.push(v);
                         }
@@ -304,7 +282,7 @@ mod tests {
         let (mut inside, mut outside) = (0, 0);
         for c in 0..cells.len() {
             cells.gather(&pts, c, &mut scratch);
-            for &q in cells.run(c) {
+            for q in cells.run(c) {
                 if cells.nearest_in_block(&pts[q as usize], 12, &mut scratch) {
                     inside += 1;
                     let want = brute(&pts, q as usize, 12);
