@@ -444,14 +444,14 @@ fn training_forward_equals_the_inference_forward_bit_for_bit() {
     let mut rng = Rng::new(6);
     let patches = 3;
     for net in [Net::Ppf, Net::Pc] {
-        let f = FoldNet::from_weights(&weights, net).unwrap();
+        let f = FoldNet::from_weights(&weights.view(), net).unwrap();
         let input: Vec<f32> = (0..patches * 37 * net.io_width()).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
         let tape = f.encode_tape(&input, patches, 37);
         assert_eq!(tape.codeword, f.encode(&input, patches, 37), "{net:?} codewords");
         let dec = f.decode_tape(&tape.codeword, patches);
         assert_eq!(dec.output(), f.decode(&tape.codeword, patches).as_slice(), "{net:?} reconstruction");
     }
-    let rel = RelativeNet::from_weights(&weights).unwrap();
+    let rel = RelativeNet::from_weights(&weights.view()).unwrap();
     let src = randn(&mut rng, 2 * 40, 1.0);
     let tgt = randn(&mut rng, 2 * 40, 1.0);
     let outs = rel.forward_tape(&src, &tgt, 2);
@@ -621,7 +621,7 @@ fn bf16_backward_passes_match_the_f32_ones_within_the_rounding_bound() {
     let (patches, n) = (4, config.points_per_patch);
     let mut worst = 0.0f64;
     for (net, base) in [(Net::Ppf, 0), (Net::Pc, foldnet_layers(&config, Net::Ppf).len())] {
-        let f = FoldNet::from_weights(&weights, net).unwrap();
+        let f = FoldNet::from_weights(&weights.view(), net).unwrap();
         let input: Vec<f32> = (0..patches * n * net.io_width()).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
         let tape = f.encode_tape(&input, patches, n);
         let dec = f.decode_tape(&tape.codeword, patches);

@@ -109,3 +109,27 @@ fn shipped_weights_files_load_and_describe_themselves() {
     assert!(seen.contains(&"paper-head.safetensors".to_string()), "{seen:?}");
     assert_eq!(Weights::load(&dir.join("default.safetensors")).unwrap(), Weights::built_in().unwrap());
 }
+
+#[test]
+fn built_in_weights_are_read_in_place_and_other_bytes_copied_the_same() {
+    use dpr_gpu::model::weights::BUILT_IN_WEIGHTS;
+    let view = Weights::built_in_view().unwrap();
+    let owned = Weights::built_in().unwrap();
+    let bytes = BUILT_IN_WEIGHTS.as_ptr_range();
+    for (name, values) in &owned.tensors {
+        let borrowed = view.get(name).unwrap();
+        assert_eq!(borrowed, values.as_slice(), "{name}");
+        // Read in place: the tensor lies inside the library's own bytes (f32-aligned there).
+        let at = borrowed.as_ptr() as *const u8;
+        assert!(bytes.contains(&at), "{name} was copied");
+    }
+    // The same bytes one byte off alignment: copied, with the same values.
+    let mut shifted = vec![0u8; BUILT_IN_WEIGHTS.len() + 1];
+    shifted[1..].copy_from_slice(BUILT_IN_WEIGHTS);
+    let unaligned = dpr_gpu::model::WeightsView::from_bytes(&shifted[1..], "shifted").unwrap();
+    let copied = unaligned.get("ppf.head.0.weight").unwrap();
+    assert!(!shifted.as_ptr_range().contains(&(copied.as_ptr() as *const u8)));
+    assert_eq!(unaligned.into_owned(), owned);
+    // A view of owned weights builds the same model as the weights.
+    assert_eq!(owned.view().into_owned(), owned);
+}

@@ -4,7 +4,7 @@
 use super::config::ModelConfig;
 use super::linear::Linear;
 use super::params::{Net, foldnet_layers};
-use super::weights::Weights;
+use super::weights::WeightsView;
 use crate::cpu::dense::DenseShape;
 use crate::cpu::gemm::{BF16_MIN_IN_DIM, Precision, dense};
 use crate::cpu::gemm_bf16::dense_bf16_packed_on;
@@ -234,7 +234,7 @@ fn fold(
 
 impl FoldNet {
     /// Builds the network from checked weights.
-    pub fn from_weights(weights: &Weights, net: Net) -> Result<FoldNet> {
+    pub fn from_weights(weights: &WeightsView<'_>, net: Net) -> Result<FoldNet> {
         let c = &weights.config;
         let specs = foldnet_layers(c, net);
         // Transposed in parallel, checked in order (the first bad layer is the one reported).

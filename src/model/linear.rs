@@ -1,7 +1,7 @@
 //! A linear layer's parameters in the layout the CPU twin wants (transposed weight).
 
 use super::params::LayerSpec;
-use super::weights::Weights;
+use super::weights::WeightsView;
 use crate::cpu::gemm_bf16::{Bf16Unit, pack_weight};
 use crate::cpu::gemm_int8::{Int8Weight, quantize_weight};
 use crate::error::Result;
@@ -32,7 +32,7 @@ pub struct Linear {
 
 impl Linear {
     /// Reads `{spec.name}.weight` and `.bias` from `weights`.
-    pub fn from_weights(weights: &Weights, spec: &LayerSpec) -> Result<Linear> {
+    pub fn from_weights(weights: &WeightsView<'_>, spec: &LayerSpec) -> Result<Linear> {
         let w = weights.get(&format!("{}.weight", spec.name))?;
         let b = weights.get(&format!("{}.bias", spec.name))?;
         let (i_n, o_n) = (spec.in_dim, spec.out_dim);

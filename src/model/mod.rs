@@ -11,7 +11,7 @@ pub use config::ModelConfig;
 pub use foldnet::FoldNet;
 pub use params::Net;
 pub use relativenet::RelativeNet;
-pub use weights::Weights;
+pub use weights::{Weights, WeightsView};
 
 use crate::error::Result;
 
@@ -36,6 +36,12 @@ pub fn pose_feature(pc_codewords: &[f32], ppf_codewords: &[f32]) -> Vec<f32> {
 impl Model {
     /// Builds the model from checked weights.
     pub fn from_weights(weights: &Weights) -> Result<Model> {
+        Model::from_view(&weights.view())
+    }
+
+    /// [`Model::from_weights`] from a view of checked weights (the built-in weights read in place,
+    /// [`Weights::built_in_view`]).
+    pub fn from_view(weights: &WeightsView<'_>) -> Result<Model> {
         Ok(Model {
             config: weights.config.clone(),
             ppf: FoldNet::from_weights(weights, Net::Ppf)?,

@@ -6,7 +6,7 @@ use super::config::ModelConfig;
 use super::foldnet::{Slice, apply, apply_concat};
 use super::linear::Linear;
 use super::params::relative_layers;
-use super::weights::Weights;
+use super::weights::WeightsView;
 use crate::cpu::rotation_head::rotation_head;
 use crate::error::Result;
 
@@ -19,7 +19,7 @@ pub struct RelativeNet {
 
 impl RelativeNet {
     /// Builds the network from checked weights.
-    pub fn from_weights(weights: &Weights) -> Result<RelativeNet> {
+    pub fn from_weights(weights: &WeightsView<'_>) -> Result<RelativeNet> {
         let layers =
             relative_layers(&weights.config).iter().map(|s| Linear::from_weights(weights, s)).collect::<Result<_>>()?;
         Ok(RelativeNet { layers })

@@ -6,11 +6,19 @@ use super::params::{all_layers, tensor_specs};
 use crate::error::{Error, Result};
 use crate::rng::Rng;
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
+use std::borrow::Cow;
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
+/// Bytes aligned for reading f32 in place.
+#[repr(C, align(64))]
+struct Aligned<B: ?Sized>(B);
+
+/// The built-in weights' bytes, aligned so that their tensors are read in place ([`Weights::built_in_view`]).
+static BUILT_IN_ALIGNED: &Aligned<[u8]> = &Aligned(*include_bytes!("../../weights/default.safetensors"));
+
 /// The bytes of `weights/default.safetensors` as built: the weights used when no file is named.
-pub const BUILT_IN_WEIGHTS: &[u8] = include_bytes!("../../weights/default.safetensors");
+pub static BUILT_IN_WEIGHTS: &[u8] = &BUILT_IN_ALIGNED.0;
 
 /// Metadata key holding the model configuration as JSON.
 pub const CONFIG_KEY: &str = "dpr_gpu.config";
@@ -112,7 +120,19 @@ impl Weights {
 
     /// The shipped default weights (`weights/default.safetensors`), compiled into the library.
     pub fn built_in() -> Result<Weights> {
-        Weights::from_bytes(BUILT_IN_WEIGHTS, "built-in default weights")
+        Ok(Weights::built_in_view()?.into_owned())
+    }
+
+    /// [`Weights::built_in`] read in place: the tensors borrow the library's own bytes (no copy), for building
+    /// a model ([`crate::model::Model::from_view`]).
+    pub fn built_in_view() -> Result<WeightsView<'static>> {
+        WeightsView::from_bytes(BUILT_IN_WEIGHTS, "built-in default weights")
+    }
+
+    /// These weights as a view (borrowed), for building a model.
+    pub fn view(&self) -> WeightsView<'_> {
+        let tensors = self.tensors.iter().map(|(n, t)| (n.clone(), Cow::Borrowed(t.as_slice()))).collect();
+        WeightsView { config: self.config.clone(), tensors, notes: self.notes.clone() }
     }
 
     /// Reads and checks a weights file (at most 1 GiB).
@@ -123,6 +143,38 @@ impl Weights {
 
     /// Parses and checks safetensors bytes; `origin` names them in errors.
     pub fn from_bytes(bytes: &[u8], origin: &str) -> Result<Weights> {
+        Ok(WeightsView::from_bytes(bytes, origin)?.into_owned())
+    }
+}
+
+/// Checked weights whose tensors borrow the safetensors bytes they were read from where those hold aligned
+/// little-endian f32 (the built-in weights), else own a copy: what building a model needs, with no copy of
+/// the bytes ([`Weights::built_in_view`], [`Weights::view`]).
+#[derive(Clone, Debug)]
+pub struct WeightsView<'a> {
+    /// The configuration the tensors were made for.
+    pub config: ModelConfig,
+    tensors: BTreeMap<String, Cow<'a, [f32]>>,
+    notes: BTreeMap<String, String>,
+}
+
+impl<'a> WeightsView<'a> {
+    /// A tensor by name (as [`Weights::get`]).
+    pub fn get(&self, name: &str) -> Result<&[f32]> {
+        self.tensors.get(name).map(|t| &**t).ok_or_else(|| Error::Weights {
+            path: "<memory>".into(),
+            problems: vec![format!("missing tensor '{name}'")],
+        })
+    }
+
+    /// The weights, owned.
+    pub fn into_owned(self) -> Weights {
+        let tensors = self.tensors.into_iter().map(|(n, t)| (n, t.into_owned())).collect();
+        Weights { config: self.config, tensors, notes: self.notes }
+    }
+
+    /// [`Weights::from_bytes`], borrowing `bytes` where it can.
+    pub fn from_bytes(bytes: &'a [u8], origin: &str) -> Result<WeightsView<'a>> {
         let fail = |problems: Vec<String>| Error::Weights { path: origin.to_string(), problems };
         let declared = bytes.first_chunk::<8>().map(|n| u64::from_le_bytes(*n).saturating_add(8));
         if declared.is_some_and(|d| d > bytes.len() as u64 && d <= (100 << 20)) {
@@ -180,20 +232,26 @@ impl Weights {
         if !problems.is_empty() {
             return Err(fail(problems));
         }
-        Ok(Weights { config, tensors, notes })
+        Ok(WeightsView { config, tensors, notes })
     }
 }
 
-/// Little-endian f32 bytes as values: one copy (and a byte swap on a big-endian CPU). A trailing partial value
-/// is ignored.
-fn le_f32s(bytes: &[u8]) -> Vec<f32> {
+/// Little-endian f32 bytes as values: read in place where they are aligned (and the CPU little-endian), else
+/// one copy (and a byte swap on a big-endian CPU). A trailing partial value is ignored.
+fn le_f32s(bytes: &[u8]) -> Cow<'_, [f32]> {
     let n = bytes.len() / 4;
+    let bytes = &bytes[..n * 4];
+    if cfg!(target_endian = "little")
+        && let Ok(values) = bytemuck::try_cast_slice::<u8, f32>(bytes)
+    {
+        return Cow::Borrowed(values);
+    }
     let mut data = vec![0f32; n];
-    bytemuck::cast_slice_mut::<f32, u8>(&mut data).copy_from_slice(&bytes[..n * 4]);
+    bytemuck::cast_slice_mut::<f32, u8>(&mut data).copy_from_slice(bytes);
     if cfg!(target_endian = "big") {
         data.iter_mut().for_each(|v| *v = f32::from_bits(v.to_bits().swap_bytes()));
     }
-    data
+    Cow::Owned(data)
 }
 
 /// The file length a safetensors header describes (8 + header + the largest tensor end offset).

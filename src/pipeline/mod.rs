@@ -10,7 +10,7 @@ use crate::estimate::candidates;
 use crate::estimate::icp::IcpProblem;
 use crate::estimate::ransac_candidates;
 use crate::estimate::visibility::PairViews;
-use crate::model::{Model, Weights};
+use crate::model::{Model, Weights, WeightsView};
 use crate::pose::matrix_from_hypothesis;
 use crate::preprocess::select_keypoints;
 use crate::rng::Rng;
@@ -157,14 +157,22 @@ pub struct Registrar {
 impl Registrar {
     /// Loads the weights and prepares the backend.
     pub fn new(settings: &RegistrationSettings) -> Result<Registrar> {
-        let weights = load_weights(settings)?;
-        Registrar::with_weights(settings, &weights)
+        match weights_file(settings) {
+            Some(path) => Registrar::with_weights(settings, &Weights::load(&path)?),
+            // Read in place: the built-in bytes are never copied.
+            None => Registrar::with_view(settings, &Weights::built_in_view()?),
+        }
     }
 
     /// Builds the pipeline from weights already in memory.
     pub fn with_weights(settings: &RegistrationSettings, weights: &Weights) -> Result<Registrar> {
+        Registrar::with_view(settings, &weights.view())
+    }
+
+    /// [`Registrar::with_weights`] from a view of checked weights.
+    fn with_view(settings: &RegistrationSettings, weights: &WeightsView<'_>) -> Result<Registrar> {
         validate_settings(settings, &weights.config)?;
-        let model = Model::from_weights(weights)?;
+        let model = Model::from_view(weights)?;
         let (backend, reason) = choose_backend(settings.backend, model)?;
         let mut registrar = Registrar::with_backend(settings, backend)?;
         registrar.backend_reason = reason;
