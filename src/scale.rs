@@ -125,7 +125,11 @@ pub fn scan_size(cloud: &PointCloud, what: &str) -> Result<f64> {
         )));
     }
     let f = |p: &[f32; 3]| p.map(f64::from);
-    let axis_median = |axis: usize| median(&mut cloud.points.iter().map(|p| f64::from(p[axis])).collect::<Vec<_>>());
+    // Selected in f32 (half the memory) and widened after: the same median, since widening keeps the order.
+    let axis_median = |axis: usize| {
+        let mut values: Vec<f32> = cloud.points.iter().map(|p| p[axis]).collect();
+        median_f32(&mut values)
+    };
     let (x, (y, z)) = rayon::join(|| axis_median(0), || rayon::join(|| axis_median(1), || axis_median(2)));
     let centre = [x, y, z];
     let mut distances: Vec<f64> = cloud
@@ -156,6 +160,17 @@ pub fn choose_for(clouds: &[(&PointCloud, &str)]) -> Result<ScaleChoice> {
     let sizes: Vec<Result<f64>> = clouds.par_iter().map(|(c, what)| scan_size(c, what)).collect();
     let sizes = sizes.into_iter().collect::<Result<Vec<_>>>()?;
     choose(&sizes)
+}
+
+/// [`median`] of f32 values, in f64.
+fn median_f32(values: &mut [f32]) -> f64 {
+    let n = values.len();
+    let (_, &mut upper, _) = values.select_nth_unstable_by(n / 2, f32::total_cmp);
+    if n % 2 == 1 {
+        return f64::from(upper);
+    }
+    let lower = values[..n / 2].iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    0.5 * (f64::from(lower) + f64::from(upper))
 }
 
 /// Median of `values` (the mean of the two middle ones for an even count); reorders them.
@@ -199,6 +214,16 @@ mod tests {
         let mut p = sphere(1000, 1.0, [0.0; 3]);
         p.points.extend([[500.0, 0.0, 0.0], [0.0, -700.0, 0.0]]);
         assert!((scan_size(&p, "p").unwrap() - 1.0).abs() < 0.05);
+    }
+
+    #[test]
+    fn the_f32_median_is_the_median_of_the_widened_values() {
+        let mut rng = crate::rng::Rng::new(7);
+        for n in [1, 2, 3, 10, 101, 1000] {
+            let values: Vec<f32> = (0..n).map(|_| (rng.normal() * 1e3) as f32).collect();
+            let mut wide: Vec<f64> = values.iter().map(|&v| f64::from(v)).collect();
+            assert_eq!(median_f32(&mut values.clone()), median(&mut wide), "{n} values");
+        }
     }
 
     #[test]

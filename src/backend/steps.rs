@@ -402,7 +402,12 @@ pub async fn host_describe<B: Backend + ?Sized>(backend: &B, batch: PatchBatch<'
     }
     let mut s = store.lock();
     s.codewords.extend(codewords);
-    s.pose.input.extend(pc_input);
+    if s.pose.input.is_empty() {
+        // The first keypoints' input kept as computed (a scan's largest buffer is not copied).
+        s.pose.input = pc_input;
+    } else {
+        s.pose.input.extend(pc_input);
+    }
     let rows = s.pose.ready.len() + count;
     s.pose.features.resize(rows * dim, f32::NAN);
     s.pose.ready.resize(rows, false);
