@@ -311,11 +311,17 @@ struct LoadedPair {
 
 impl LoadedPair {
     /// Reads both scans; both are shifted by one origin (from the source) in f64 before the f32 conversion.
+    /// The target is read beside the source as if that origin were zero (the usual case) and read again in the
+    /// rare case it is not; the source's error comes first.
     fn read(args: &Args, load: LoadOptions) -> anyhow::Result<Self> {
-        let (source, source_report) = read_cloud(&args.source, &LoadOptions { origin: OriginShift::Auto, ..load })?;
+        let target_at = |origin| read_cloud(&args.target, &LoadOptions { origin: OriginShift::At(origin), ..load });
+        let (source, target) = rayon::join(
+            || read_cloud(&args.source, &LoadOptions { origin: OriginShift::Auto, ..load }),
+            || target_at([0; 3]),
+        );
+        let (source, source_report) = source?;
         let origin = source_report.origin;
-        let (target, target_report) =
-            read_cloud(&args.target, &LoadOptions { origin: OriginShift::At(origin), ..load })?;
+        let (target, target_report) = if origin == [0; 3] { target? } else { target_at(origin)? };
         check_scan(&args.source, &source, &source_report, crate::pipeline::MIN_POINTS)?;
         check_scan(&args.target, &target, &target_report, crate::pipeline::MIN_POINTS)?;
         Ok(LoadedPair { source, target, source_report, target_report, origin })
