@@ -6,7 +6,7 @@ use crate::errors::{to_py_err, value_error};
 use crate::result::{PoseEstimate, RegistrationResult, SnapshotInputs};
 use crate::settings::{ESTIMATORS, SettingsArgs, default_context_radii, settings_dict};
 use dpr_gpu::io::{LoadOptions, OriginShift};
-use dpr_gpu::pipeline::{ScanFeatures, load_weights};
+use dpr_gpu::pipeline::{ScanFeatures, load_weights, weights_file};
 use dpr_gpu::pose::unshift_pose;
 use dpr_gpu::{Correspondence, RegistrationSettings};
 use numpy::{PyArray2, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
@@ -179,9 +179,19 @@ impl Registrar {
             pose_candidates,
         };
         let probe = RegistrationSettings { weights: args.weights.clone(), ..RegistrationSettings::default() };
-        let loaded = py.detach(|| load_weights(&probe)).map_err(to_py_err)?;
+        // A weights file is read (and its errors reported) before the other arguments are checked; the built-in
+        // weights are read in place by `Registrar::new`.
+        let loaded = match weights_file(&probe) {
+            Some(_) => Some(py.detach(|| load_weights(&probe)).map_err(to_py_err)?),
+            None => None,
+        };
         let settings = args.to_settings()?;
-        let inner = py.detach(|| dpr_gpu::Registrar::with_weights(&settings, &loaded)).map_err(to_py_err)?;
+        let inner = py
+            .detach(|| match &loaded {
+                Some(weights) => dpr_gpu::Registrar::with_weights(&settings, weights),
+                None => dpr_gpu::Registrar::new(&settings),
+            })
+            .map_err(to_py_err)?;
         Ok(Registrar { inner: Arc::new(inner) })
     }
 
