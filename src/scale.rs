@@ -125,10 +125,9 @@ pub fn scan_size(cloud: &PointCloud, what: &str) -> Result<f64> {
         )));
     }
     let f = |p: &[f32; 3]| p.map(f64::from);
-    // Selected in f32 (half the memory) and widened after: the same median, since widening keeps the order.
     let axis_median = |axis: usize| {
         let mut values: Vec<f32> = cloud.points.iter().map(|p| p[axis]).collect();
-        median_f32(&mut values)
+        median(&mut values, f32::total_cmp)
     };
     let (x, (y, z)) = rayon::join(|| axis_median(0), || rayon::join(|| axis_median(1), || axis_median(2)));
     let centre = [x, y, z];
@@ -140,7 +139,7 @@ pub fn scan_size(cloud: &PointCloud, what: &str) -> Result<f64> {
             ((q[0] - centre[0]).powi(2) + (q[1] - centre[1]).powi(2) + (q[2] - centre[2]).powi(2)).sqrt()
         })
         .collect();
-    Ok(median(&mut distances))
+    Ok(median(&mut distances, f64::total_cmp))
 }
 
 /// The radius for registering `sizes` (one [`scan_size`] per scan) together: [`RADIUS_PER_SIZE`] times their
@@ -150,7 +149,7 @@ pub fn choose(sizes: &[f64]) -> Result<ScaleChoice> {
         return Err(Error::invalid("no scans to choose a patch radius from"));
     }
     let mut sorted = sizes.to_vec();
-    ScaleChoice::auto(median(&mut sorted), sizes.len())
+    ScaleChoice::auto(median(&mut sorted, f64::total_cmp), sizes.len())
 }
 
 /// The radius for registering `clouds` together ([`choose`] over their [`scan_size`]s); `names` name them in
@@ -162,26 +161,16 @@ pub fn choose_for(clouds: &[(&PointCloud, &str)]) -> Result<ScaleChoice> {
     choose(&sizes)
 }
 
-/// [`median`] of f32 values, in f64.
-fn median_f32(values: &mut [f32]) -> f64 {
+/// Median of `values` in f64 (the mean of the two middle ones for an even count); reorders them. f32 values are
+/// selected as f32 (half the memory) and widened after: the same median, since widening keeps the order.
+fn median<T: Copy + Into<f64>>(values: &mut [T], order: fn(&T, &T) -> std::cmp::Ordering) -> f64 {
     let n = values.len();
-    let (_, &mut upper, _) = values.select_nth_unstable_by(n / 2, f32::total_cmp);
+    let (lower_half, &mut upper, _) = values.select_nth_unstable_by(n / 2, order);
     if n % 2 == 1 {
-        return f64::from(upper);
+        return upper.into();
     }
-    let lower = values[..n / 2].iter().copied().fold(f32::NEG_INFINITY, f32::max);
-    0.5 * (f64::from(lower) + f64::from(upper))
-}
-
-/// Median of `values` (the mean of the two middle ones for an even count); reorders them.
-fn median(values: &mut [f64]) -> f64 {
-    let n = values.len();
-    let (_, &mut upper, _) = values.select_nth_unstable_by(n / 2, f64::total_cmp);
-    if n % 2 == 1 {
-        return upper;
-    }
-    let lower = values[..n / 2].iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    0.5 * (lower + upper)
+    let lower = lower_half.iter().copied().max_by(order).expect("an even count has a lower half");
+    0.5 * (lower.into() + upper.into())
 }
 
 #[cfg(test)]
@@ -222,7 +211,11 @@ mod tests {
         for n in [1, 2, 3, 10, 101, 1000] {
             let values: Vec<f32> = (0..n).map(|_| (rng.normal() * 1e3) as f32).collect();
             let mut wide: Vec<f64> = values.iter().map(|&v| f64::from(v)).collect();
-            assert_eq!(median_f32(&mut values.clone()), median(&mut wide), "{n} values");
+            assert_eq!(median(&mut values.clone(), f32::total_cmp), median(&mut wide, f64::total_cmp), "{n} values");
+            // Brute force: the middle of the sorted values (the mean of the two middle ones for an even count).
+            wide.sort_by(f64::total_cmp);
+            let want = if n % 2 == 1 { wide[n / 2] } else { 0.5 * (wide[n / 2 - 1] + wide[n / 2]) };
+            assert_eq!(median(&mut values.clone(), f32::total_cmp), want, "{n} values");
         }
     }
 

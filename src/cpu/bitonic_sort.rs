@@ -33,7 +33,10 @@ fn sort_packed(keys: &mut [SortKey]) -> bool {
     }
     let shifts = [bits[1] + bits[2] + bits[3], bits[2] + bits[3], bits[3], 0];
     // A field of 0 bits is 0, so its shift (possibly 64) may wrap.
-    let to_u64 = |k: &SortKey| (0..4).fold(0u64, |v, i| v | u64::from(fields(k)[i]).wrapping_shl(shifts[i]));
+    let to_u64 = |k: &SortKey| {
+        let f = fields(k);
+        (0..4).fold(0u64, |v, i| v | u64::from(f[i]).wrapping_shl(shifts[i]))
+    };
     let mut packed: Vec<u64> = keys.par_iter().map(to_u64).collect();
     packed.par_sort_unstable();
     let field = |v: u64, i: usize| (v.wrapping_shr(shifts[i]) & ((1u64 << bits[i]) - 1)) as u32;
