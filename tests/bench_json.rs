@@ -492,20 +492,23 @@ fn bench_json_on_the_test_adapter_is_consistent() {
         .into();
     let want_unit = want_precision.uses(Precision::Bf16).then_some(if amx { "amx" } else { "vector" });
     assert_eq!(r["cpu"]["bf16_unit"].as_str(), want_unit);
-    // The FLOPs of one patch, from the default model's widths (the bench's random weights have its config):
-    // per point every encoder layer and the head's per-point part, per patch the global slice of head 0.
-    let c = dpr_gpu::model::ModelConfig::default();
+    // The FLOPs of one patch, from the built-in model's widths, each network's own (the bench's random weights
+    // have its config): per point every encoder layer and the head's per-point part, per patch the global
+    // slice of head 0.
+    use dpr_gpu::model::params::{concat_width, encoder_widths, head_widths};
+    let c = dpr_gpu::model::Weights::built_in_view().unwrap().config;
     let p = uint(&r["config"]["points_per_patch"], "points") as usize;
     let widths = |first: usize, w: &[usize]| -> usize {
         let mut dims = vec![first];
         dims.extend_from_slice(w);
         dims.windows(2).map(|d| d[0] * d[1]).sum()
     };
-    let last = *c.encoder_widths.last().unwrap();
-    let head_in = c.concat_width() - last;
-    let per_point = |io: usize| widths(io, &c.encoder_widths) + widths(head_in, &c.head_widths);
-    for (key, io) in [("ppf_flops_per_patch", 4), ("pc_flops_per_patch", 3)] {
-        let want = 2 * (per_point(io) * p + last * c.head_widths[0]);
+    for (key, net) in [("ppf_flops_per_patch", Net::Ppf), ("pc_flops_per_patch", Net::Pc)] {
+        let (enc, head) = (encoder_widths(&c, net), head_widths(&c, net));
+        let last = *enc.last().unwrap();
+        let head_in = concat_width(&c, net) - last;
+        let per_point = widths(net.io_width(), enc) + widths(head_in, head);
+        let want = 2 * (per_point * p + last * head[0]);
         assert_eq!(num(&r["config"][key], key), want as f64, "{key}");
     }
     // The GPU GEMM the backend runs is the device's (the same selection in this process and the bench's).

@@ -85,6 +85,8 @@ fn small_config() -> ModelConfig {
         relative_widths: vec![40, 24],
         pose_frame: PoseFrame::Normal,
         rotation_output: RotationOutput::SixD,
+        // PC-FoldNet at its own ragged widths, as in a pruned model.
+        pc_widths: Some(dpr_gpu::model::config::NetWidths { encoder: vec![8, 20, 28], head: vec![44, 36] }),
     }
 }
 

@@ -397,6 +397,8 @@ fn tiny_config() -> ModelConfig {
         relative_widths: vec![8, 6],
         pose_frame: PoseFrame::Normal,
         rotation_output: RotationOutput::SixD,
+        // PC-FoldNet at its own widths, as in a pruned model: the gradients hold for either network's shapes.
+        pc_widths: Some(dpr_gpu::model::config::NetWidths { encoder: vec![3, 5], head: vec![7, 5] }),
     }
 }
 
@@ -438,6 +440,7 @@ fn training_forward_equals_the_inference_forward_bit_for_bit() {
         fold_widths: vec![35, 9],
         grid: [3, 5],
         relative_widths: vec![33, 7],
+        pc_widths: None,
         ..tiny_config()
     };
     let weights = weights_with_biases(&config, 4);
@@ -544,6 +547,7 @@ fn bf16_config() -> Option<ModelConfig> {
         fold_widths: vec![34, 32],
         grid: [4, 6],
         relative_widths: vec![40, 32],
+        pc_widths: None,
         ..tiny_config()
     })
 }
@@ -796,6 +800,7 @@ fn small_config() -> ModelConfig {
         relative_widths: vec![32, 16],
         pose_frame: PoseFrame::Normal,
         rotation_output: RotationOutput::SixD,
+        pc_widths: None,
     }
 }
 

@@ -20,7 +20,7 @@ use crate::cpu::gemm_bf16::Bf16Unit;
 use crate::cpu::hypotheses::Hypothesis;
 use crate::gpu::context::Transfers;
 use crate::gpu::{Gpu, GpuBackend, buffer::GpuBuffer, dense as gpu_dense, gemm::GemmVariant, recorder::Recorder};
-use crate::model::{FoldNet, Model, ModelConfig, Net, Weights};
+use crate::model::{FoldNet, Model, Net, Weights};
 use crate::preprocess::GatheredPatches;
 use crate::rng::Rng;
 use crate::settings::MatchMode;
@@ -49,8 +49,8 @@ pub struct Args {
     /// Backends to time: gpu, cpu or both.
     #[arg(long, default_value = "both")]
     pub backend: String,
-    /// Weights file; default: seeded random weights of the default configuration (times do not depend on
-    /// the values).
+    /// Weights file; default: seeded random weights of the built-in model's configuration (its pruned widths;
+    /// times do not depend on the values).
     #[arg(long)]
     pub weights: Option<PathBuf>,
     /// Timed repetitions per stage (the fastest is reported) [default: 3; 1 on a software adapter].
@@ -406,7 +406,7 @@ pub(super) fn gpu_timing(m: Measured, flops: Option<f64>, peak_tflops: Option<f6
 
 /// Dense FLOPs of one encoder pass over `patches` patches of `points` points (the per-patch global slice of
 /// the first head layer counted per patch, as computed).
-fn encode_flops(f: &FoldNet, patches: usize, points: usize) -> f64 {
+pub(super) fn encode_flops(f: &FoldNet, patches: usize, points: usize) -> f64 {
     let per_point: usize = f.encoder.iter().chain(&f.head[1..]).map(|l| l.in_dim * l.out_dim).sum::<usize>()
         + f.head.first().map_or(0, |h| (h.in_dim - f.encoder.last().map_or(0, |l| l.out_dim)) * h.out_dim);
     let per_patch = f.head.first().map_or(0, |h| f.encoder.last().map_or(0, |l| l.out_dim) * h.out_dim);
@@ -480,11 +480,11 @@ pub fn bench_model(args: &Args) -> anyhow::Result<Model> {
     model_of(&bench_weights(args)?, args)
 }
 
-/// The weights `bench` times: `--weights`, or seeded random weights of the default configuration.
+/// The weights `bench` times: `--weights`, or seeded random weights of the built-in model's configuration.
 pub fn bench_weights(args: &Args) -> anyhow::Result<Weights> {
     Ok(match &args.weights {
         Some(path) => Weights::load(path).with_context(|| format!("loading {}", path.display()))?,
-        None => Weights::init(&ModelConfig::default(), args.seed)?,
+        None => Weights::init(&Weights::built_in_view()?.config, args.seed)?,
     })
 }
 

@@ -9,6 +9,7 @@ pub mod eval;
 pub mod eval_trajectory;
 pub mod multiway;
 pub mod pose_graph;
+pub mod prune;
 pub mod register;
 pub mod synopsis;
 pub mod synth;
@@ -45,6 +46,8 @@ pub enum Command {
     Multiway(multiway::Args),
     /// Compare a trajectory with ground truth: ATE, rotation errors, loop closures kept.
     EvalTrajectory(eval_trajectory::Args),
+    /// Remove the encoder channels that never fire (the same codewords, less arithmetic).
+    Prune(prune::Args),
     /// Optimise a g2o pose graph (sparse Levenberg-Marquardt, chordal start, optional robust kernel).
     PoseGraph(pose_graph::Args),
 }
@@ -68,6 +71,7 @@ pub fn main() -> std::process::ExitCode {
         Command::Multiway(args) => multiway::run(args).map(|placed| untrusted = !placed),
         Command::EvalTrajectory(args) => eval_trajectory::run(args),
         Command::PoseGraph(args) => pose_graph::run(args),
+        Command::Prune(args) => prune::run(args),
     };
     match outcome {
         Ok(()) if untrusted => std::process::ExitCode::from(register::EXIT_UNTRUSTED),

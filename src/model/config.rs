@@ -142,6 +142,20 @@ pub struct ModelConfig {
     /// RelativeNet's rotation encoding (weights files without it use the paper's quaternion).
     #[serde(default)]
     pub rotation_output: RotationOutput,
+    /// PC-FoldNet's own per-point widths where they differ from PPF-FoldNet's (`encoder_widths` and
+    /// `head_widths` are then PPF-FoldNet's), as in a pruned model (`dpr-gpu prune`): the same layer counts and
+    /// codeword. Weights files without it use one set of widths for both networks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pc_widths: Option<NetWidths>,
+}
+
+/// One FoldNet's per-point widths: before the first max-pool, and after the skip concatenation.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct NetWidths {
+    /// Per-point MLP widths before the first max-pool.
+    pub encoder: Vec<usize>,
+    /// Per-point MLP widths after the skip concatenation; the last is the codeword size.
+    pub head: Vec<usize>,
 }
 
 impl Default for ModelConfig {
@@ -163,6 +177,7 @@ impl Default for ModelConfig {
                 bins: DEFAULT_ANGLE_BINS,
                 candidates: DEFAULT_ANGLE_CANDIDATES,
             },
+            pc_widths: None,
         }
     }
 }
@@ -200,7 +215,8 @@ impl ModelConfig {
         self.grid[0] * self.grid[1]
     }
 
-    /// Width of the skip concatenation [encoder outputs | global max-pool].
+    /// Width of PPF-FoldNet's skip concatenation [encoder outputs | global max-pool]
+    /// (`crate::model::params::concat_width` for either network).
     pub fn concat_width(&self) -> usize {
         self.encoder_widths.iter().sum::<usize>() + self.encoder_widths.last().copied().unwrap_or(0)
     }
@@ -220,12 +236,25 @@ impl ModelConfig {
             ("head_widths", &self.head_widths),
             ("fold_widths", &self.fold_widths),
             ("relative_widths", &self.relative_widths),
+            ("pc_widths.encoder", self.pc_widths.as_ref().map_or(&self.encoder_widths, |w| &w.encoder)),
+            ("pc_widths.head", self.pc_widths.as_ref().map_or(&self.head_widths, |w| &w.head)),
         ] {
             if widths.is_empty() || widths.contains(&0) {
                 problems.push(format!("{name} must be non-empty and positive, got {widths:?}"));
             } else if widths.len() > MAX_LAYERS || widths.iter().any(|&w| w > MAX_WIDTH) {
                 problems.push(format!("{name} must have at most {MAX_LAYERS} layers of width <= {MAX_WIDTH}"));
             }
+        }
+        if let Some(pc) = &self.pc_widths
+            && (pc.encoder.len() != self.encoder_widths.len()
+                || pc.head.len() != self.head_widths.len()
+                || pc.head.last() != self.head_widths.last())
+        {
+            problems.push(format!(
+                "pc_widths must have as many layers as encoder_widths and head_widths and the same codeword, got {:?} \
+                 and {:?} against {:?} and {:?}",
+                pc.encoder, pc.head, self.encoder_widths, self.head_widths
+            ));
         }
         if self.grid.contains(&0) {
             problems.push(format!("grid must be positive, got {:?}", self.grid));

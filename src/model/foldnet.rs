@@ -240,7 +240,8 @@ impl FoldNet {
         // Transposed in parallel, checked in order (the first bad layer is the one reported).
         let layers: Vec<Result<Linear>> = specs.par_iter().map(|s| Linear::from_weights(weights, s)).collect();
         let layers: Vec<Linear> = layers.into_iter().collect::<Result<_>>()?;
-        let (ne, nh, nf) = (c.encoder_widths.len(), c.head_widths.len(), c.fold_widths.len() + 1);
+        let (ne, nh) = (super::params::encoder_widths(c, net).len(), super::params::head_widths(c, net).len());
+        let nf = c.fold_widths.len() + 1;
         let mut it = layers.into_iter();
         let mut take = |n: usize| (&mut it).take(n).collect::<Vec<_>>();
         Ok(FoldNet {

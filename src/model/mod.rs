@@ -4,6 +4,7 @@ pub mod config;
 pub mod foldnet;
 pub mod linear;
 pub mod params;
+pub mod prune;
 pub mod relativenet;
 pub mod weights;
 

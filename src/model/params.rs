@@ -52,14 +52,36 @@ fn chain(name: &str, in_dim: usize, widths: &[usize], out: &mut Vec<LayerSpec>) 
     }
 }
 
+/// `net`'s per-point widths before the first max-pool (`config.pc_widths` for PC-FoldNet where set).
+pub fn encoder_widths(config: &ModelConfig, net: Net) -> &[usize] {
+    match (net, &config.pc_widths) {
+        (Net::Pc, Some(w)) => &w.encoder,
+        _ => &config.encoder_widths,
+    }
+}
+
+/// `net`'s per-point widths after the skip concatenation.
+pub fn head_widths(config: &ModelConfig, net: Net) -> &[usize] {
+    match (net, &config.pc_widths) {
+        (Net::Pc, Some(w)) => &w.head,
+        _ => &config.head_widths,
+    }
+}
+
+/// Width of `net`'s skip concatenation [encoder outputs | global max-pool].
+pub fn concat_width(config: &ModelConfig, net: Net) -> usize {
+    let widths = encoder_widths(config, net);
+    widths.iter().sum::<usize>() + widths.last().copied().unwrap_or(0)
+}
+
 /// The layers of one FoldNet (encoder, head, fold1, fold2) in forward order.
 pub fn foldnet_layers(config: &ModelConfig, net: Net) -> Vec<LayerSpec> {
     let p = net.prefix();
     let d = net.io_width();
     let codeword = config.codeword();
     let mut out = Vec::new();
-    chain(&format!("{p}.encoder"), d, &config.encoder_widths, &mut out);
-    chain(&format!("{p}.head"), config.concat_width(), &config.head_widths, &mut out);
+    chain(&format!("{p}.encoder"), d, encoder_widths(config, net), &mut out);
+    chain(&format!("{p}.head"), concat_width(config, net), head_widths(config, net), &mut out);
     let fold: Vec<usize> = config.fold_widths.iter().copied().chain([d]).collect();
     chain(&format!("{p}.fold1"), codeword + 2, &fold, &mut out);
     chain(&format!("{p}.fold2"), codeword + d, &fold, &mut out);
