@@ -6,8 +6,8 @@ mod common;
 
 use dpr_gpu::model::config::NetWidths;
 use dpr_gpu::model::params::{encoder_widths, head_widths, tensor_specs};
-use dpr_gpu::model::prune::{Firing, Kept, domain_patches, prune};
-use dpr_gpu::model::{FoldNet, ModelConfig, Net, Weights};
+use dpr_gpu::model::prune::{Firing, Kept, codeword_channels, domain_patches, prune};
+use dpr_gpu::model::{FoldNet, ModelConfig, Net, RelativeNet, Weights};
 use std::process::Command;
 
 fn small() -> ModelConfig {
@@ -28,9 +28,10 @@ fn with_dead_channels(seed: u64) -> (Weights, Vec<(String, usize)>) {
     let mut w = Weights::init(&small(), seed).unwrap();
     let mut dead = Vec::new();
     for net in ["ppf", "pc"] {
-        for (layer, channels) in
-            [("encoder.0", [1, 5]), ("encoder.1", [0, 15]), ("encoder.2", [3, 4]), ("head.0", [7, 39])]
-        {
+        // Codeword channel 2 is dead in both networks, 11 in PPF-FoldNet only (so it stays).
+        let codeword = if net == "ppf" { [2, 11] } else { [2, 2] };
+        let layers = [("encoder.0", [1, 5]), ("encoder.1", [0, 15]), ("encoder.2", [3, 4]), ("head.0", [7, 39])];
+        for (layer, channels) in layers.into_iter().chain([("head.1", codeword)]) {
             let bias = w.tensors.get_mut(&format!("{net}.{layer}.bias")).unwrap();
             for c in channels {
                 bias[c] = -1e4;
@@ -38,7 +39,7 @@ fn with_dead_channels(seed: u64) -> (Weights, Vec<(String, usize)>) {
             }
         }
         // Biases that keep the other channels alive on most inputs.
-        for layer in ["encoder.0", "encoder.1", "encoder.2", "head.0"] {
+        for layer in ["encoder.0", "encoder.1", "encoder.2", "head.0", "head.1"] {
             for b in w.tensors.get_mut(&format!("{net}.{layer}.bias")).unwrap() {
                 if *b == 0.0 {
                     *b = 0.5;
@@ -49,14 +50,29 @@ fn with_dead_channels(seed: u64) -> (Weights, Vec<(String, usize)>) {
     (w, dead)
 }
 
+/// Pruned codewords (`codeword.len()` wide) written into rows of the whole codeword's width, 0 elsewhere.
+fn expand(cut: &[f32], codeword: &[usize], width: usize) -> Vec<f32> {
+    let mut out = vec![0.0; cut.len() / codeword.len() * width];
+    for (row, values) in out.chunks_exact_mut(width).zip(cut.chunks_exact(codeword.len())) {
+        codeword.iter().zip(values).for_each(|(&c, &v)| row[c] = v);
+    }
+    out
+}
+
+fn assert_near(whole: &[f32], cut: &[f32], what: &str) {
+    assert_eq!(whole.len(), cut.len(), "{what}");
+    for (a, b) in whole.iter().zip(cut) {
+        assert!((a - b).abs() <= 1e-5 * a.abs().max(1.0), "{what}: {a} vs {b}");
+    }
+}
+
 #[test]
 fn the_pruned_model_gives_the_whole_models_codewords_and_keeps_every_channel_that_fired() {
     let (weights, dead) = with_dead_channels(3);
     let config = weights.config.clone();
     let points = config.points_per_patch;
     let view = weights.view();
-    let mut kept = Vec::new();
-    let mut inputs = Vec::new();
+    let (mut kept, mut inputs, mut firings) = (Vec::new(), Vec::new(), Vec::new());
     for net in [Net::Ppf, Net::Pc] {
         let input = domain_patches(net, 40, points, 9);
         let f = FoldNet::from_weights(&view, net).unwrap();
@@ -73,19 +89,23 @@ fn the_pruned_model_gives_the_whole_models_codewords_and_keeps_every_channel_tha
                 }
             }
         }
-        assert!(!firing.head[0][7] && !firing.head[0][39]);
+        assert!(!firing.head[0][7] && !firing.head[0][39] && !firing.head[1][2]);
         let k = Kept::of(&firing, 1);
+        assert_eq!(k.head.len(), 1, "the codeword is kept apart");
         for (flags, keep) in firing.encoder.iter().chain(&firing.head).zip(k.encoder.iter().chain(&k.head)) {
             let fired: Vec<usize> = (0..flags.len()).filter(|&c| flags[c]).collect();
             assert_eq!(keep, &fired, "align 1 keeps exactly the channels that fired");
         }
         kept.push(k);
         inputs.push(input);
+        firings.push(firing);
     }
-    let pruned = prune(&weights, [&kept[0], &kept[1]]).unwrap();
+    let codeword = codeword_channels(&[&firings[0], &firings[1]], 1);
+    assert!(!codeword.contains(&2) && codeword.contains(&11), "{codeword:?}");
+    let pruned = prune(&weights, [&kept[0], &kept[1]], &codeword).unwrap();
     assert!(pruned.parameter_count() < weights.parameter_count());
     let pc = pruned.config.pc_widths.clone().expect("the two networks lost different channels");
-    assert_eq!(pc.head.last(), Some(&20));
+    assert_eq!(pc.head.last(), Some(&codeword.len()));
     // The same tensor table as the config describes, and through a file and back.
     let specs: Vec<(String, Vec<usize>)> = tensor_specs(&pruned.config);
     for (name, shape) in &specs {
@@ -94,20 +114,27 @@ fn the_pruned_model_gives_the_whole_models_codewords_and_keeps_every_channel_tha
     let back = Weights::from_bytes(&pruned.to_bytes().unwrap(), "pruned").unwrap();
     assert_eq!(back, pruned);
     let pruned_view = back.view();
+    let mut codewords = Vec::new();
     for (net, input) in [Net::Ppf, Net::Pc].into_iter().zip(&inputs) {
-        let whole = FoldNet::from_weights(&view, net).unwrap().encode(input, 40, points);
-        let cut = FoldNet::from_weights(&pruned_view, net).unwrap().encode(input, 40, points);
-        assert_eq!(whole.len(), cut.len());
-        for (a, b) in whole.iter().zip(&cut) {
-            assert!((a - b).abs() <= 1e-5 * a.abs().max(1.0), "{net:?}: {a} vs {b}");
-        }
-        // The decoders and the codeword layer's outputs are untouched.
-        for layer in ["fold1.0", "fold2.0", "head.1"] {
-            let name = format!("{}.{layer}.bias", net.prefix());
-            assert_eq!(back.tensors[&name], weights.tensors[&name], "{name}");
-        }
+        let (whole_net, cut_net) =
+            (FoldNet::from_weights(&view, net).unwrap(), FoldNet::from_weights(&pruned_view, net).unwrap());
+        let (whole, cut) = (whole_net.encode(input, 40, points), cut_net.encode(input, 40, points));
+        assert_near(&whole, &expand(&cut, &codeword, 20), &format!("{net:?} codewords"));
+        // The decoders read the pruned codeword as the whole one.
+        assert_near(&whole_net.decode(&whole, 40), &cut_net.decode(&cut, 40), &format!("{net:?} decoder"));
+        codewords.push((whole, cut));
     }
-    assert_eq!(back.tensors["relative.0.weight"], weights.tensors["relative.0.weight"]);
+    // So does RelativeNet, on pose features (PC minus PPF codewords).
+    let (whole_pose, cut_pose) = (
+        dpr_gpu::model::pose_feature(&codewords[1].0, &codewords[0].0),
+        dpr_gpu::model::pose_feature(&codewords[1].1, &codewords[0].1),
+    );
+    let (a, b) = (RelativeNet::from_weights(&view).unwrap(), RelativeNet::from_weights(&pruned_view).unwrap());
+    let (rows, w) = (20, codeword.len());
+    let whole_out = a.forward_raw(&whole_pose[..rows * 20], &whole_pose[rows * 20..], rows);
+    let cut_out = b.forward_raw(&cut_pose[..rows * w], &cut_pose[rows * w..], rows);
+    assert_near(&whole_out, &cut_out, "RelativeNet");
+    assert_eq!(back.tensors["relative.1.weight"], weights.tensors["relative.1.weight"]);
 }
 
 #[test]
@@ -116,14 +143,17 @@ fn alignment_pads_each_layer_with_dead_channels_and_the_codewords_stay_the_same(
     let config = weights.config.clone();
     let points = config.points_per_patch;
     let view = weights.view();
-    let kept: Vec<Kept> = [Net::Ppf, Net::Pc]
+    let firings: Vec<Firing> = [Net::Ppf, Net::Pc]
         .into_iter()
         .map(|net| {
             let input = domain_patches(net, 20, points, 1);
-            Kept::of(&Firing::of(&FoldNet::from_weights(&view, net).unwrap(), &config, &input, 20, points), 8)
+            Firing::of(&FoldNet::from_weights(&view, net).unwrap(), &config, &input, 20, points)
         })
         .collect();
-    let pruned = prune(&weights, [&kept[0], &kept[1]]).unwrap();
+    let kept: Vec<Kept> = firings.iter().map(|f| Kept::of(f, 8)).collect();
+    let codeword = codeword_channels(&[&firings[0], &firings[1]], 8);
+    assert!(codeword.len() % 8 == 0 || codeword.len() == 20, "{codeword:?}");
+    let pruned = prune(&weights, [&kept[0], &kept[1]], &codeword).unwrap();
     for net in [Net::Ppf, Net::Pc] {
         let (enc, head) = (encoder_widths(&pruned.config, net), head_widths(&pruned.config, net));
         let whole = [&small().encoder_widths[..], &small().head_widths[..1]].concat();
@@ -133,7 +163,7 @@ fn alignment_pads_each_layer_with_dead_channels_and_the_codewords_stay_the_same(
         let input = domain_patches(net, 12, points, 77);
         let a = FoldNet::from_weights(&view, net).unwrap().encode(&input, 12, points);
         let b = FoldNet::from_weights(&pruned.view(), net).unwrap().encode(&input, 12, points);
-        assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= 1e-5 * x.abs().max(1.0)), "{net:?}");
+        assert_near(&a, &expand(&b, &codeword, 20), &format!("{net:?}"));
     }
 }
 
@@ -200,7 +230,15 @@ fn the_prune_command_writes_a_smaller_model_with_the_same_codewords_and_never_ov
         let x = domain_patches(net, 8, points, 123);
         let a = FoldNet::from_weights(&weights.view(), net).unwrap().encode(&x, 8, points);
         let b = FoldNet::from_weights(&pruned.view(), net).unwrap().encode(&x, 8, points);
-        assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= 1e-5 * x.abs().max(1.0)), "{net:?}");
+        // Matching sees the same: every distance between two codewords (the removed channels were 0 in both).
+        let distances = |c: &[f32], w: usize| -> Vec<f32> {
+            let rows: Vec<&[f32]> = c.chunks_exact(w).collect();
+            let d = |p: &[f32], q: &[f32]| p.iter().zip(q).map(|(u, v)| (u - v) * (u - v)).sum::<f32>().sqrt();
+            rows.iter().flat_map(|p| rows.iter().map(|q| d(p, q))).collect()
+        };
+        let cut = pruned.config.codeword();
+        assert!(cut <= 20);
+        assert_near(&distances(&a, 20), &distances(&b, cut), &format!("{net:?} codeword distances"));
     }
     // Its input is never its output, whatever the name (a hard link is the same file).
     let link = dir.path().join("link.safetensors");

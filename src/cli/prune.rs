@@ -4,7 +4,7 @@
 
 use super::bench::encode_flops;
 use super::weights::check_weights_path;
-use crate::model::prune::{Firing, Kept, domain_patches, prune};
+use crate::model::prune::{Firing, Kept, codeword_channels, domain_patches, prune};
 use crate::model::{FoldNet, ModelConfig, Net, Weights};
 use crate::train::data::{DataSettings, Sampler, discover_pairs};
 use anyhow::{Context, bail};
@@ -66,7 +66,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let (ppf, pc, training_patches) = calibration_patches(&args, &weights.config)?;
     let view = weights.view();
     let points = weights.config.points_per_patch;
-    let mut kept = Vec::new();
+    let (mut kept, mut firings) = (Vec::new(), Vec::new());
     for (net, input) in [(Net::Ppf, &ppf), (Net::Pc, &pc)] {
         let patches = input.len() / (points * net.io_width());
         let firing = Firing::of(&FoldNet::from_weights(&view, net)?, &weights.config, input, patches, points);
@@ -76,11 +76,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let count = fired.iter().filter(|&&x| x).count();
             println!("{} {name}: {} channels, {count} fired, {} kept", net.prefix(), fired.len(), keep.len());
         }
+        let codeword = firing.head.last().map_or(0, |f| f.iter().filter(|&&x| x).count());
+        println!("{} codeword: {} channels, {codeword} fired", net.prefix(), weights.config.codeword());
         kept.push(k);
+        firings.push(firing);
     }
-    let mut pruned = prune(&weights, [&kept[0], &kept[1]])?;
+    let codeword = codeword_channels(&[&firings[0], &firings[1]], args.align);
+    let either = codeword_channels(&[&firings[0], &firings[1]], 1).len();
+    println!("codeword: {either} channels fired in either network, {} kept", codeword.len());
+    let mut pruned = prune(&weights, [&kept[0], &kept[1]], &codeword)?;
     for (net, input) in [(Net::Ppf, &ppf), (Net::Pc, &pc)] {
-        compare(&weights, &pruned, net, input)?;
+        compare(&weights, &pruned, net, input, &codeword)?;
     }
     let origin = args.weights.as_ref().map_or("built-in default weights".to_string(), |p| p.display().to_string());
     let data: Vec<String> = args.data.iter().map(|p| p.display().to_string()).collect();
@@ -122,14 +128,20 @@ fn calibration_patches(args: &Args, config: &ModelConfig) -> anyhow::Result<(Vec
     Ok((ppf, pc, drawn))
 }
 
-/// Prints how the pruned network's codewords compare with the whole one's on `input`, and its FLOPs.
-fn compare(whole: &Weights, pruned: &Weights, net: Net, input: &[f32]) -> anyhow::Result<()> {
+/// Prints how the pruned network's codewords compare with the whole one's on `input` (the removed codeword
+/// channels must be 0 there, the kept ones equal), and its FLOPs.
+fn compare(whole: &Weights, pruned: &Weights, net: Net, input: &[f32], codeword: &[usize]) -> anyhow::Result<()> {
     let points = whole.config.points_per_patch;
     let (a, b) = (FoldNet::from_weights(&whole.view(), net)?, FoldNet::from_weights(&pruned.view(), net)?);
     let patches = input.len() / (points * net.io_width());
     let (x, y) = (a.encode(input, patches, points), b.encode(input, patches, points));
-    let differ = x.iter().zip(&y).filter(|(p, q)| p != q).count();
-    let max = x.iter().zip(&y).map(|(p, q)| (p - q).abs()).fold(0f32, f32::max);
+    let width = whole.config.codeword();
+    let mut expanded = vec![0f32; x.len()];
+    for (row, cut) in expanded.chunks_exact_mut(width).zip(y.chunks_exact(codeword.len())) {
+        codeword.iter().zip(cut).for_each(|(&c, &v)| row[c] = v);
+    }
+    let differ = x.iter().zip(&expanded).filter(|(p, q)| p != q).count();
+    let max = x.iter().zip(&expanded).map(|(p, q)| (p - q).abs()).fold(0f32, f32::max);
     println!(
         "{}: {} -> {} MFLOP per patch; codewords on the {patches} calibration patches: {differ} values differ, \
          largest difference {max:e}",

@@ -5,35 +5,36 @@
 //! arithmetic. ReLU training leaves many such channels: the shipped PPF-FoldNet fires 132 of its 512 head
 //! channels on real and synthetic scans alike (docs/experiments/dead-channels.md).
 //!
-//! The encoder layers and every head layer but the last (the codeword, which matching and RelativeNet read)
-//! are pruned; the folding decoders and RelativeNet are kept as they are. `dpr-gpu prune` runs this on training
-//! patches and random patches of the whole input domain.
+//! Every encoder and head layer is pruned. The codeword is shared: PC-FoldNet's minus PPF-FoldNet's is
+//! RelativeNet's input, and both feed their folding decoders, so a codeword channel goes only when it is dead in
+//! both networks, with its columns in RelativeNet's first layer and in the decoders' first layers (the shipped
+//! PPF-FoldNet's codewords use 84 of their 512 channels, PC-FoldNet's 193). `dpr-gpu prune` runs this on
+//! training patches and random patches of the whole input domain.
 
 use super::config::NetWidths;
 use super::foldnet::{EncodeTape, FoldNet};
-use super::params::{Net, concat_width, encoder_widths, foldnet_layers, head_widths};
+use super::params::{Net, concat_width, encoder_widths, foldnet_layers, head_widths, relative_layers};
 use super::weights::Weights;
 use crate::error::{Error, Result};
 use crate::rng::Rng;
 use rayon::prelude::*;
 
 /// Which per-point channels of one FoldNet fired on the calibration patches: one flag per channel of each
-/// encoder layer, then of each head layer but the last.
+/// encoder layer, then of each head layer (the last one's are the codeword's channels).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Firing {
     /// `encoder[i][c]`: channel `c` of encoder layer `i` was positive on some point.
     pub encoder: Vec<Vec<bool>>,
-    /// `head[j][c]` for the head layers before the codeword.
+    /// `head[j][c]` for every head layer.
     pub head: Vec<Vec<bool>>,
 }
 
 impl Firing {
     /// No channel fired yet, for `net`'s widths.
     pub fn none(config: &super::ModelConfig, net: Net) -> Firing {
-        let heads = head_widths(config, net);
         Firing {
             encoder: encoder_widths(config, net).iter().map(|&w| vec![false; w]).collect(),
-            head: heads[..heads.len().saturating_sub(1)].iter().map(|&w| vec![false; w]).collect(),
+            head: head_widths(config, net).iter().map(|&w| vec![false; w]).collect(),
         }
     }
 
@@ -98,13 +99,25 @@ pub struct Kept {
 }
 
 impl Kept {
-    /// The kept channels of each layer of `firing`, each a multiple of `align` where the layer allows.
+    /// The kept channels of each layer of `firing` before the codeword, each a multiple of `align` where the
+    /// layer allows.
     pub fn of(firing: &Firing, align: usize) -> Kept {
+        let before_codeword = &firing.head[..firing.head.len().saturating_sub(1)];
         Kept {
             encoder: firing.encoder.iter().map(|f| kept_channels(f, align)).collect(),
-            head: firing.head.iter().map(|f| kept_channels(f, align)).collect(),
+            head: before_codeword.iter().map(|f| kept_channels(f, align)).collect(),
         }
     }
+}
+
+/// The codeword channels kept: those that fired in either network ([`kept_channels`] of their union).
+pub fn codeword_channels(firings: &[&Firing], align: usize) -> Vec<usize> {
+    let width = firings.iter().filter_map(|f| f.head.last()).map(Vec::len).max().unwrap_or(0);
+    let mut fired = vec![false; width];
+    for flags in firings.iter().filter_map(|f| f.head.last()) {
+        fired.iter_mut().zip(flags).for_each(|(a, &b)| *a |= b);
+    }
+    kept_channels(&fired, align)
 }
 
 /// Rows `rows` and columns `cols` of a row-major `[out, in]` weight with `in_dim` columns.
@@ -112,51 +125,24 @@ fn select(weight: &[f32], in_dim: usize, rows: &[usize], cols: &[usize]) -> Vec<
     rows.iter().flat_map(|&r| cols.iter().map(move |&c| weight[r * in_dim + c])).collect()
 }
 
-/// `weights` with each network's channels cut to `kept` (PPF-FoldNet's, then PC-FoldNet's): the pruned layers'
-/// rows, the next layers' columns (the skip concatenation's slices and its global slice too) and the config's
-/// widths; the codeword layer's outputs, the decoders and RelativeNet unchanged.
-pub fn prune(weights: &Weights, kept: [&Kept; 2]) -> Result<Weights> {
+/// `weights` with each network's channels cut to `kept` (PPF-FoldNet's, then PC-FoldNet's) and the codeword to
+/// `codeword`: the pruned layers' rows, the next layers' columns (the skip concatenation's slices and its global
+/// slice too, the decoders' and RelativeNet's codeword columns) and the config's widths.
+pub fn prune(weights: &Weights, kept: [&Kept; 2], codeword: &[usize]) -> Result<Weights> {
     let config = &weights.config;
+    let width = config.codeword();
+    if codeword.is_empty() || codeword.windows(2).any(|p| p[0] >= p[1]) || codeword.iter().any(|&c| c >= width) {
+        return Err(Error::invalid("prune: the kept codeword channels do not fit the codeword"));
+    }
     let mut out = weights.clone();
     let mut widths = Vec::new();
     for (net, kept) in [Net::Ppf, Net::Pc].into_iter().zip(kept) {
-        let (enc, head) = (encoder_widths(config, net), head_widths(config, net));
-        let valid = |k: &[Vec<usize>], w: &[usize]| {
-            k.len() == w.len()
-                && k.iter()
-                    .zip(w)
-                    .all(|(k, &w)| !k.is_empty() && k.windows(2).all(|p| p[0] < p[1]) && k.iter().all(|&c| c < w))
-        };
-        if !valid(&kept.encoder, enc) || !valid(&kept.head, &head[..head.len() - 1]) {
-            return Err(Error::invalid(format!("prune: kept channels do not fit {}'s widths", net.prefix())));
-        }
-        let layers = foldnet_layers(config, net);
-        let all = |n: usize| (0..n).collect::<Vec<usize>>();
-        let mut previous = all(net.io_width());
-        for (i, spec) in layers.iter().take(enc.len()).enumerate() {
-            cut(&mut out, weights, spec, &kept.encoder[i], &previous)?;
-            previous.clone_from(&kept.encoder[i]);
-        }
-        // The skip concatenation [enc_0 | enc_1 | ... | global]: each slice keeps its layer's channels.
-        let mut concat = Vec::new();
-        let mut offset = 0;
-        for (k, &w) in kept.encoder.iter().zip(enc) {
-            concat.extend(k.iter().map(|&c| offset + c));
-            offset += w;
-        }
-        concat.extend(kept.encoder.last().map_or(&[][..], Vec::as_slice).iter().map(|&c| offset + c));
-        debug_assert_eq!(offset + enc.last().copied().unwrap_or(0), concat_width(config, net));
-        previous = concat;
-        for (j, spec) in layers.iter().skip(enc.len()).take(head.len()).enumerate() {
-            let rows = kept.head.get(j).cloned().unwrap_or_else(|| all(spec.out_dim));
-            cut(&mut out, weights, spec, &rows, &previous)?;
-            previous = rows;
-        }
-        widths.push(NetWidths {
-            encoder: kept.encoder.iter().map(Vec::len).collect(),
-            head: kept.head.iter().map(Vec::len).chain([config.codeword()]).collect(),
-        });
+        widths.push(prune_net(&mut out, weights, net, kept, codeword)?);
     }
+    // RelativeNet reads [source | target] pose features, each a codeword wide.
+    let relative = &relative_layers(config)[0];
+    let columns: Vec<usize> = codeword.iter().copied().chain(codeword.iter().map(|&c| width + c)).collect();
+    cut(&mut out, weights, relative, &(0..relative.out_dim).collect::<Vec<_>>(), &columns)?;
     let pc = widths.pop().expect("two networks");
     let ppf = widths.pop().expect("two networks");
     out.config.encoder_widths = ppf.encoder.clone();
@@ -164,6 +150,53 @@ pub fn prune(weights: &Weights, kept: [&Kept; 2]) -> Result<Weights> {
     out.config.pc_widths = (pc != ppf).then_some(pc);
     out.config.validate()?;
     Ok(out)
+}
+
+/// Cuts one network's layers in `out` (from `weights`) to `kept` and its codeword to `codeword`; its widths.
+fn prune_net(out: &mut Weights, weights: &Weights, net: Net, kept: &Kept, codeword: &[usize]) -> Result<NetWidths> {
+    let config = &weights.config;
+    let (enc, head) = (encoder_widths(config, net), head_widths(config, net));
+    let valid = |k: &[Vec<usize>], w: &[usize]| {
+        k.len() == w.len()
+            && k.iter()
+                .zip(w)
+                .all(|(k, &w)| !k.is_empty() && k.windows(2).all(|p| p[0] < p[1]) && k.iter().all(|&c| c < w))
+    };
+    if !valid(&kept.encoder, enc) || !valid(&kept.head, &head[..head.len() - 1]) {
+        return Err(Error::invalid(format!("prune: kept channels do not fit {}'s widths", net.prefix())));
+    }
+    let layers = foldnet_layers(config, net);
+    let all = |n: usize| (0..n).collect::<Vec<usize>>();
+    let mut previous = all(net.io_width());
+    for (i, spec) in layers.iter().take(enc.len()).enumerate() {
+        cut(out, weights, spec, &kept.encoder[i], &previous)?;
+        previous.clone_from(&kept.encoder[i]);
+    }
+    // The skip concatenation [enc_0 | enc_1 | ... | global]: each slice keeps its layer's channels.
+    let mut concat = Vec::new();
+    let mut offset = 0;
+    for (k, &w) in kept.encoder.iter().zip(enc) {
+        concat.extend(k.iter().map(|&c| offset + c));
+        offset += w;
+    }
+    concat.extend(kept.encoder.last().map_or(&[][..], Vec::as_slice).iter().map(|&c| offset + c));
+    debug_assert_eq!(offset + enc.last().copied().unwrap_or(0), concat_width(config, net));
+    previous = concat;
+    for (j, spec) in layers.iter().skip(enc.len()).take(head.len()).enumerate() {
+        let rows = kept.head.get(j).map_or(codeword, Vec::as_slice).to_vec();
+        cut(out, weights, spec, &rows, &previous)?;
+        previous = rows;
+    }
+    // Each folding MLP's first layer reads [codeword | grid or first fold's output].
+    let folds = config.fold_widths.len() + 1;
+    for spec in [&layers[enc.len() + head.len()], &layers[enc.len() + head.len() + folds]] {
+        let columns: Vec<usize> = codeword.iter().copied().chain(config.codeword()..spec.in_dim).collect();
+        cut(out, weights, spec, &all(spec.out_dim), &columns)?;
+    }
+    Ok(NetWidths {
+        encoder: kept.encoder.iter().map(Vec::len).collect(),
+        head: kept.head.iter().map(Vec::len).chain([codeword.len()]).collect(),
+    })
 }
 
 /// Replaces `spec`'s weight and bias in `out` by rows `rows` and columns `cols` of `from`'s.
