@@ -152,13 +152,13 @@ fn alignment_pads_each_layer_with_dead_channels_and_the_codewords_stay_the_same(
         .collect();
     let kept: Vec<Kept> = firings.iter().map(|f| Kept::of(f, 8)).collect();
     let codeword = codeword_channels(&[&firings[0], &firings[1]], 8);
-    assert!(codeword.len() % 8 == 0 || codeword.len() == 20, "{codeword:?}");
+    assert!(codeword.len().is_multiple_of(8) || codeword.len() == 20, "{codeword:?}");
     let pruned = prune(&weights, [&kept[0], &kept[1]], &codeword).unwrap();
     for net in [Net::Ppf, Net::Pc] {
         let (enc, head) = (encoder_widths(&pruned.config, net), head_widths(&pruned.config, net));
         let whole = [&small().encoder_widths[..], &small().head_widths[..1]].concat();
         for (w, full) in enc.iter().chain(&head[..1]).zip(whole) {
-            assert!(w % 8 == 0 || *w == full, "{net:?}: width {w} of {full}");
+            assert!(w.is_multiple_of(8) || *w == full, "{net:?}: width {w} of {full}");
         }
         let input = domain_patches(net, 12, points, 77);
         let a = FoldNet::from_weights(&view, net).unwrap().encode(&input, 12, points);
