@@ -433,6 +433,15 @@ mod x86 {
                 _mm512_storeu_si512(dst.as_mut_ptr().add(c * 16).cast(), packed);
             }
         }
+        if row.len() - full >= 16 {
+            // 16 more values: 16 bf16 in order are 8 pairs, value 2q in the low half of word q.
+            // SAFETY: `row` holds 16 values at `full` and `dst` 8 words at `full / 2`.
+            unsafe {
+                let packed: __m256i = std::mem::transmute(_mm512_cvtneps_pbh(_mm512_loadu_ps(row.as_ptr().add(full))));
+                _mm256_storeu_si256(dst.as_mut_ptr().add(full / 2).cast(), packed);
+            }
+            return full + 16;
+        }
         full
     }
 
@@ -594,6 +603,21 @@ mod tests {
             let x = (rng.normal() * 10.0) as f32;
             let r = round_bf16(x);
             assert!(((r - x) / x).abs() as f64 <= BF16_UNIT_ROUNDOFF, "{x} -> {r}");
+        }
+    }
+
+    /// The vector packing of a row (32 values per instruction, then 16) is the scalar rounding of every pair,
+    /// at every width: the 16-value step, the 32-value steps and the scalar leftovers.
+    #[test]
+    fn packed_pairs_are_the_scalar_rounding_at_every_width() {
+        let mut rng = Rng::new(8);
+        for width in 0..=100usize {
+            let row: Vec<f32> = (0..width).map(|_| (rng.normal() * 3.0) as f32).collect();
+            let mut packed = vec![0u32; width.div_ceil(2)];
+            pack_pairs(&row, &mut packed);
+            let scalar: Vec<u32> =
+                (0..width.div_ceil(2)).map(|q| pair(row[2 * q], row.get(2 * q + 1).copied().unwrap_or(0.0))).collect();
+            assert_eq!(packed, scalar, "width {width}");
         }
     }
 

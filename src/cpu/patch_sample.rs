@@ -80,7 +80,11 @@ pub fn rank_candidates(candidates: &[u32], keypoint: u32, key: [u32; 2]) -> Vec<
 /// `take_cyclic(&rank_candidates(candidates, keypoint, key), n)` without ranking more than the first `n`
 /// (a selection, then a sort of those): what the CPU path runs.
 pub fn sample_candidates(candidates: &[u32], keypoint: u32, key: [u32; 2], n: usize) -> Vec<u32> {
-    let mut ranked: Vec<(u32, u32)> = candidates.iter().map(|&j| (candidate_hash(key, keypoint, j), j)).collect();
+    sample_hashed(candidates.iter().map(|&j| (candidate_hash(key, keypoint, j), j)).collect(), n)
+}
+
+/// [`sample_candidates`] from the candidates already paired with their hashes, `(candidate_hash, index)`.
+pub fn sample_hashed(mut ranked: Vec<(u32, u32)>, n: usize) -> Vec<u32> {
     if n > 0 && ranked.len() > n {
         ranked.select_nth_unstable(n - 1);
         ranked.truncate(n);

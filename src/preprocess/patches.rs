@@ -3,7 +3,9 @@
 //! repeated in ranking order otherwise): the same definition the GPU kernels implement, so both paths pick the
 //! same neighbours.
 
-use crate::cpu::patch_sample::{in_patch, radius_squared, sample_candidates, stream_key};
+use crate::cpu::patch_sample::{
+    candidate_hash, in_patch, radius_squared, sample_candidates, sample_hashed, stream_key,
+};
 use crate::spatial::PointIndex;
 use rayon::prelude::*;
 
@@ -39,8 +41,15 @@ pub fn extract_patches(
     let sampled: Vec<Vec<u32>> = keypoints
         .par_iter()
         .map(|&k| {
-            let candidates = patch_candidates(points, index, k, r2, radius);
-            sample_candidates(&candidates, k as u32, key, points_per_patch)
+            // The candidates hashed as the tree returns them (what `sample_candidates` of
+            // `patch_candidates` computes, without the list in between).
+            let q = &points[k];
+            let hashed = index
+                .within_unsorted_iter(q, radius * (1.0 + QUERY_SLACK))
+                .filter(|n| n.index != k && in_patch(&points[n.index], q, r2))
+                .map(|n| (candidate_hash(key, k as u32, n.index as u32), n.index as u32))
+                .collect();
+            sample_hashed(hashed, points_per_patch)
         })
         .collect();
     let mut out = Patches { points_per_patch, ..Patches::default() };

@@ -71,8 +71,13 @@ impl PointIndex {
 
     /// [`PointIndex::within`] in no particular order (for callers whose result does not depend on it).
     pub fn within_unsorted(&self, query: &[f32; 3], radius: f32) -> Vec<Neighbor> {
+        self.within_unsorted_iter(query, radius).collect()
+    }
+
+    /// [`PointIndex::within_unsorted`] as an iterator, for callers that map or filter the points at once.
+    pub fn within_unsorted_iter(&self, query: &[f32; 3], radius: f32) -> impl Iterator<Item = Neighbor> + use<> {
         let r = self.tree.query(query).within::<SquaredEuclidean<f32>>(radius * radius).unsorted().execute();
-        r.into_iter().map(|n| Neighbor { index: n.item as usize, distance_squared: n.distance }).collect()
+        r.into_iter().map(|n| Neighbor { index: n.item as usize, distance_squared: n.distance })
     }
 }
 
