@@ -67,7 +67,7 @@ fn body<const MR: usize, const NR: usize>(
     c: &mut [f32],
     ldc: usize,
     epi: Epilogue<'_>,
-    micro: Option<Micro<MR, NR>>,
+    (micro, half): (Option<Micro<MR, NR>>, Option<Micro<MR, NR>>),
 ) {
     let Operands { m, n, k, a, sa, sp, b, ldb } = *op;
     // Column strips outermost so a strip of B (k x NR) stays in cache while every row block streams past it.
@@ -99,6 +99,11 @@ fn body<const MR: usize, const NR: usize>(
                 // SAFETY: a full tile; `run` checked that A and B cover every tile, and the micro-kernel was
                 // chosen for a CPU feature that is present.
                 Some(f) if rn == MR && cn == NR && k > 0 => unsafe { f(k, a_t, [sa, sp], b_t, ldb, &mut acc) },
+                // A strip of half the tile's width (a 48-wide layer's last 16 columns).
+                _ if rn == MR && cn == NR / 2 && k > 0 && half.is_some() => {
+                    let f = half.expect("checked");
+                    unsafe { f(k, a_t, [sa, sp], b_t, ldb, &mut acc) }
+                }
                 _ => tile_loop(k, a_t, [sa, sp], b_t, ldb, &mut acc, rn, cn),
             }
             let relu = matches!(epi, Epilogue::Dense { relu: true, .. });
@@ -153,6 +158,37 @@ mod x86 {
     }
 
     /// 6 x 16 tile in 12 AVX registers. Separate multiply and add, as the portable loop.
+    /// [`micro_avx512`] on the first 16 columns of the tile only (the rest of `acc` untouched): the same
+    /// multiplies and adds, in the same order, one register per row.
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn micro_avx512_half(
+        k: usize,
+        a: &[f32],
+        [sa, sp]: [usize; 2],
+        b: &[f32],
+        ldb: usize,
+        acc: &mut [[f32; 32]; 8],
+    ) {
+        debug_assert!(a.len() > 7 * sa + (k - 1) * sp && b.len() >= (k - 1) * ldb + 16);
+        let (pa, pb) = (a.as_ptr(), b.as_ptr());
+        unsafe {
+            let mut c = [_mm512_setzero_ps(); 8];
+            for i in 0..8 {
+                c[i] = _mm512_loadu_ps(acc[i].as_ptr());
+            }
+            for p in 0..k {
+                let b0 = _mm512_loadu_ps(pb.add(p * ldb));
+                for (i, ci) in c.iter_mut().enumerate() {
+                    let x = _mm512_set1_ps(*pa.add(i * sa + p * sp));
+                    *ci = _mm512_add_ps(*ci, _mm512_mul_ps(x, b0));
+                }
+            }
+            for i in 0..8 {
+                _mm512_storeu_ps(acc[i].as_mut_ptr(), c[i]);
+            }
+        }
+    }
+
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn micro_avx2(
         k: usize,
@@ -190,12 +226,12 @@ mod x86 {
 
     #[target_feature(enable = "avx512f")]
     pub(super) fn body_avx512(op: &super::Operands<'_>, c: &mut [f32], ldc: usize, epi: super::Epilogue<'_>) {
-        super::body::<8, 32>(op, c, ldc, epi, Some(micro_avx512))
+        super::body::<8, 32>(op, c, ldc, epi, (Some(micro_avx512), Some(micro_avx512_half)))
     }
 
     #[target_feature(enable = "avx2")]
     pub(super) fn body_avx2(op: &super::Operands<'_>, c: &mut [f32], ldc: usize, epi: super::Epilogue<'_>) {
-        super::body::<6, 16>(op, c, ldc, epi, Some(micro_avx2))
+        super::body::<6, 16>(op, c, ldc, epi, (Some(micro_avx2), None))
     }
 }
 
@@ -283,7 +319,7 @@ fn body_on(path: GemmPath, op: &Operands<'_>, c: &mut [f32], ldc: usize, epi: Ep
         // SAFETY: the CPU supports AVX2 (checked just above).
         #[cfg(target_arch = "x86_64")]
         GemmPath::Avx2 => unsafe { x86::body_avx2(op, c, ldc, epi) },
-        _ => body::<4, 64>(op, c, ldc, epi, None),
+        _ => body::<4, 64>(op, c, ldc, epi, (None, None)),
     }
 }
 
@@ -548,9 +584,16 @@ mod tests {
     fn every_path_matches_the_portable_loop_bit_for_bit() {
         let mut rng = Rng::new(1);
         // The last case is cut into k-blocks (an unblocked body is the reference).
-        for &(m, n, k) in
-            &[(1, 1, 1), (8, 32, 5), (13, 70, 33), (17, 47, 64), (6, 16, 0), (40, 100, 9), (9, 40, 2 * KC + 77)]
-        {
+        for &(m, n, k) in &[
+            (1, 1, 1),
+            (8, 32, 5),
+            (13, 70, 33),
+            (17, 47, 64),
+            (6, 16, 0),
+            (40, 100, 9),
+            (19, 48, 4),
+            (9, 40, 2 * KC + 77),
+        ] {
             let mut v = |len: usize| (0..len).map(|_| rng.normal() as f32).collect::<Vec<f32>>();
             let (lda, ldb, ldc) = (k + 3, n + 5, n + 2);
             let a = v(m * lda);
@@ -558,7 +601,7 @@ mod tests {
             let c0 = v(m * ldc);
             let op = Operands { m, n, k, a: &a, sa: lda, sp: 1, b: &b, ldb };
             let mut want = c0.clone();
-            body::<4, 64>(&op, &mut want, ldc, Epilogue::Accumulate, None);
+            body::<4, 64>(&op, &mut want, ldc, Epilogue::Accumulate, (None, None));
             let mut got = c0.clone();
             run(&op, &mut got, ldc, Epilogue::Accumulate);
             assert_eq!(got, want, "{m}x{n}x{k}");
@@ -608,7 +651,8 @@ mod tests {
                 continue;
             }
             ran += 1;
-            for &(m, n, k) in &[(1, 1, 1), (6, 16, 7), (7, 17, 33), (19, 70, 64), (40, 100, 9), (5, 3, 0)] {
+            for &(m, n, k) in &[(1, 1, 1), (6, 16, 7), (7, 17, 33), (19, 70, 64), (40, 100, 9), (17, 48, 4), (5, 3, 0)]
+            {
                 let mut v = |len: usize| (0..len).map(|_| rng.normal() as f32).collect::<Vec<f32>>();
                 let (lda, ldb, ldc) = (k + 1, n + 3, n + 2);
                 let (a, b, c0, g) = (v(m * lda), v(k.max(1) * ldb), v(m * ldc), v(m * n));
@@ -616,7 +660,7 @@ mod tests {
                 let dense_epi = Epilogue::Dense { group: &g, rows_per_group: 1, accumulate: true, relu: true };
                 for epi in [Epilogue::Accumulate, dense_epi] {
                     let mut want = c0.clone();
-                    body::<4, 64>(&op, &mut want, ldc, epi, None);
+                    body::<4, 64>(&op, &mut want, ldc, epi, (None, None));
                     let mut got = c0.clone();
                     kernel(&op, &mut got, ldc, epi);
                     assert_eq!(got, want, "{name} {m}x{n}x{k}");
