@@ -78,13 +78,27 @@ struct Cells {
 }
 
 /// Buffers one task reuses across cells.
-#[derive(Default)]
 struct Scratch {
     xyz: [Vec<f32>; 3],
     ids: Vec<u32>,
     d2: Vec<f32>,
     found: Vec<u64>,
     neighbors: Vec<Neighbor>,
+    /// The k-th squared distance of the last query answered from a block (infinite before the first).
+    last_kth: f32,
+}
+
+impl Default for Scratch {
+    fn default() -> Self {
+        Scratch {
+            xyz: Default::default(),
+            ids: Vec::new(),
+            d2: Vec::new(),
+            found: Vec::new(),
+            neighbors: Vec::new(),
+            last_kth: f32::INFINITY,
+        }
+    }
 }
 
 impl Cells {
@@ -192,14 +206,11 @@ impl Cells {
             let d = [x - q[0], y - q[1], z - q[2]];
             d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
         }));
-        scratch.found.clear();
-        for (&d2, &id) in scratch.d2.iter().zip(&scratch.ids) {
-            if d2 <= keep {
-                // Non-negative floats order as their bits: one integer sort orders by (d2, index).
-                scratch.found.push((u64::from(d2.to_bits()) << 32) | u64::from(id));
-            }
-        }
-        if scratch.found.len() < k {
+        // First only the candidates within twice the previous query's k-th squared distance (a neighbour in
+        // the same or the next cell has about the same): when k of them are, they hold the k nearest, for
+        // every point left out is further than all k. Else every candidate within reach.
+        let guess = scratch.last_kth * GUESS_FACTOR;
+        if !(guess < keep && collect_within(scratch, guess) >= k) && collect_within(scratch, keep) < k {
             return false;
         }
         scratch.found.select_nth_unstable(k - 1);
@@ -211,8 +222,29 @@ impl Cells {
             distance_squared: f32::from_bits((v >> 32) as u32),
         }));
         let kth = scratch.neighbors[k - 1].distance_squared;
+        scratch.last_kth = kth;
         kth.sqrt() * self.inv_cell < gap
     }
+}
+
+/// How far beyond the previous query's k-th squared distance the first pass of
+/// [`Cells::nearest_in_block`] looks.
+const GUESS_FACTOR: f32 = 2.0;
+
+/// The gathered candidates with squared distance at most `threshold` into `scratch.found`, as `(d2 bits,
+/// index)` keys; returns how many. Every candidate is written and the length advanced only for those kept: no
+/// branch to mispredict on a coin-flip test.
+fn collect_within(scratch: &mut Scratch, threshold: f32) -> usize {
+    scratch.found.clear();
+    scratch.found.resize(scratch.d2.len(), 0);
+    let mut len = 0;
+    for (&d2, &id) in scratch.d2.iter().zip(&scratch.ids) {
+        // Non-negative floats order as their bits: one integer sort orders by (d2, index).
+        scratch.found[len] = (u64::from(d2.to_bits()) << 32) | u64::from(id);
+        len += usize::from(d2 <= threshold);
+    }
+    scratch.found.truncate(len);
+    len
 }
 
 #[cfg(test)]
