@@ -499,6 +499,30 @@ mod x86 {
                     }
                     continue;
                 }
+                if rn == MR && cn == NR / 2 {
+                    // A strip of 16 columns (a 144- or 240-wide layer's last): the full tile's arithmetic on one
+                    // register per row.
+                    // SAFETY: as for the full tile, with 16 columns from c0; `b` holds kp rows of n >= c0 + 16.
+                    unsafe {
+                        let mut c = [_mm512_setzero_ps(); MR];
+                        for (i, ci) in c.iter_mut().enumerate() {
+                            let r = r0 + i;
+                            if shape.accumulate {
+                                *ci = _mm512_loadu_ps(out.as_ptr().add(r * ldc + c0));
+                            }
+                            if !group_term.is_empty() {
+                                *ci = _mm512_add_ps(*ci, _mm512_loadu_ps(group_term.as_ptr().add((r / rpg) * n + c0)));
+                            }
+                        }
+                        micro_half(kp, &a[r0 * kp..], &b[c0..], n, &mut c);
+                        let zero = _mm512_setzero_ps();
+                        for (i, ci) in c.iter().enumerate() {
+                            let v = if shape.relu { _mm512_max_ps(*ci, zero) } else { *ci };
+                            _mm512_storeu_ps(out.as_mut_ptr().add((r0 + i) * ldc + c0), v);
+                        }
+                    }
+                    continue;
+                }
                 let a_tile = if rn == MR {
                     &a[r0 * kp..]
                 } else {
@@ -527,6 +551,24 @@ mod x86 {
                     }
                 }
                 store_tile(shape, &acc, (out, ldc), (r0, rn), (c0, cn));
+            }
+        }
+    }
+
+    /// [`micro`] on 16 columns: `c[i] += sum_p dot(a[i * kp + p], b[p * ldb ..])`, an 8 x 16 tile in 8
+    /// registers, each column's products added in the same order.
+    #[target_feature(enable = "avx512f,avx512bf16")]
+    unsafe fn micro_half(kp: usize, a: &[u32], b: &[u32], ldb: usize, c: &mut [__m512; MR]) {
+        debug_assert!(a.len() >= MR * kp && (kp == 0 || b.len() >= (kp - 1) * ldb + NR / 2));
+        let (pa, pb) = (a.as_ptr(), b.as_ptr());
+        // SAFETY (pointer reads): bounds as asserted above.
+        unsafe {
+            for p in 0..kp {
+                let b0: __m512bh = std::mem::transmute(_mm512_loadu_si512(pb.add(p * ldb).cast()));
+                for (i, ci) in c.iter_mut().enumerate() {
+                    let x: __m512bh = std::mem::transmute(_mm512_set1_epi32(*pa.add(i * kp + p) as i32));
+                    *ci = _mm512_dpbf16_ps(*ci, x, b0);
+                }
             }
         }
     }
@@ -647,6 +689,47 @@ mod tests {
         dense_bf16_packed(&s, &parts, &pack_weight(&w, k, out_dim), &g, &mut got);
         assert_eq!(got, want);
         assert!(want.iter().any(|&x| x > 0.0));
+    }
+
+    /// A layer whose last strip is 16 columns wide (48, 144) gives, bit for bit, the first columns of the same
+    /// layer widened with zero weight columns to whole 32-column strips, which runs full tiles only: with and
+    /// without the old output and the group term, and with rows that leave a partial block.
+    #[test]
+    fn a_half_strip_is_the_full_strip_arithmetic() {
+        if !is_available() {
+            eprintln!("SKIPPED: this CPU has no AVX-512 BF16 (the bf16 layer is never selected here)");
+            return;
+        }
+        let mut rng = Rng::new(10);
+        for &(rows, in_dim, out_dim, rpg, accumulate, relu) in &[
+            (19usize, 48usize, 48usize, 8usize, false, true),
+            (64, 272, 144, 16, true, true),
+            (13, 30, 16, 13, true, false),
+        ] {
+            let wide = out_dim.next_multiple_of(32);
+            let mut v = |n: usize| (0..n).map(|_| rng.normal() as f32).collect::<Vec<f32>>();
+            let (x, w, g, init) =
+                (v(rows * in_dim), v(in_dim * out_dim), v(rows.div_ceil(rpg) * out_dim), v(rows * out_dim));
+            let widen = |m: &[f32], r: usize| -> Vec<f32> {
+                let mut out = vec![0.0; r * wide];
+                for (dst, src) in out.chunks_exact_mut(wide).zip(m.chunks_exact(out_dim)) {
+                    dst[..out_dim].copy_from_slice(src);
+                }
+                out
+            };
+            let parts = [(&x[..], in_dim)];
+            let s = DenseShape { rows, in_dim, out_dim, rows_per_group: rpg, accumulate, relu };
+            let mut got = init.clone();
+            dense_bf16_packed_on(Bf16Unit::Vector, &s, &parts, &pack_weight(&w, in_dim, out_dim), &g, &mut got);
+            let s_wide = DenseShape { out_dim: wide, ..s };
+            let (w_wide, g_wide) = (widen(&w, in_dim), widen(&g, rows.div_ceil(rpg)));
+            let mut want = widen(&init, rows);
+            let packed = pack_weight(&w_wide, in_dim, wide);
+            dense_bf16_packed_on(Bf16Unit::Vector, &s_wide, &parts, &packed, &g_wide, &mut want);
+            for (r, row) in want.chunks_exact(wide).enumerate() {
+                assert_eq!(&got[r * out_dim..][..out_dim], &row[..out_dim], "{rows}x{in_dim}x{out_dim} row {r}");
+            }
+        }
     }
 
     #[test]

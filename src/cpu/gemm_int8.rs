@@ -279,6 +279,17 @@ mod x86 {
                     a_pad[..rn * 4 * kq].copy_from_slice(&a[r0 * 4 * kq..][..rn * 4 * kq]);
                     &a_pad[..]
                 };
+                if rn == MR && cn == NR / 2 {
+                    // A strip of 16 columns (a 240- or 272-wide layer's last): the same sums and epilogue on one
+                    // register per row.
+                    let mut acc = [[_mm512_setzero_si512(); 1]; MR];
+                    // SAFETY: as for the whole tile below, with 16 columns from c0.
+                    unsafe {
+                        micro(kq, a_tile, &weight.words[c0..], np, &mut acc);
+                        finish_tile(shape, (r0, c0), &scales[r0..r0 + MR], weight, group_term, rpg, &acc, out);
+                    }
+                    continue;
+                }
                 let mut acc = [[_mm512_setzero_si512(); 2]; MR];
                 // SAFETY: `a_tile` holds MR rows of kq words, the weight kq rows of np >= c0 + NR words.
                 unsafe { micro(kq, a_tile, &weight.words[c0..], np, &mut acc) };
@@ -308,35 +319,33 @@ mod x86 {
         }
     }
 
-    /// The epilogue of a whole tile in registers: [`finish`] on 16 columns at a time.
+    /// The epilogue of a whole tile (`H` = 2) or half a tile (`H` = 1, 16 columns) in registers: [`finish`]
+    /// on 16 columns at a time.
     #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
     #[allow(clippy::too_many_arguments)]
-    unsafe fn finish_tile(
+    unsafe fn finish_tile<const H: usize>(
         shape: &DenseShape,
         (r0, c0): (usize, usize),
         scales: &[RowScale],
         weight: &Int8Weight,
         group_term: &[f32],
         rpg: usize,
-        acc: &[[__m512i; 2]; MR],
+        acc: &[[__m512i; H]; MR],
         out: &mut [f32],
     ) {
         let n = shape.out_dim;
         // SAFETY: bounds as the caller promises.
         unsafe {
-            let w_scale =
-                [_mm512_loadu_ps(weight.scale.as_ptr().add(c0)), _mm512_loadu_ps(weight.scale.as_ptr().add(c0 + 16))];
-            let sums = [
-                _mm512_loadu_si512(weight.column_sum.as_ptr().add(c0).cast()),
-                _mm512_loadu_si512(weight.column_sum.as_ptr().add(c0 + 16).cast()),
-            ];
+            let w_scale: [__m512; H] = std::array::from_fn(|h| _mm512_loadu_ps(weight.scale.as_ptr().add(c0 + 16 * h)));
+            let sums: [__m512i; H] =
+                std::array::from_fn(|h| _mm512_loadu_si512(weight.column_sum.as_ptr().add(c0 + 16 * h).cast()));
             let zero = _mm512_setzero_ps();
             for (i, row) in scales.iter().enumerate() {
                 let r = r0 + i;
                 let o = out.as_mut_ptr().add(r * n + c0);
                 let offset = _mm512_set1_epi32(row.zero);
                 let row_scale = _mm512_set1_ps(row.scale);
-                for h in 0..2 {
+                for h in 0..H {
                     let mut start = if shape.accumulate { _mm512_loadu_ps(o.add(16 * h)) } else { zero };
                     if !group_term.is_empty() {
                         let g = group_term.as_ptr().add((r / rpg) * n + c0 + 16 * h);
@@ -354,20 +363,20 @@ mod x86 {
     }
 
     /// `acc[i][h] += sum_p dot4(a[i][p], b[p][16 h..])`: unsigned bytes of `a` (MR rows of `kq` words) by
-    /// signed bytes of `b` (`kq` rows of `ldb` words), an 8 x 32 tile in 16 registers.
+    /// signed bytes of `b` (`kq` rows of `ldb` words), an 8 x 16 `H` tile in `8 H` registers.
     #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
-    unsafe fn micro(kq: usize, a: &[u8], b: &[u32], ldb: usize, acc: &mut [[__m512i; 2]; MR]) {
-        debug_assert!(a.len() >= MR * 4 * kq && (kq == 0 || b.len() >= (kq - 1) * ldb + NR));
+    unsafe fn micro<const H: usize>(kq: usize, a: &[u8], b: &[u32], ldb: usize, acc: &mut [[__m512i; H]; MR]) {
+        debug_assert!(a.len() >= MR * 4 * kq && (kq == 0 || b.len() >= (kq - 1) * ldb + 16 * H));
         let (pa, pb) = (a.as_ptr().cast::<i32>(), b.as_ptr());
         // SAFETY (pointer reads): bounds as asserted above; `a` is read unaligned, a word at a time.
         unsafe {
             for p in 0..kq {
-                let b0 = _mm512_loadu_si512(pb.add(p * ldb).cast());
-                let b1 = _mm512_loadu_si512(pb.add(p * ldb + 16).cast());
+                let w: [__m512i; H] = std::array::from_fn(|h| _mm512_loadu_si512(pb.add(p * ldb + 16 * h).cast()));
                 for (i, ci) in acc.iter_mut().enumerate() {
                     let x = _mm512_set1_epi32(pa.add(i * kq + p).read_unaligned());
-                    ci[0] = _mm512_dpbusd_epi32(ci[0], x, b0);
-                    ci[1] = _mm512_dpbusd_epi32(ci[1], x, b1);
+                    for (c, &wh) in ci.iter_mut().zip(&w) {
+                        *c = _mm512_dpbusd_epi32(*c, x, wh);
+                    }
                 }
             }
         }
@@ -428,6 +437,9 @@ mod tests {
             (13, 37, 30, 70, true, false, true),
             (24, 512, 192, 512, false, true, false),
             (9, 3, 1, 33, false, false, true),
+            // A last strip of 16 columns (48 = 32 + 16, 272 = 8 x 32 + 16).
+            (16, 100, 0, 48, true, true, false),
+            (17, 64, 32, 272, false, true, true),
         ] {
             let mut v = |len: usize| -> Vec<f32> {
                 (0..len).map(|_| if signed { rng.normal() as f32 } else { rng.normal().abs() as f32 }).collect()
