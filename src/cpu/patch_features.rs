@@ -35,22 +35,33 @@ const ATAN_COEFFICIENTS: [f64; 8] = [
 
 /// `y.atan2(x)` for `y >= 0` (an angle in [0, pi]), evaluated in f64 to about 1e-13 and rounded once to
 /// f32: the correctly rounded angle but where it lies within 1e-13 of a rounding boundary, and several times
-/// faster than the C library's `atan2f` (the patch features take three per point). NaN stays NaN.
+/// faster than the C library's `atan2f` (the patch features take three per point). For finite `x` and `y`;
+/// NaN stays NaN.
 pub fn atan2_upper(y: f32, x: f32) -> f32 {
     use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI, SQRT_2};
+    // No branches (the three conditions are as good as random from point to point, and a mispredicted
+    // branch costs more than the whole polynomial): each condition is a sign bit, 0.0 or 1.0, and enters
+    // the arithmetic as a factor whose products are exact (0 or the value itself), so the result is the
+    // one of the plain `if`s.
+    if y.is_nan() || x.is_nan() {
+        // (Never taken on features of finite points, so always predicted.)
+        return f32::NAN;
+    }
+    let sign_bit = |v: f64| (v.to_bits() >> 63) as f64;
     let (y, ax) = (f64::from(y), f64::from(x).abs());
-    // Written as selects, not branches (the three conditions are as good as random from point to point):
-    // t = min / max in [0, 1] is the angle's distance from the nearer axis; above tan(pi / 8) it is reduced
-    // by atan(t) = pi / 4 + atan((t - 1) / (t + 1)), so |u| <= tan(pi / 8), with one division either way.
-    let swap = y > ax;
-    let (num, den) = (if swap { ax } else { y }, if swap { y } else { ax });
-    let reduce = num > (SQRT_2 - 1.0) * den;
-    let u = if reduce { (num - den) / (num + den) } else { num / den };
+    // t = num / den in [0, 1], the angle's distance from the nearer axis; `swap` when that axis is y.
+    let (num, den) = (y.min(ax), y.max(ax));
+    let swap = sign_bit(ax - y);
+    // Above tan(pi / 8), t is reduced by atan(t) = pi / 4 + atan((t - 1) / (t + 1)), so |u| <= tan(pi / 8).
+    let reduce = sign_bit((SQRT_2 - 1.0) * den - num);
+    let u = (num - reduce * den) / (den + reduce * num);
     let v = u * u;
     let poly = ATAN_COEFFICIENTS.iter().rev().fold(0.0, |acc, &c| acc * v + c);
-    let r = u + u * v * poly + if reduce { FRAC_PI_4 } else { 0.0 };
-    let r = if swap { FRAC_PI_2 - r } else { r };
-    (if x < 0.0 { PI - r } else { r }) as f32
+    let r = u + u * v * poly + reduce * FRAC_PI_4;
+    let r = swap * FRAC_PI_2 + (1.0 - 2.0 * swap) * r;
+    // x < 0 (or -0.0, where r is pi / 2 or the angle is atan2's pi for y = 0): pi - r.
+    let left = sign_bit(f64::from(x));
+    (left * PI + (1.0 - 2.0 * left) * r) as f32
 }
 
 /// Features of one neighbour: (ppf, pc).
@@ -109,6 +120,23 @@ mod tests {
     use super::*;
     use crate::rng::Rng;
 
+    /// [`atan2_upper`] written with plain `if`s: the selects its factors stand for.
+    fn with_ifs(y: f32, x: f32) -> f32 {
+        use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI, SQRT_2};
+        let (y64, ax) = (f64::from(y), f64::from(x).abs());
+        let swap = y64 > ax;
+        let (num, den) = if swap { (ax, y64) } else { (y64, ax) };
+        let reduce = num > (SQRT_2 - 1.0) * den;
+        let u = if reduce { (num - den) / (num + den) } else { num / den };
+        let v = u * u;
+        let poly = ATAN_COEFFICIENTS.iter().rev().fold(0.0, |acc, &c| acc * v + c);
+        let mut r = u + u * v * poly + if reduce { FRAC_PI_4 } else { 0.0 };
+        if swap {
+            r = FRAC_PI_2 - r;
+        }
+        (if x < 0.0 { PI - r } else { r }) as f32
+    }
+
     /// Against the f64 library `atan2` rounded once to f32: within one f32 step everywhere, and equal but for
     /// a handful of values within rounding distance of a boundary; the axes, zeros and NaN as `atan2`.
     #[test]
@@ -128,6 +156,7 @@ mod tests {
             let (y, x) = (y as f32, x as f32);
             let want = f64::from(y).atan2(f64::from(x)) as f32;
             let got = atan2_upper(y, x);
+            assert_eq!(got.to_bits(), with_ifs(y, x).to_bits(), "{y} {x}");
             assert!((got - want).abs() <= f32::EPSILON * want.abs().max(f32::MIN_POSITIVE), "{y} {x}: {got} {want}");
             differ += usize::from(got != want);
         }
