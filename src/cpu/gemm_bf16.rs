@@ -500,27 +500,9 @@ mod x86 {
                     continue;
                 }
                 if rn == MR && cn == NR / 2 {
-                    // A strip of 16 columns (a 144- or 240-wide layer's last): the full tile's arithmetic on one
-                    // register per row.
+                    // A strip of 16 columns (a 144- or 240-wide layer's last).
                     // SAFETY: as for the full tile, with 16 columns from c0; `b` holds kp rows of n >= c0 + 16.
-                    unsafe {
-                        let mut c = [_mm512_setzero_ps(); MR];
-                        for (i, ci) in c.iter_mut().enumerate() {
-                            let r = r0 + i;
-                            if shape.accumulate {
-                                *ci = _mm512_loadu_ps(out.as_ptr().add(r * ldc + c0));
-                            }
-                            if !group_term.is_empty() {
-                                *ci = _mm512_add_ps(*ci, _mm512_loadu_ps(group_term.as_ptr().add((r / rpg) * n + c0)));
-                            }
-                        }
-                        micro_half(kp, &a[r0 * kp..], &b[c0..], n, &mut c);
-                        let zero = _mm512_setzero_ps();
-                        for (i, ci) in c.iter().enumerate() {
-                            let v = if shape.relu { _mm512_max_ps(*ci, zero) } else { *ci };
-                            _mm512_storeu_ps(out.as_mut_ptr().add((r0 + i) * ldc + c0), v);
-                        }
-                    }
+                    unsafe { half_tile(shape, (&a[r0 * kp..], &b[c0..]), group_term, (out, ldc), (r0, c0)) };
                     continue;
                 }
                 let a_tile = if rn == MR {
@@ -551,6 +533,39 @@ mod x86 {
                     }
                 }
                 store_tile(shape, &acc, (out, ldc), (r0, rn), (c0, cn));
+            }
+        }
+    }
+
+    /// An 8-row tile of the 16 columns from `c0`: the full tile's arithmetic on one register per row (start,
+    /// [`micro_half`], ReLU), `a` from row r0 and `b` from column c0 (row stride `shape.out_dim`).
+    #[target_feature(enable = "avx512f,avx512bf16")]
+    unsafe fn half_tile(
+        shape: &DenseShape,
+        (a, b): (&[u32], &[u32]),
+        group_term: &[f32],
+        (out, ldc): (&mut [f32], usize),
+        (r0, c0): (usize, usize),
+    ) {
+        let (n, kp, rpg) = (shape.out_dim, shape.in_dim.div_ceil(2), shape.rows_per_group.max(1));
+        // SAFETY: the caller's bounds: rows r0..r0 + MR of `out` (ldc apart) and their group rows hold the 16
+        // columns from c0.
+        unsafe {
+            let mut c = [_mm512_setzero_ps(); MR];
+            for (i, ci) in c.iter_mut().enumerate() {
+                let r = r0 + i;
+                if shape.accumulate {
+                    *ci = _mm512_loadu_ps(out.as_ptr().add(r * ldc + c0));
+                }
+                if !group_term.is_empty() {
+                    *ci = _mm512_add_ps(*ci, _mm512_loadu_ps(group_term.as_ptr().add((r / rpg) * n + c0)));
+                }
+            }
+            micro_half(kp, a, b, n, &mut c);
+            let zero = _mm512_setzero_ps();
+            for (i, ci) in c.iter().enumerate() {
+                let v = if shape.relu { _mm512_max_ps(*ci, zero) } else { *ci };
+                _mm512_storeu_ps(out.as_mut_ptr().add((r0 + i) * ldc + c0), v);
             }
         }
     }
