@@ -121,9 +121,10 @@ fn body<const MR: usize, const NR: usize>(
 mod x86 {
     use std::arch::x86_64::*;
 
-    /// 8 x 32 tile in 16 AVX-512 registers. Separate multiply and add, as the portable loop.
+    /// 8 x 32 tile in 16 AVX-512 registers (`H` = 2), or its first 16 columns in 8 (`H` = 1, the rest of
+    /// `acc` untouched). Separate multiply and add, as the portable loop.
     #[target_feature(enable = "avx512f")]
-    pub(super) unsafe fn micro_avx512(
+    pub(super) unsafe fn micro_avx512<const H: usize>(
         k: usize,
         a: &[f32],
         [sa, sp]: [usize; 2],
@@ -131,64 +132,35 @@ mod x86 {
         ldb: usize,
         acc: &mut [[f32; 32]; 8],
     ) {
-        debug_assert!(a.len() > 7 * sa + (k - 1) * sp && b.len() >= (k - 1) * ldb + 32);
+        debug_assert!(a.len() > 7 * sa + (k - 1) * sp && b.len() >= (k - 1) * ldb + 16 * H);
         let (pa, pb) = (a.as_ptr(), b.as_ptr());
         // SAFETY (all pointer reads): the caller guarantees rows 0..8 of A hold k values and rows 0..k of B
-        // hold 32 values at these strides.
+        // hold 16 H values at these strides.
         unsafe {
-            let mut c = [[_mm512_setzero_ps(); 2]; 8];
-            for i in 0..8 {
-                c[i][0] = _mm512_loadu_ps(acc[i].as_ptr());
-                c[i][1] = _mm512_loadu_ps(acc[i].as_ptr().add(16));
-            }
-            for p in 0..k {
-                let b0 = _mm512_loadu_ps(pb.add(p * ldb));
-                let b1 = _mm512_loadu_ps(pb.add(p * ldb + 16));
-                for (i, ci) in c.iter_mut().enumerate() {
-                    let x = _mm512_set1_ps(*pa.add(i * sa + p * sp));
-                    ci[0] = _mm512_add_ps(ci[0], _mm512_mul_ps(x, b0));
-                    ci[1] = _mm512_add_ps(ci[1], _mm512_mul_ps(x, b1));
+            let mut c = [[_mm512_setzero_ps(); H]; 8];
+            for (ci, row) in c.iter_mut().zip(acc.iter()) {
+                for (h, v) in ci.iter_mut().enumerate() {
+                    *v = _mm512_loadu_ps(row.as_ptr().add(16 * h));
                 }
             }
-            for i in 0..8 {
-                _mm512_storeu_ps(acc[i].as_mut_ptr(), c[i][0]);
-                _mm512_storeu_ps(acc[i].as_mut_ptr().add(16), c[i][1]);
+            for p in 0..k {
+                let w: [__m512; H] = std::array::from_fn(|h| _mm512_loadu_ps(pb.add(p * ldb + 16 * h)));
+                for (i, ci) in c.iter_mut().enumerate() {
+                    let x = _mm512_set1_ps(*pa.add(i * sa + p * sp));
+                    for (v, &wh) in ci.iter_mut().zip(&w) {
+                        *v = _mm512_add_ps(*v, _mm512_mul_ps(x, wh));
+                    }
+                }
+            }
+            for (ci, row) in c.iter().zip(acc.iter_mut()) {
+                for (h, v) in ci.iter().enumerate() {
+                    _mm512_storeu_ps(row.as_mut_ptr().add(16 * h), *v);
+                }
             }
         }
     }
 
     /// 6 x 16 tile in 12 AVX registers. Separate multiply and add, as the portable loop.
-    /// [`micro_avx512`] on the first 16 columns of the tile only (the rest of `acc` untouched): the same
-    /// multiplies and adds, in the same order, one register per row.
-    #[target_feature(enable = "avx512f")]
-    pub(super) unsafe fn micro_avx512_half(
-        k: usize,
-        a: &[f32],
-        [sa, sp]: [usize; 2],
-        b: &[f32],
-        ldb: usize,
-        acc: &mut [[f32; 32]; 8],
-    ) {
-        debug_assert!(a.len() > 7 * sa + (k - 1) * sp && b.len() >= (k - 1) * ldb + 16);
-        let (pa, pb) = (a.as_ptr(), b.as_ptr());
-        unsafe {
-            let mut c = [_mm512_setzero_ps(); 8];
-            for i in 0..8 {
-                c[i] = _mm512_loadu_ps(acc[i].as_ptr());
-            }
-            for p in 0..k {
-                let b0 = _mm512_loadu_ps(pb.add(p * ldb));
-                for (i, ci) in c.iter_mut().enumerate() {
-                    let x = _mm512_set1_ps(*pa.add(i * sa + p * sp));
-                    *ci = _mm512_add_ps(*ci, _mm512_mul_ps(x, b0));
-                }
-            }
-            for i in 0..8 {
-                _mm512_storeu_ps(acc[i].as_mut_ptr(), c[i]);
-            }
-        }
-    }
-
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn micro_avx2(
         k: usize,
@@ -226,7 +198,7 @@ mod x86 {
 
     #[target_feature(enable = "avx512f")]
     pub(super) fn body_avx512(op: &super::Operands<'_>, c: &mut [f32], ldc: usize, epi: super::Epilogue<'_>) {
-        super::body::<8, 32>(op, c, ldc, epi, (Some(micro_avx512), Some(micro_avx512_half)))
+        super::body::<8, 32>(op, c, ldc, epi, (Some(micro_avx512::<2>), Some(micro_avx512::<1>)))
     }
 
     #[target_feature(enable = "avx2")]
