@@ -86,8 +86,7 @@ fn smallest_eigenvector(a: &Matrix3<f64>) -> Option<Vector3<f64>> {
     let min = mean - sqrt_p * (cos + root3_sin);
     let mid = mean - sqrt_p * (cos - root3_sin);
     let scale = max.abs().max(min.abs()).max(mid.abs());
-    // NaN fails the comparison too.
-    if (mid - min).partial_cmp(&(MIN_RELATIVE_GAP * scale)) != Some(std::cmp::Ordering::Greater) {
+    if !(mid - min > MIN_RELATIVE_GAP * scale) {
         return None;
     }
     let shifted = a - Matrix3::from_diagonal_element(min);
