@@ -25,22 +25,13 @@ const ELEVATION_BINS: usize = 180 * BINS_PER_DEGREE;
 /// At most this many points of a scan (evenly strided) are checked against the other scan's range image.
 pub const MAX_CHECKED_POINTS: usize = 4096;
 
-/// How far, in bins each way, a direction in which the scan has a point hidden behind its first surface makes
-/// the directions around it unexplained too (5 x 5 bins, 2.5 degrees): a camera that moved saw around the
-/// edges of what hides such points, so the space in front of the first surfaces near them may never have been
-/// seen from the viewpoint.
-pub const UNEXPLAINED_REACH_BINS: usize = 2;
-
 /// The nearest range of a scan's points in each direction bin around its viewpoint (equal-angle bins of
-/// azimuth about +z and elevation from the xy plane), and where the viewpoint does not explain the scan.
+/// azimuth about +z and elevation from the xy plane).
 #[derive(Clone, Debug)]
 pub struct RangeImage {
     viewpoint: [f32; 3],
     /// `AZIMUTH_BINS x ELEVATION_BINS`, infinite where no point falls.
     nearest: Vec<f32>,
-    /// `AZIMUTH_BINS x ELEVATION_BINS`: within [`UNEXPLAINED_REACH_BINS`] of a bin holding a point of the scan
-    /// behind the nearest one by more than the tolerance.
-    unexplained: Vec<bool>,
 }
 
 /// The direction bin of `d` (a vector from the viewpoint) and its length; `None` for a zero or non-finite one.
@@ -61,23 +52,15 @@ fn minus(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
 }
 
 impl RangeImage {
-    /// The range image of `points` seen from `viewpoint` (both in the scan's frame); a point is hidden when it
-    /// lies behind the nearest one in its direction by more than `tolerance` (cloud units).
-    pub fn new(points: &[[f32; 3]], viewpoint: [f32; 3], tolerance: f32) -> RangeImage {
-        let binned: Vec<(usize, f32)> = points.iter().filter_map(|&p| bin_of(minus(p, viewpoint))).collect();
+    /// The range image of `points` seen from `viewpoint` (both in the scan's frame).
+    pub fn new(points: &[[f32; 3]], viewpoint: [f32; 3]) -> RangeImage {
         let mut nearest = vec![f32::INFINITY; AZIMUTH_BINS * ELEVATION_BINS];
-        for &(bin, range) in &binned {
-            nearest[bin] = nearest[bin].min(range);
+        for &p in points {
+            if let Some((bin, range)) = bin_of(minus(p, viewpoint)) {
+                nearest[bin] = nearest[bin].min(range);
+            }
         }
-        let mut hidden = vec![false; AZIMUTH_BINS * ELEVATION_BINS];
-        for &(bin, range) in &binned {
-            hidden[bin] |= range > nearest[bin] + tolerance;
-        }
-        let mut unexplained = dilate(&hidden, UNEXPLAINED_REACH_BINS);
-        for (bin, edge) in unexplained.iter_mut().enumerate() {
-            *edge |= at_depth_edge(&nearest, bin, tolerance);
-        }
-        RangeImage { viewpoint, nearest, unexplained }
+        RangeImage { viewpoint, nearest }
     }
 
     /// The share of `points` (the image's own, strided to [`MAX_CHECKED_POINTS`]) that lie behind the nearest
@@ -97,43 +80,6 @@ impl RangeImage {
     }
 }
 
-/// Whether direction `bin` of a range image holds a surface whose range differs by more than `tolerance` from
-/// that of a neighbouring bin (or whose neighbour holds none): a depth edge or a surface seen at a grazing angle,
-/// where a bin's nearest range does not bound the ranges just beside it.
-fn at_depth_edge(nearest: &[f32], bin: usize, tolerance: f32) -> bool {
-    let range = nearest[bin];
-    if !range.is_finite() {
-        return false;
-    }
-    let (a, e) = (bin / ELEVATION_BINS, bin % ELEVATION_BINS);
-    let rows = [(a + AZIMUTH_BINS - 1) % AZIMUTH_BINS, a, (a + 1) % AZIMUTH_BINS];
-    let columns = e.saturating_sub(1)..(e + 2).min(ELEVATION_BINS);
-    rows.iter().any(|&r| columns.clone().any(|c| (nearest[r * ELEVATION_BINS + c] - range).abs() > tolerance))
-}
-
-/// `bins` (`AZIMUTH_BINS x ELEVATION_BINS`) grown by `reach` bins each way: around the full circle in
-/// azimuth, up to the poles in elevation.
-fn dilate(bins: &[bool], reach: usize) -> Vec<bool> {
-    let mut along_elevation = vec![false; bins.len()];
-    for a in 0..AZIMUTH_BINS {
-        let row = &bins[a * ELEVATION_BINS..(a + 1) * ELEVATION_BINS];
-        for e in 0..ELEVATION_BINS {
-            let window = &row[e.saturating_sub(reach)..(e + reach + 1).min(ELEVATION_BINS)];
-            along_elevation[a * ELEVATION_BINS + e] = window.iter().any(|&b| b);
-        }
-    }
-    let mut out = vec![false; bins.len()];
-    for a in 0..AZIMUTH_BINS {
-        for k in 0..=2 * reach {
-            let from = (a + AZIMUTH_BINS + k - reach) % AZIMUTH_BINS;
-            for e in 0..ELEVATION_BINS {
-                out[a * ELEVATION_BINS + e] |= along_elevation[from * ELEVATION_BINS + e];
-            }
-        }
-    }
-    out
-}
-
 /// Shares of checked points (of all checked, seen or not) that a pose puts on the other scan's first surface
 /// and in its seen-empty space.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
@@ -142,10 +88,6 @@ pub struct Consistency {
     pub agree: f64,
     /// Nearer to the viewpoint than that range by more than the tolerance.
     pub violate: f64,
-    /// Those of `violate` in directions where the viewpoint explains the other scan (not
-    /// [`UNEXPLAINED_REACH_BINS`] from a point of it hidden behind its first surface): space seen empty from
-    /// the viewpoint itself, not possibly around an edge by a camera that moved.
-    pub violate_explained: f64,
 }
 
 /// How `points` (a scan's, its own frame), moved by `other_from_scan`, sit in the range image of the other scan.
@@ -156,7 +98,7 @@ pub fn consistency(
     tolerance: f32,
 ) -> Consistency {
     let stride = points.len().div_ceil(MAX_CHECKED_POINTS).max(1);
-    let (mut checked, mut agree, mut violate, mut explained) = (0usize, 0usize, 0usize, 0usize);
+    let (mut checked, mut agree, mut violate) = (0usize, 0usize, 0usize);
     for &p in points.iter().step_by(stride) {
         checked += 1;
         let Some((bin, range)) = bin_of(minus(transform_point(other_from_scan, p), other.viewpoint)) else {
@@ -168,13 +110,12 @@ pub fn consistency(
         }
         if range < surface - tolerance {
             violate += 1;
-            explained += usize::from(!other.unexplained[bin]);
         } else if range <= surface + tolerance {
             agree += 1;
         }
     }
     let share = |n: usize| if checked == 0 { 0.0 } else { n as f64 / checked as f64 };
-    Consistency { agree: share(agree), violate: share(violate), violate_explained: share(explained) }
+    Consistency { agree: share(agree), violate: share(violate) }
 }
 
 /// Both scans' range images, for scoring poses of one pair.
@@ -193,13 +134,6 @@ pub struct PairViews<'a> {
 /// 6.6-11.3 % (docs/experiments/free-space-verdict.md).
 pub const MIN_ALLOWED_VIOLATION: f64 = 0.03;
 
-/// The largest share of points a trusted pose may put in seen-empty space where the view explains its scan
-/// ([`Consistency::violate_explained`]), whatever the views leave unexplained elsewhere: fragments fused from a
-/// moving camera leave much unexplained (up to a third of their points hidden from the viewpoint), so the
-/// allowance of [`PairViews::allowed_violation`] is large for them, while a turn between repeated bays still
-/// puts points where the views saw empty space for certain (docs/experiments/explained-free-space.md).
-pub const MAX_EXPLAINED_VIOLATION: f64 = 0.0125;
-
 /// How much more a point in seen-empty space counts against a pose than a point on the surface counts for it.
 pub const VIOLATION_WEIGHT: f64 = 2.0;
 
@@ -214,8 +148,8 @@ impl<'a> PairViews<'a> {
         PairViews {
             source: source.0,
             target: target.0,
-            source_image: RangeImage::new(source.0, source.1, tolerance),
-            target_image: RangeImage::new(target.0, target.1, tolerance),
+            source_image: RangeImage::new(source.0, source.1),
+            target_image: RangeImage::new(target.0, target.1),
             tolerance,
         }
     }
@@ -226,11 +160,7 @@ impl<'a> PairViews<'a> {
         let source_from_target = rigid_inverse(target_from_source);
         let a = consistency(self.source, target_from_source, &self.target_image, self.tolerance);
         let b = consistency(self.target, &source_from_target, &self.source_image, self.tolerance);
-        Consistency {
-            agree: (a.agree + b.agree) / 2.0,
-            violate: (a.violate + b.violate) / 2.0,
-            violate_explained: (a.violate_explained + b.violate_explained) / 2.0,
-        }
+        Consistency { agree: (a.agree + b.agree) / 2.0, violate: (a.violate + b.violate) / 2.0 }
     }
 
     /// The larger of the two scans' [`RangeImage::occluded_share`]s: how much the viewpoints leave unexplained,
@@ -290,26 +220,25 @@ mod tests {
         // One wall 2 m in front of the sensor, seen only there.
         let wall: Vec<[f32; 3]> =
             (0..20).flat_map(|i| (0..20).map(move |j| [2.0, -0.5 + i as f32 * 0.05, -0.5 + j as f32 * 0.05])).collect();
-        let image = RangeImage::new(&wall, [0.0; 3], 0.05);
+        let image = RangeImage::new(&wall, [0.0; 3]);
         let identity = Matrix4::identity();
         let behind: Vec<[f32; 3]> = wall.iter().map(|p| [p[0] + 1.0, p[1] * 1.5, p[2] * 1.5]).collect();
         let elsewhere: Vec<[f32; 3]> = wall.iter().map(|p| [-p[0], p[1], p[2]]).collect();
         assert_eq!(consistency(&behind, &identity, &image, 0.05), Consistency::default());
         assert_eq!(consistency(&elsewhere, &identity, &image, 0.05), Consistency::default());
         let on = consistency(&wall, &identity, &image, 0.05);
-        assert_eq!((on.agree, on.violate), (1.0, 0.0));
+        assert_eq!(on, Consistency { agree: 1.0, violate: 0.0 });
         let in_front: Vec<[f32; 3]> = wall.iter().map(|p| [p[0] * 0.5, p[1] * 0.5, p[2] * 0.5]).collect();
-        let c = consistency(&in_front, &identity, &image, 0.05);
-        assert_eq!((c.agree, c.violate), (0.0, 1.0));
+        assert_eq!(consistency(&in_front, &identity, &image, 0.05), Consistency { agree: 0.0, violate: 1.0 });
     }
 
     #[test]
     fn the_viewpoint_is_where_lines_of_sight_start() {
         // The same wall seen from (1, 0, 0) in the scan frame: a point at x = 1.5 lies in front of it.
         let wall: Vec<[f32; 3]> = (0..10).map(|i| [2.0, -0.1 + i as f32 * 0.02, 0.0]).collect();
-        let image = RangeImage::new(&wall, [1.0, 0.0, 0.0], 0.1);
+        let image = RangeImage::new(&wall, [1.0, 0.0, 0.0]);
         let c = consistency(&[[1.5, 0.0, 0.0]], &Matrix4::identity(), &image, 0.1);
-        assert_eq!((c.agree, c.violate), (0.0, 1.0));
+        assert_eq!(c, Consistency { agree: 0.0, violate: 1.0 });
         let far = consistency(&[[0.5, 0.0, 0.0]], &Matrix4::identity(), &image, 0.1);
         assert_eq!(far, Consistency::default(), "behind the viewpoint: no return in that direction");
     }
@@ -319,47 +248,15 @@ mod tests {
         // Every wall of a box room is the first surface seen from its centre; from outside the room (a viewpoint
         // that is not the sensor's) the far walls hide behind the near ones.
         let world = room([2.0, 1.5, 1.0], 0.05);
-        assert_eq!(RangeImage::new(&world, [0.0; 3], 0.05).occluded_share(&world, 0.05), 0.0);
-        let outside = RangeImage::new(&world, [6.0, 0.3, 0.2], 0.05).occluded_share(&world, 0.05);
+        assert_eq!(RangeImage::new(&world, [0.0; 3]).occluded_share(&world, 0.05), 0.0);
+        let outside = RangeImage::new(&world, [6.0, 0.3, 0.2]).occluded_share(&world, 0.05);
         assert!(outside > 0.3, "seen from outside: {outside}");
         // One wall in front of a second: the second's points behind the first count.
         let near: Vec<[f32; 3]> =
             (0..100).map(|i| [1.0, -0.5 + (i % 10) as f32 * 0.1, -0.5 + (i / 10) as f32 * 0.1]).collect();
         let far: Vec<[f32; 3]> = near.iter().map(|p| [2.0, p[1] * 2.0, p[2] * 2.0]).collect();
         let both: Vec<[f32; 3]> = near.iter().chain(&far).copied().collect();
-        let share = RangeImage::new(&both, [0.0; 3], 0.05).occluded_share(&both, 0.05);
+        let share = RangeImage::new(&both, [0.0; 3]).occluded_share(&both, 0.05);
         assert!((share - 0.5).abs() < 0.05, "half the points behind the near wall: {share}");
-    }
-
-    #[test]
-    fn growing_unexplained_bins_wraps_in_azimuth_and_stops_at_the_poles() {
-        let at = |a: usize, e: usize| a * ELEVATION_BINS + e;
-        let mut bins = vec![false; AZIMUTH_BINS * ELEVATION_BINS];
-        bins[at(0, 1)] = true;
-        let grown = dilate(&bins, 2);
-        let expected = |a: usize, e: usize| [AZIMUTH_BINS - 2, AZIMUTH_BINS - 1, 0, 1, 2].contains(&a) && e <= 3;
-        for a in 0..AZIMUTH_BINS {
-            for e in 0..ELEVATION_BINS {
-                assert_eq!(grown[at(a, e)], expected(a, e), "bin ({a}, {e})");
-            }
-        }
-    }
-
-    #[test]
-    fn violations_are_explained_only_away_from_points_the_view_hides() {
-        // A wall 2 m ahead, and behind its middle a few points at 3 m that the viewpoint cannot see (a camera
-        // that moved saw them): the directions around those are unexplained.
-        let mut scan: Vec<[f32; 3]> =
-            (0..100).flat_map(|i| (0..100).map(move |j| [2.0, -0.5 + i as f32 * 0.01, -0.5 + j as f32 * 0.01])).collect();
-        scan.extend([[3.0, 0.0, 0.0], [3.0, 0.01, 0.01]]);
-        let image = RangeImage::new(&scan, [0.0; 3], 0.05);
-        // In front of the wall: one point in the hidden points' direction, one 10 degrees aside.
-        let in_front = [[1.0, 0.002, 0.002], [1.0, 0.176, 0.0]];
-        let c = consistency(&in_front, &Matrix4::identity(), &image, 0.05);
-        assert_eq!(c, Consistency { agree: 0.0, violate: 1.0, violate_explained: 0.5 });
-        // Without the hidden points every direction is explained.
-        let plain = RangeImage::new(&scan[..10_000], [0.0; 3], 0.05);
-        let c = consistency(&in_front, &Matrix4::identity(), &plain, 0.05);
-        assert_eq!(c, Consistency { agree: 0.0, violate: 1.0, violate_explained: 1.0 });
     }
 }

@@ -9,7 +9,7 @@ use crate::error::{Error, Result};
 use crate::estimate::candidates;
 use crate::estimate::icp::IcpProblem;
 use crate::estimate::ransac_candidates;
-use crate::estimate::visibility::{MAX_EXPLAINED_VIOLATION, PairViews};
+use crate::estimate::visibility::PairViews;
 use crate::model::{Model, Weights, WeightsView};
 use crate::pose::matrix_from_hypothesis;
 use crate::preprocess::select_keypoints;
@@ -683,8 +683,8 @@ impl Registrar {
         }
         if settings.free_space_check {
             let views = PairViews::new((clouds.0, source.viewpoint), (clouds.1, target.viewpoint), threshold);
-            let consistency = views.consistency(&estimate.target_from_source);
-            let (violate, allowed) = (consistency.violate, views.allowed_violation());
+            let (violate, allowed) =
+                (views.consistency(&estimate.target_from_source).violate, views.allowed_violation());
             if violate > allowed {
                 return Verdict::fail(format!(
                     "the pose puts {:.1} % of the points in space the other scan saw empty, more than the {:.1} % \
@@ -693,15 +693,6 @@ impl Registrar {
                     100.0 * violate,
                     100.0 * allowed,
                     100.0 * crate::estimate::visibility::MIN_ALLOWED_VIOLATION
-                ));
-            }
-            if consistency.violate_explained > MAX_EXPLAINED_VIOLATION {
-                return Verdict::fail(format!(
-                    "the pose puts {:.1} % of the points in space the other scan saw empty where its view explains \
-                     it, more than the {:.2} % allowed: repeated structure, or the sensors are not at the scans' \
-                     viewpoints",
-                    100.0 * consistency.violate_explained,
-                    100.0 * MAX_EXPLAINED_VIOLATION
                 ));
             }
         }
