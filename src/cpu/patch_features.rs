@@ -90,12 +90,26 @@ pub fn atan2_upper(y: f32, x: f32) -> f32 {
 
 /// Features of one neighbour: (ppf, pc).
 pub fn point_features(p_r: [f32; 3], n_r: [f32; 3], p_i: [f32; 3], n_i: [f32; 3], radius: f32) -> ([f32; 4], [f32; 3]) {
+    let (terms, dist, pc) = point_terms(p_r, n_r, p_i, n_i, radius);
+    let inv_pi = std::f32::consts::FRAC_1_PI;
+    let [a, b, c] = terms.map(|(s, c)| angle_of(s, c) * inv_pi);
+    ([a, b, c, dist], pc)
+}
+
+/// What [`point_features`] takes its features from: the [`sine_cosine_terms`] of its three angles (the
+/// keypoint's normal and the offset, the neighbour's normal and the offset, the two normals), the distance over
+/// `radius`, and the PC coordinates.
+fn point_terms(
+    p_r: [f32; 3],
+    n_r: [f32; 3],
+    p_i: [f32; 3],
+    n_i: [f32; 3],
+    radius: f32,
+) -> ([(f32, f32); 3], f32, [f32; 3]) {
     let d = [p_r[0] - p_i[0], p_r[1] - p_i[1], p_r[2] - p_i[2]];
     let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-    let inv_pi = std::f32::consts::FRAC_1_PI;
-    let ppf = [angle(n_r, d) * inv_pi, angle(n_i, d) * inv_pi, angle(n_r, n_i) * inv_pi, dist / radius];
-    let pc = [-d[0] / radius, -d[1] / radius, -d[2] / radius];
-    (ppf, pc)
+    let terms = [sine_cosine_terms(n_r, d), sine_cosine_terms(n_i, d), sine_cosine_terms(n_r, n_i)];
+    (terms, dist / radius, [-d[0] / radius, -d[1] / radius, -d[2] / radius])
 }
 
 /// `frame * v` for a row-major 3x3 frame.
@@ -120,7 +134,7 @@ pub fn patch_features(
     frame: PoseFrame,
 ) -> (Vec<f32>, Vec<f32>) {
     // Patches in parallel; each patch's frame once (it depends on the keypoint's normal only).
-    // Each row is `point_features` of its point; the patch's three angles per point are taken together
+    // Each row is `point_features` of its point (its `point_terms`); the patch's three angles per point are taken together
     // ([`angles_of`]).
     let n = points_per_patch.max(1);
     let mut ppf = vec![0.0; points.len() * 4];
@@ -137,15 +151,12 @@ pub fn patch_features(
             let rows = points[patch * n..].iter().zip(&normals[patch * n..]).take(ppf.len() / 4);
             scratch.clear();
             for ((f_out, c_out), (p, normal)) in ppf.chunks_exact_mut(4).zip(pc.chunks_exact_mut(3)).zip(rows) {
-                let d = [center[0] - p[0], center[1] - p[1], center[2] - p[2]];
-                for (a, b) in [(center_normal, d), (*normal, d), (center_normal, *normal)] {
-                    let (s, c) = sine_cosine_terms(a, b);
+                let (terms, dist, c) = point_terms(center, center_normal, *p, *normal, radius);
+                for (s, c) in terms {
                     scratch.sines.push(s);
                     scratch.cosines.push(c);
                 }
-                let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-                f_out[3] = dist / radius;
-                let c = [-d[0] / radius, -d[1] / radius, -d[2] / radius];
+                f_out[3] = dist;
                 c_out.copy_from_slice(&rotation.map_or(c, |m| apply_frame(&m, c)));
             }
             scratch.angles.resize(scratch.sines.len(), 0.0);
