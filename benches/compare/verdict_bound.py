@@ -14,7 +14,8 @@ order, and two bounds follow from `dpr-gpu eval`'s report alone, whatever thresh
 
 Statistics (per pair, from the report's run): `inliers` (the estimator's), `ratio` (inliers over
 correspondences), `agree` and `violate` (the free-space shares), `violate_explained` (only in reports of builds
-that record it). A pair is named `SCENE SOURCE>TARGET` (fragment j onto fragment i of gt.log). Pairs without the statistics (no pose, an error) are left out and counted. Standard library only.
+that record it). A pair is named `SCENE SOURCE>TARGET` (fragment j onto fragment i of gt.log). Pairs without
+the statistics (no pose, an error) are left out and counted. Standard library only.
 """
 import argparse
 import json
@@ -26,10 +27,10 @@ HIGHER_IS_BETTER = {"inliers": True, "ratio": True, "agree": True, "violate": Fa
 def support(run, stats):
     """The pair's statistics as a tuple where larger is better in every place; None when one is missing."""
     free_space = run.get("free_space") or {}
+    inliers = run.get("estimator_inliers")
     values = {
-        "inliers": run.get("estimator_inliers"),
-        "ratio": run["estimator_inliers"] / max(1, run.get("correspondences") or 0)
-        if run.get("estimator_inliers") is not None else None,
+        "inliers": inliers,
+        "ratio": None if inliers is None else inliers / max(1, run.get("correspondences") or 0),
         "agree": free_space.get("agree"),
         "violate": free_space.get("violate"),
         "violate_explained": free_space.get("violate_explained"),
@@ -47,7 +48,7 @@ def bounds(poses):
     """`poses`: (name, trusted, right, support) tuples. The counts today and the two bounds of the module text."""
     right = [p for p in poses if p[2]]
     wrong = [p for p in poses if not p[2]]
-    forced = [r for r in right if any(at_least_as_supported(w[3], r[3]) for w in wrong)]
+    outsupported_by = [[w[0] for w in wrong if at_least_as_supported(w[3], r[3])] for r in right]
 
     def wrong_trusted_with(trusted_right):
         return [w for w in wrong if any(at_least_as_supported(w[3], r[3]) for r in trusted_right)]
@@ -60,10 +61,9 @@ def bounds(poses):
         "untrusted_wrong": sum(1 for p in wrong if not p[1]),
     }
     untrustable = [
-        {"pair": r[0], "trusted_today": r[1], "outsupported_by": [w[0] for w in wrong if at_least_as_supported(w[3], r[3])]}
-        for r in forced
+        {"pair": r[0], "trusted_today": r[1], "outsupported_by": by} for r, by in zip(right, outsupported_by) if by
     ]
-    return today, len(forced), least_tw, untrustable
+    return today, len(untrustable), least_tw, untrustable
 
 
 def poses_of(estimator, stats):
